@@ -1,0 +1,36 @@
+"""tectum: an asynchronous streaming engine with plugins for event cameras.
+
+The public API, re-exported from the private modules that implement it.
+"""
+
+from ._boundary import Guard as Guard, Repair as Repair
+from ._edge import Edge as Edge
+from ._embed import Stepper as Stepper, ThreadedPipeline as ThreadedPipeline
+from ._operator import Operator as Operator, Sink as Sink, Source as Source
+from ._packet import (
+    EventPacket as EventPacket,
+    FramePacket as FramePacket,
+    ImuPacket as ImuPacket,
+    Kind as Kind,
+    Packet as Packet,
+    PosePacket as PosePacket,
+    ResultPacket as ResultPacket,
+    SamplePacket as SamplePacket,
+    concat as concat,
+)
+from ._pipeline import BatchPolicy as BatchPolicy, Pipeline as Pipeline, Plan as Plan
+from ._registry import Registry as Registry, get_registry as get_registry
+from ._scheduler import RunningPipeline as RunningPipeline, arun as arun, open_pipeline as open_pipeline, run as run
+from ._stats import Stats as Stats
+from .errors import (
+    DuplicateNameError as DuplicateNameError,
+    FormatError as FormatError,
+    NodeError as NodeError,
+    PacketError as PacketError,
+    PipelineError as PipelineError,
+    RegistryError as RegistryError,
+    TectumError as TectumError,
+)
+from .hookspecs import hookimpl as hookimpl
+
+__version__ = "0.1.0"

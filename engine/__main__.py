@@ -1,0 +1,5 @@
+import sys
+
+from tectum.cli import main
+
+sys.exit(main())

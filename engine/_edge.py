@@ -1,0 +1,84 @@
+"""Bounded edges between tasks, with a policy for when they are full."""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Any, Literal
+
+import trio
+
+__all__ = ["Edge"]
+
+
+class Edge:
+    """A bounded FIFO between two trio tasks.
+
+    ``capacity`` is how many items it holds. When full, ``policy`` decides:
+    ``block`` makes the sender wait (lossless back-pressure, for files),
+    ``keep_latest`` drops the oldest item, ``drop`` drops the new one (both
+    for live control, where fresh data beats complete data). Every drop is
+    counted in :attr:`drops`. Choose ``capacity`` as the burst you accept to
+    queue: for a control loop that wants the newest result, 1 with
+    ``keep_latest``.
+    """
+
+    def __init__(self, capacity: int, policy: Literal["block", "keep_latest", "drop"] = "block") -> None:
+        if capacity < 1:
+            raise ValueError("capacity must be >= 1")
+        self.capacity = capacity
+        self.policy = policy
+        self.drops = 0
+        self._q: deque[Any] = deque()
+        self._closed = False
+        self._readers = trio.lowlevel.ParkingLot()
+        self._writers = trio.lowlevel.ParkingLot()
+
+    def __len__(self) -> int:
+        return len(self._q)
+
+    async def send(self, item: Any) -> None:
+        """Put an item; may wait (``block``) or drop (other policies)."""
+        if self._closed:
+            raise trio.ClosedResourceError("edge is closed")
+        if len(self._q) >= self.capacity:
+            if self.policy == "block":
+                while len(self._q) >= self.capacity:
+                    await self._writers.park()
+                    if self._closed:
+                        raise trio.ClosedResourceError("edge is closed")
+            elif self.policy == "keep_latest":
+                self._q.popleft()
+                self.drops += 1
+            else:
+                self.drops += 1
+                await trio.lowlevel.checkpoint()
+                return
+        self._q.append(item)
+        self._readers.unpark()
+        await trio.lowlevel.checkpoint()
+
+    def close(self) -> None:
+        """No more items: the receiver drains what is queued, then ends."""
+        self._closed = True
+        self._readers.unpark_all()
+        self._writers.unpark_all()
+
+    async def receive(self) -> Any:
+        """The next item; raises :class:`trio.EndOfChannel` once closed and empty."""
+        while not self._q:
+            if self._closed:
+                raise trio.EndOfChannel
+            await self._readers.park()
+        item = self._q.popleft()
+        self._writers.unpark()
+        await trio.lowlevel.checkpoint()
+        return item
+
+    def __aiter__(self) -> "Edge":
+        return self
+
+    async def __anext__(self) -> Any:
+        try:
+            return await self.receive()
+        except trio.EndOfChannel:
+            raise StopAsyncIteration from None

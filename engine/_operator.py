@@ -1,0 +1,209 @@
+"""Operators, sources and sinks: the three component classes plugins provide.
+
+An operator is a small class around pure numba kernels. It declares the kinds
+it consumes and produces, keeps its state in explicit attributes, and turns
+each packet into zero or more packets. Ticks (time advancing with nothing to
+report) arrive as empty packets; :meth:`Operator.finish` is called once at
+end of stream. Packets of kinds an operator does not consume pass by it
+untouched to its downstream nodes.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import AsyncIterator, Iterable, Iterator, Sequence
+from typing import Any, ClassVar
+
+from ._packet import Kind, Packet
+
+__all__ = ["Operator", "Source", "Sink", "component_params"]
+
+
+class Operator:
+    """Base class of operators (``family.method`` names).
+
+    Subclasses set :attr:`name`, :attr:`consumes` and :attr:`produces`, take
+    their parameters as typed keyword arguments of ``__init__`` (with units
+    in the name or docstring), and implement :meth:`process`.
+    """
+
+    #: Registry name, ``family.method`` (e.g. ``filter.background_activity``).
+    name: ClassVar[str] = ""
+    #: Kinds of packet this operator handles; others pass by it.
+    consumes: ClassVar[tuple[Kind, ...]] = (Kind.EVENTS,)
+    #: Kinds of packet this operator emits.
+    produces: ClassVar[tuple[Kind, ...]] = (Kind.EVENTS,)
+
+    def process(self, packet: Packet) -> Sequence[Packet]:
+        """Handle one packet (possibly empty: a tick); return the outputs."""
+        raise NotImplementedError
+
+    def finish(self) -> Sequence[Packet]:
+        """End of stream: return whatever is still buffered (default none)."""
+        return ()
+
+    def __repr__(self) -> str:
+        return f"<{self.name or type(self).__name__}>"
+
+
+class Source:
+    """Base class of sources.
+
+    A source produces packets from :meth:`packets` (a plain iterator, for
+    files and generators) or :meth:`apackets` (an async iterator, for live
+    devices and sockets); implement one. Packets leave a source validated:
+    use :meth:`tectum.EventPacket.validate` or a :class:`tectum.Repair`.
+
+    Class attributes tell the registry which arguments the source opens:
+    ``schemes`` (URL schemes such as ``"tcp"``), ``extensions`` (``".npz"``)
+    and :meth:`sniff` (file content).
+    """
+
+    name: ClassVar[str] = ""
+    produces: ClassVar[tuple[Kind, ...]] = (Kind.EVENTS,)
+    schemes: ClassVar[tuple[str, ...]] = ()
+    extensions: ClassVar[tuple[str, ...]] = ()
+
+    @classmethod
+    def sniff(cls, head: bytes) -> bool:
+        """True when a file starting with ``head`` is in this source's format."""
+        return False
+
+    def packets(self) -> Iterator[Packet]:
+        raise NotImplementedError
+
+    async def apackets(self) -> AsyncIterator[Packet]:
+        for pkt in self.packets():
+            yield pkt
+
+    @property
+    def is_async(self) -> bool:
+        return type(self).apackets is not Source.apackets
+
+    @property
+    def live(self) -> bool:
+        """True for sources whose data arrive in real time (devices, sockets):
+        they are never paced by the scheduler."""
+        return self.is_async
+
+    def close(self) -> None:
+        """Release files, devices and sockets (called once, always)."""
+
+
+class Sink:
+    """Base class of sinks.
+
+    The scheduler calls :meth:`open`, then :meth:`write` per packet, then
+    :meth:`close` on success or :meth:`abort` after an error. File sinks write
+    to a temporary name and rename it in :meth:`close`, so an aborted run
+    never leaves a half-written file behind.
+    """
+
+    name: ClassVar[str] = ""
+    consumes: ClassVar[tuple[Kind, ...]] = (Kind.EVENTS,)
+    schemes: ClassVar[tuple[str, ...]] = ()
+    extensions: ClassVar[tuple[str, ...]] = ()
+
+    def open(self) -> None:
+        """Prepare to write (create files, connect)."""
+
+    def write(self, packet: Packet) -> None:
+        raise NotImplementedError
+
+    async def awrite(self, packet: Packet) -> None:
+        """Async variant, for network sinks; defaults to :meth:`write`."""
+        self.write(packet)
+
+    def close(self) -> None:
+        """Flush and commit the output."""
+
+    def abort(self) -> None:
+        """Discard partial output after an error (default: :meth:`close`)."""
+        self.close()
+
+
+def component_params(cls: type) -> dict[str, inspect.Parameter]:
+    """The keyword parameters a component's ``__init__`` accepts, by name."""
+    sig = inspect.signature(cls.__init__)
+    return {
+        n: p
+        for n, p in list(sig.parameters.items())[1:]
+        if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
+    }
+
+
+def as_packets(out: Iterable[Packet] | Packet | None) -> Sequence[Packet]:
+    """Normalise what an operator returned into a sequence of packets."""
+    if out is None:
+        return ()
+    if isinstance(out, Packet):
+        return (out,)
+    return out if isinstance(out, (list, tuple)) else list(out)
+
+
+def coerce_param(cls: type, name: str, value: Any) -> Any:
+    """Convert ``value`` (from TOML or a ``k=v`` string) to the annotated type."""
+    import typing
+
+    hints = typing.get_type_hints(cls.__init__)
+    typ = hints.get(name)
+    if typ is None:
+        return value
+    origin = typing.get_origin(typ)
+    if origin is typing.Union or (origin is not None and str(origin) == "<class 'types.UnionType'>"):
+        args = [a for a in typing.get_args(typ) if a is not type(None)]
+        if value is None or (isinstance(value, str) and value.lower() == "none"):
+            return None
+        last: Exception | None = None
+        for a in args:
+            try:
+                return _coerce_to(a, value)
+            except (TypeError, ValueError) as e:
+                last = e
+        raise TypeError(f"expected {typ}, got {value!r}") from last
+    return _coerce_to(typ, value)
+
+
+def _coerce_to(typ: Any, value: Any) -> Any:
+    import typing
+
+    origin = typing.get_origin(typ)
+    if origin is typing.Literal:
+        for a in typing.get_args(typ):
+            if value == a or (isinstance(value, str) and str(a) == value):
+                return a
+        raise ValueError(f"expected one of {typing.get_args(typ)}, got {value!r}")
+    if origin in (tuple, list):
+        items = value.split(";") if isinstance(value, str) else list(value)
+        args = typing.get_args(typ)
+        inner = args[0] if args else str
+        return origin(_coerce_to(inner, v) for v in items)
+    if typ is bool:
+        if isinstance(value, bool):
+            return value
+        if isinstance(value, str) and value.lower() in ("true", "1", "yes", "on"):
+            return True
+        if isinstance(value, str) and value.lower() in ("false", "0", "no", "off"):
+            return False
+        raise ValueError(f"expected a boolean, got {value!r}")
+    if typ is int:
+        if isinstance(value, bool):
+            raise ValueError(f"expected an integer, got {value!r}")
+        if isinstance(value, float):
+            if not value.is_integer():
+                raise ValueError(f"expected an integer, got {value!r}")
+            return int(value)
+        return int(value)
+    if typ is float:
+        if isinstance(value, bool):
+            raise ValueError(f"expected a number, got {value!r}")
+        return float(value)
+    if typ is str:
+        if not isinstance(value, str):
+            raise ValueError(f"expected a string, got {value!r}")
+        return value
+    if typ is Any or not isinstance(typ, type):
+        return value
+    if isinstance(value, typ):
+        return value
+    return typ(value)

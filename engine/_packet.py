@@ -1,0 +1,527 @@
+"""The packet types that flow along a pipeline's edges.
+
+The packet contract
+-------------------
+* Every packet covers a half-open time interval ``[t_start, t_end)`` in
+  microseconds (int). Its samples satisfy ``t_start <= t < t_end`` and are
+  sorted by ``t`` (non-decreasing).
+* ``t_end`` is a watermark: the stream promises that no later packet holds a
+  sample with ``t < t_end``. Consecutive packets of one stream therefore have
+  ``next.t_start >= prev.t_end``; samples sharing one timestamp are never split
+  across two packets.
+* An empty packet is valid and still carries its interval: that is how time
+  advances downstream when nothing happens (a tick).
+* Packets are immutable. Operators never write into the arrays of a packet
+  they receive; they allocate outputs (or share untouched columns).
+* Events: ``t`` int64 µs, ``x``/``y`` uint16 pixels, ``p`` int8 in {+1, -1}
+  (sources convert 0/1 polarity at the edge), all 1-D and C-contiguous, plus
+  the sensor size ``(width, height)`` in pixels and any extra per-event
+  columns (``vx``, ``vy``, ``lifetime``, ``noise`` ...), attached without
+  copying the base columns.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from types import MappingProxyType
+from typing import Any, ClassVar
+
+import numpy as np
+
+from .errors import PacketError
+
+__all__ = [
+    "Kind",
+    "Packet",
+    "EventPacket",
+    "SamplePacket",
+    "FramePacket",
+    "ImuPacket",
+    "PosePacket",
+    "ResultPacket",
+    "concat",
+]
+
+_BASE = ("t", "x", "y", "p")
+_DTYPES = {"t": np.dtype(np.int64), "x": np.dtype(np.uint16), "y": np.dtype(np.uint16), "p": np.dtype(np.int8)}
+
+
+class Kind(str, enum.Enum):
+    """The kinds of stream a pipeline edge can carry."""
+
+    EVENTS = "events"
+    FRAMES = "frames"
+    IMU = "imu"
+    POSES = "poses"
+    RESULTS = "results"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+class Packet:
+    """Base of all packets: a time interval ``[t_start, t_end)`` in µs."""
+
+    __slots__ = ("t_start", "t_end")
+    kind: ClassVar[Kind]
+    t_start: int
+    t_end: int
+    t: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def duration(self) -> int:
+        """``t_end - t_start`` in µs."""
+        return self.t_end - self.t_start
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError(f"{type(self).__name__} is immutable")
+
+    def _init_interval(self, t: np.ndarray, t_start: int | None, t_end: int | None) -> None:
+        if t_start is None:
+            t_start = int(t[0]) if t.shape[0] else 0
+        if t_end is None:
+            t_end = int(t[-1]) + 1 if t.shape[0] else int(t_start)
+        t_start, t_end = int(t_start), int(t_end)
+        if t_end < t_start:
+            raise PacketError(f"interval [{t_start}, {t_end}) ends before it starts")
+        object.__setattr__(self, "t_start", t_start)
+        object.__setattr__(self, "t_end", t_end)
+
+    def _check_times(self) -> None:
+        t = self.t
+        if t.shape[0] == 0:
+            return
+        if t.shape[0] > 1:
+            bad = np.flatnonzero(t[1:] < t[:-1])
+            if bad.size:
+                i = int(bad[0]) + 1
+                raise PacketError(
+                    f"timestamps decrease at index {i}: {int(t[i - 1])} then {int(t[i])} µs", index=i
+                )
+        if int(t[0]) < self.t_start or int(t[-1]) >= self.t_end:
+            i = 0 if int(t[0]) < self.t_start else len(t) - 1
+            raise PacketError(
+                f"sample at index {i} (t={int(t[i])} µs) lies outside the packet interval "
+                f"[{self.t_start}, {self.t_end})",
+                index=i,
+            )
+
+    def _bounds(self, t0: int | None, t1: int | None) -> tuple[int, int, int, int]:
+        lo = self.t_start if t0 is None else max(int(t0), self.t_start)
+        hi = self.t_end if t1 is None else min(int(t1), self.t_end)
+        hi = max(hi, lo)
+        i = int(np.searchsorted(self.t, lo, side="left"))
+        j = int(np.searchsorted(self.t, hi, side="left"))
+        return lo, hi, i, j
+
+    def slice_time(self, t0: int | None = None, t1: int | None = None) -> "Packet":
+        """Zero-copy view of the samples with ``t0 <= t < t1`` (µs).
+
+        The result's interval is ``[t0, t1)`` clipped to this packet's interval.
+        """
+        lo, hi, i, j = self._bounds(t0, t1)
+        return self._take_slice(i, j, lo, hi)
+
+    def _take_slice(self, i: int, j: int, t_start: int, t_end: int) -> "Packet":
+        raise NotImplementedError
+
+    def split_at(self, t: int) -> tuple["Packet", "Packet"]:
+        """Two zero-copy views: ``[t_start, t)`` and ``[t, t_end)`` (µs)."""
+        t = min(max(int(t), self.t_start), self.t_end)
+        return self.slice_time(None, t), self.slice_time(t, None)
+
+    def batches(self, max_samples: int) -> Iterator["Packet"]:
+        """Split into zero-copy views of at most ``max_samples`` samples each.
+
+        Samples sharing a timestamp stay together (a run longer than
+        ``max_samples`` goes out whole), intervals stay contiguous and cover
+        this packet's interval exactly. ``max_samples=1`` gives one timestamp
+        per packet: event-by-event mode.
+        """
+        if max_samples < 1:
+            raise ValueError("max_samples must be >= 1")
+        n = len(self)
+        if n <= max_samples:
+            yield self
+            return
+        t = self.t
+        start, lo = 0, self.t_start
+        while start < n:
+            stop = start + max_samples
+            if stop >= n:
+                yield self._take_slice(start, n, lo, self.t_end)
+                return
+            # keep the run of equal timestamps around `stop` together
+            ts = t[stop - 1]
+            if t[stop] == ts:
+                stop = int(np.searchsorted(t, ts, side="right"))
+                if stop >= n:
+                    yield self._take_slice(start, n, lo, self.t_end)
+                    return
+            hi = int(t[stop])
+            yield self._take_slice(start, stop, lo, hi)
+            start, lo = stop, hi
+
+
+def _as_column(name: str, a: Any, n: int | None) -> np.ndarray:
+    arr = np.asarray(a)
+    if arr.ndim == 0 or (n is not None and arr.shape[0] != n):
+        raise PacketError(f"column {name!r} has shape {arr.shape}, expected {n} rows")
+    return arr
+
+
+class EventPacket(Packet):
+    """Events as a struct of arrays, with the sensor size and the interval.
+
+    Parameters
+    ----------
+    t, x, y, p:
+        1-D arrays of equal length: ``t`` int64 µs, ``x``/``y`` uint16 pixels,
+        ``p`` int8 polarity in {+1, -1}. Dtypes must match exactly; use
+        :meth:`from_arrays` to convert foreign data.
+    sensor:
+        ``(width, height)`` in pixels.
+    t_start, t_end:
+        The interval in µs; defaults to ``[t[0], t[-1] + 1)``.
+    columns:
+        Extra per-event columns, each with one row per event.
+    """
+
+    __slots__ = ("t", "x", "y", "p", "sensor", "columns")
+    kind = Kind.EVENTS
+
+    def __init__(
+        self,
+        t: np.ndarray,
+        x: np.ndarray,
+        y: np.ndarray,
+        p: np.ndarray,
+        *,
+        sensor: tuple[int, int],
+        t_start: int | None = None,
+        t_end: int | None = None,
+        columns: Mapping[str, np.ndarray] | None = None,
+    ) -> None:
+        n = None
+        for name, a in zip(_BASE, (t, x, y, p)):
+            if not isinstance(a, np.ndarray) or a.dtype != _DTYPES[name] or a.ndim != 1:
+                got = getattr(a, "dtype", type(a).__name__)
+                raise PacketError(f"column {name!r} must be a 1-D {_DTYPES[name]} array, got {got}")
+            if n is None:
+                n = a.shape[0]
+            elif a.shape[0] != n:
+                raise PacketError(f"column {name!r} has {a.shape[0]} events, 't' has {n}")
+        cols = {}
+        for name, a in (columns or {}).items():
+            if name in _BASE:
+                raise PacketError(f"extra column {name!r} shadows a base column")
+            cols[name] = _as_column(name, a, n)
+        w, h = int(sensor[0]), int(sensor[1])
+        if w <= 0 or h <= 0 or w > 65536 or h > 65536:
+            raise PacketError(f"sensor size {sensor!r} is not a (width, height) in 1..65536")
+        set_ = object.__setattr__
+        set_(self, "t", t)
+        set_(self, "x", x)
+        set_(self, "y", y)
+        set_(self, "p", p)
+        set_(self, "sensor", (w, h))
+        set_(self, "columns", MappingProxyType(cols))
+        self._init_interval(t, t_start, t_end)
+
+    # -- construction -------------------------------------------------------
+    @classmethod
+    def empty(cls, sensor: tuple[int, int], t_start: int, t_end: int | None = None) -> "EventPacket":
+        """A packet with no events covering ``[t_start, t_end)`` µs (a tick)."""
+        z = np.empty(0, np.int64)
+        return cls(
+            z, np.empty(0, np.uint16), np.empty(0, np.uint16), np.empty(0, np.int8),
+            sensor=sensor, t_start=t_start, t_end=t_start if t_end is None else t_end,
+        )
+
+    @classmethod
+    def from_arrays(
+        cls,
+        t: Any,
+        x: Any,
+        y: Any,
+        p: Any,
+        *,
+        sensor: tuple[int, int],
+        t_start: int | None = None,
+        t_end: int | None = None,
+        columns: Mapping[str, Any] | None = None,
+        validate: bool = True,
+    ) -> "EventPacket":
+        """Build a packet from foreign arrays: converts dtypes and polarity.
+
+        Polarity given as {0, 1} or bool becomes {-1, +1}; any other value
+        than {-1, 0, +1} is an error. With ``validate`` (the default) the
+        result is checked with :meth:`validate`.
+        """
+        t = np.ascontiguousarray(t, dtype=np.int64)
+        xs, ys = np.asarray(x), np.asarray(y)
+        for name, a in (("x", xs), ("y", ys)):
+            if a.size and (a.min() < 0 or a.max() > 65535):
+                raise PacketError(f"column {name!r} has values outside 0..65535")
+        p = _polarity(np.asarray(p))
+        pkt = cls(
+            t,
+            np.ascontiguousarray(xs, dtype=np.uint16),
+            np.ascontiguousarray(ys, dtype=np.uint16),
+            p,
+            sensor=sensor,
+            t_start=t_start,
+            t_end=t_end,
+            columns={k: np.ascontiguousarray(v) for k, v in (columns or {}).items()},
+        )
+        if validate:
+            pkt.validate()
+        return pkt
+
+    # -- checks ---------------------------------------------------------------
+    def validate(self) -> "EventPacket":
+        """Check the whole contract (order, interval, geometry, polarity).
+
+        Raises :class:`PacketError` naming the first bad event; returns self.
+        Sources call this where data enters; operators' outputs are trusted.
+        """
+        self._check_times()
+        w, h = self.sensor
+        if len(self):
+            for name, lim in (("x", w), ("y", h)):
+                a = getattr(self, name)
+                bad = np.flatnonzero(a >= lim)
+                if bad.size:
+                    i = int(bad[0])
+                    raise PacketError(
+                        f"event {i} has {name}={int(a[i])}, outside the sensor {w}x{h}", index=i
+                    )
+            bad = np.flatnonzero((self.p != 1) & (self.p != -1))
+            if bad.size:
+                i = int(bad[0])
+                raise PacketError(f"event {i} has polarity {int(self.p[i])}, expected +1 or -1", index=i)
+        return self
+
+    # -- views ----------------------------------------------------------------
+    def _take_slice(self, i: int, j: int, t_start: int, t_end: int) -> "EventPacket":
+        return EventPacket(
+            self.t[i:j], self.x[i:j], self.y[i:j], self.p[i:j],
+            sensor=self.sensor, t_start=t_start, t_end=t_end,
+            columns={k: v[i:j] for k, v in self.columns.items()},
+        )
+
+    def select(self, mask: np.ndarray) -> "EventPacket":
+        """The events where ``mask`` is true (a copy), same interval."""
+        mask = np.asarray(mask)
+        return EventPacket(
+            self.t[mask], self.x[mask], self.y[mask], self.p[mask],
+            sensor=self.sensor, t_start=self.t_start, t_end=self.t_end,
+            columns={k: v[mask] for k, v in self.columns.items()},
+        )
+
+    def with_columns(self, **columns: np.ndarray) -> "EventPacket":
+        """A new packet sharing every array, with these columns added or replaced."""
+        cols = dict(self.columns)
+        cols.update(columns)
+        return EventPacket(
+            self.t, self.x, self.y, self.p, sensor=self.sensor,
+            t_start=self.t_start, t_end=self.t_end, columns=cols,
+        )
+
+    def without_columns(self, *names: str) -> "EventPacket":
+        """A new packet sharing every array, without the named extra columns."""
+        cols = {k: v for k, v in self.columns.items() if k not in names}
+        return EventPacket(
+            self.t, self.x, self.y, self.p, sensor=self.sensor,
+            t_start=self.t_start, t_end=self.t_end, columns=cols,
+        )
+
+    def with_interval(self, t_start: int, t_end: int) -> "EventPacket":
+        """The same events with another interval (checked)."""
+        pkt = EventPacket(
+            self.t, self.x, self.y, self.p, sensor=self.sensor,
+            t_start=t_start, t_end=t_end, columns=self.columns,
+        )
+        pkt._check_times()
+        return pkt
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        """A column by name: ``t``, ``x``, ``y``, ``p`` or an extra one."""
+        if name in _BASE:
+            return getattr(self, name)
+        return self.columns[name]
+
+    @property
+    def column_names(self) -> tuple[str, ...]:
+        return _BASE + tuple(self.columns)
+
+    def __repr__(self) -> str:
+        extra = f", columns={list(self.columns)}" if self.columns else ""
+        return (
+            f"EventPacket({len(self)} events, [{self.t_start}, {self.t_end}) µs, "
+            f"sensor={self.sensor[0]}x{self.sensor[1]}{extra})"
+        )
+
+
+def _polarity(p: np.ndarray) -> np.ndarray:
+    if p.dtype == np.int8 and (p.size == 0 or bool(np.all((p == 1) | (p == -1)))):
+        return np.ascontiguousarray(p)
+    if p.size == 0:
+        return np.empty(0, np.int8)
+    if p.dtype == bool:
+        return np.where(p, 1, -1).astype(np.int8)
+    vals = np.unique(p)
+    if np.all(np.isin(vals, (0, 1))):
+        return np.where(p > 0, 1, -1).astype(np.int8)
+    if np.all(np.isin(vals, (-1, 1))):
+        return p.astype(np.int8)
+    if np.all(np.isin(vals, (-1, 0, 1))):
+        raise PacketError("polarity mixes 0 with -1: cannot tell the convention")
+    raise PacketError(f"polarity values {vals[:5].tolist()} are not 0/1 or -1/+1")
+
+
+class SamplePacket(Packet):
+    """Timestamped samples of one kind: ``t`` plus named arrays whose first
+    axis runs over the samples. Subclasses name their fields."""
+
+    __slots__ = ("t", "data")
+    fields: ClassVar[tuple[str, ...]] = ()
+
+    def __init__(
+        self,
+        t: Any,
+        *,
+        t_start: int | None = None,
+        t_end: int | None = None,
+        **data: Any,
+    ) -> None:
+        t = np.ascontiguousarray(t, dtype=np.int64)
+        if t.ndim != 1:
+            raise PacketError("'t' must be 1-D")
+        missing = set(self.fields) - set(data)
+        if missing:
+            raise PacketError(f"{type(self).__name__} needs fields {sorted(missing)}")
+        cols = {}
+        for name, a in data.items():
+            arr = a if isinstance(a, np.ndarray) else np.asarray(a)
+            if arr.ndim == 0 or arr.shape[0] != t.shape[0]:
+                raise PacketError(f"field {name!r} has shape {arr.shape}, expected {t.shape[0]} rows")
+            cols[name] = arr
+        object.__setattr__(self, "t", t)
+        object.__setattr__(self, "data", MappingProxyType(cols))
+        self._init_interval(t, t_start, t_end)
+        self._check_times()
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        try:
+            return object.__getattribute__(self, "data")[name]
+        except KeyError:
+            raise AttributeError(name) from None
+
+    @classmethod
+    def empty(cls, t_start: int, t_end: int | None = None, **shapes: tuple[int, ...]) -> "SamplePacket":
+        """An empty packet (a tick) of this kind."""
+        data = {f: np.empty((0, *shapes.get(f, ())), dtype=np.float64) for f in cls.fields}
+        return cls(np.empty(0, np.int64), t_start=t_start, t_end=t_start if t_end is None else t_end, **data)
+
+    def _take_slice(self, i: int, j: int, t_start: int, t_end: int) -> "SamplePacket":
+        return type(self)(
+            self.t[i:j], t_start=t_start, t_end=t_end, **{k: v[i:j] for k, v in self.data.items()}
+        )
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({len(self)} samples, [{self.t_start}, {self.t_end}) µs)"
+
+
+class FramePacket(SamplePacket):
+    """Intensity frames (e.g. DAVIS APS): ``images`` is (N, H, W) or (N, H, W, C);
+    ``t`` is each frame's timestamp in µs (mid-exposure unless said otherwise);
+    optional ``exposure_start``/``exposure_end`` in µs."""
+
+    kind = Kind.FRAMES
+    fields = ("images",)
+
+
+class ImuPacket(SamplePacket):
+    """IMU samples: ``accel`` (N, 3) in m/s², ``gyro`` (N, 3) in rad/s,
+    camera frame; optional ``temperature`` in °C."""
+
+    kind = Kind.IMU
+    fields = ("accel", "gyro")
+
+
+class PosePacket(SamplePacket):
+    """Poses: ``position`` (N, 3) in metres, ``orientation`` (N, 4) as unit
+    quaternions (x, y, z, w); world-from-camera."""
+
+    kind = Kind.POSES
+    fields = ("position", "orientation")
+
+
+class ResultPacket(SamplePacket):
+    """Generic results (tracks, maps, reports): ``items`` is an object array,
+    one item per timestamp."""
+
+    kind = Kind.RESULTS
+    fields = ("items",)
+
+    def __init__(self, t: Any, items: Sequence[Any] | np.ndarray = (), **kw: Any) -> None:
+        if not isinstance(items, np.ndarray) or items.dtype != object:
+            arr = np.empty(len(items), dtype=object)
+            for i, it in enumerate(items):
+                arr[i] = it
+            items = arr
+        super().__init__(t, items=items, **kw)
+
+    @classmethod
+    def empty(cls, t_start: int, t_end: int | None = None, **_: Any) -> "ResultPacket":
+        return cls(np.empty(0, np.int64), (), t_start=t_start, t_end=t_start if t_end is None else t_end)
+
+    def _take_slice(self, i: int, j: int, t_start: int, t_end: int) -> "ResultPacket":
+        return ResultPacket(self.t[i:j], self.items[i:j], t_start=t_start, t_end=t_end)
+
+
+def concat(packets: Iterable[Packet]) -> Packet:
+    """Concatenate consecutive packets of one stream into one packet.
+
+    The packets must be of one kind, in order (``next.t_start >= prev.t_end``)
+    and, for events, of one sensor size with the same extra columns. The
+    result covers ``[first.t_start, last.t_end)``. One packet is returned as is.
+    """
+    pkts = list(packets)
+    if not pkts:
+        raise ValueError("concat needs at least one packet")
+    first = pkts[0]
+    if len(pkts) == 1:
+        return first
+    for a, b in zip(pkts, pkts[1:]):
+        if type(b) is not type(first):
+            raise PacketError(f"cannot concatenate {type(first).__name__} with {type(b).__name__}")
+        if b.t_start < a.t_end:
+            raise PacketError(f"packets overlap: [{a.t_start}, {a.t_end}) then [{b.t_start}, {b.t_end})")
+    t0, t1 = first.t_start, pkts[-1].t_end
+    if isinstance(first, EventPacket):
+        names = set(first.columns)
+        for q in pkts:
+            if q.sensor != first.sensor:
+                raise PacketError(f"sensor sizes differ: {first.sensor} vs {q.sensor}")
+            if set(q.columns) != names:
+                raise PacketError(f"extra columns differ: {sorted(names)} vs {sorted(q.columns)}")
+        cat = {k: np.concatenate([getattr(q, k) for q in pkts]) for k in _BASE}
+        cols = {k: np.concatenate([q.columns[k] for q in pkts]) for k in first.columns}
+        return EventPacket(
+            cat["t"], cat["x"], cat["y"], cat["p"], sensor=first.sensor, t_start=t0, t_end=t1, columns=cols
+        )
+    assert isinstance(first, SamplePacket)
+    data = {}
+    for k in first.data:
+        parts = [q.data[k] for q in pkts if len(q)]
+        data[k] = np.concatenate(parts) if parts else first.data[k]
+    t = np.concatenate([q.t for q in pkts])
+    if isinstance(first, ResultPacket):
+        return ResultPacket(t, data["items"], t_start=t0, t_end=t1)
+    return type(first)(t, t_start=t0, t_end=t1, **data)

@@ -1,0 +1,185 @@
+"""The component registry, filled by plugins through pluggy hooks."""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import pluggy
+
+from . import hookspecs
+from ._operator import Operator, Sink, Source
+from .errors import DuplicateNameError, RegistryError
+
+__all__ = ["Registry", "RegistryView", "get_registry", "FAMILIES"]
+
+FAMILIES = ("filter", "flow", "lifetime", "map", "tracker", "repr")
+_OP_NAME = re.compile(r"^([a-z]+)\.([a-z][a-z0-9_]*)$")
+_COMP_NAME = re.compile(r"^[a-z][a-z0-9_.]*$")
+Role = Literal["operator", "source", "sink"]
+
+
+@dataclass
+class Entry:
+    """A registered component and the plugin that owns it."""
+
+    role: Role
+    name: str
+    cls: type
+    owner: str
+
+
+@dataclass
+class Registry:
+    """Operators, sources and sinks by name, each with its owning plugin."""
+
+    operators: dict[str, Entry] = field(default_factory=dict)
+    sources: dict[str, Entry] = field(default_factory=dict)
+    sinks: dict[str, Entry] = field(default_factory=dict)
+    plugins: dict[str, str] = field(default_factory=dict)  # plugin name -> distribution/module
+
+    def _table(self, role: Role) -> dict[str, Entry]:
+        return {"operator": self.operators, "source": self.sources, "sink": self.sinks}[role]
+
+    def add(self, role: Role, cls: type, owner: str) -> None:
+        base = {"operator": Operator, "source": Source, "sink": Sink}[role]
+        if not (isinstance(cls, type) and issubclass(cls, base)):
+            raise RegistryError(f"plugin {owner!r} registered {cls!r} as a {role}, but it is not a {base.__name__} subclass")
+        name = cls.name
+        if role == "operator":
+            m = _OP_NAME.match(name or "")
+            if not m or m.group(1) not in FAMILIES:
+                raise RegistryError(
+                    f"plugin {owner!r}: operator name {name!r} is not 'family.method' with family in {FAMILIES}"
+                )
+        elif not _COMP_NAME.match(name or ""):
+            raise RegistryError(f"plugin {owner!r}: {role} name {name!r} is not a lower-case identifier")
+        table = self._table(role)
+        if name in table:
+            prev = table[name]
+            raise DuplicateNameError(
+                f"{role} {name!r} is registered twice: by plugin {prev.owner!r} ({prev.cls.__module__}."
+                f"{prev.cls.__qualname__}) and by plugin {owner!r} ({cls.__module__}.{cls.__qualname__})"
+            )
+        table[name] = Entry(role, name, cls, owner)
+
+    # -- look-ups -------------------------------------------------------------
+    def operator(self, name: str) -> type[Operator]:
+        try:
+            return self.operators[name].cls
+        except KeyError:
+            raise RegistryError(_unknown("operator", name, self.operators)) from None
+
+    def source_for(self, arg: str) -> type[Source]:
+        """The source class that opens ``arg``: by URL scheme, else by file
+        content, else by extension."""
+        return self._resolve(arg, self.sources, "source")  # type: ignore[return-value]
+
+    def sink_for(self, arg: str) -> type[Sink]:
+        """The sink class that writes ``arg``: by URL scheme, else by extension
+        (an existing file is not sniffed: it will be replaced)."""
+        return self._resolve(arg, self.sinks, "sink")  # type: ignore[return-value]
+
+    def _resolve(self, arg: str, table: dict[str, Entry], role: str) -> type:
+        scheme = _scheme(arg)
+        if scheme is not None:
+            for e in table.values():
+                if scheme in e.cls.schemes:
+                    return e.cls
+            known = sorted({s for e in table.values() for s in e.cls.schemes})
+            raise RegistryError(f"no {role} handles the scheme {scheme!r} (known: {', '.join(known)})")
+        if role == "source" and os.path.isfile(arg):
+            with open(arg, "rb") as f:
+                head = f.read(4096)
+            for e in table.values():
+                if e.cls.sniff(head):
+                    return e.cls
+        lower = arg.lower()
+        best = None
+        for e in table.values():
+            for ext in e.cls.extensions:
+                if lower.endswith(ext) and (best is None or len(ext) > best[0]):
+                    best = (len(ext), e.cls)
+        if best:
+            return best[1]
+        if role == "source" and not os.path.exists(arg):
+            raise RegistryError(f"{arg!r}: no such file, and not a URL with a known scheme")
+        exts = sorted({x for e in table.values() for x in e.cls.extensions})
+        raise RegistryError(f"no {role} recognises {arg!r} (known extensions: {', '.join(exts)})")
+
+
+def _scheme(arg: str) -> str | None:
+    m = re.match(r"^([a-zA-Z][a-zA-Z0-9+.-]*):(.*)$", arg)
+    if not m or len(m.group(1)) == 1:  # a Windows drive letter is not a scheme
+        return None
+    return m.group(1).lower()
+
+
+def _unknown(role: str, name: str, table: dict[str, Entry]) -> str:
+    import difflib
+
+    close = difflib.get_close_matches(name, list(table), n=3)
+    hint = f"; did you mean {', '.join(close)}?" if close else ""
+    return f"unknown {role} {name!r}{hint} (see `tectum plugins`)"
+
+
+class RegistryView:
+    """What a hook receives: adds components on behalf of one plugin."""
+
+    def __init__(self, registry: Registry, owner: str) -> None:
+        self._registry = registry
+        self.owner = owner
+
+    def add_operator(self, cls: type[Operator]) -> None:
+        self._registry.add("operator", cls, self.owner)
+
+    def add_source(self, cls: type[Source]) -> None:
+        self._registry.add("source", cls, self.owner)
+
+    def add_sink(self, cls: type[Sink]) -> None:
+        self._registry.add("sink", cls, self.owner)
+
+
+def plugin_manager(load_entry_points: bool = True) -> pluggy.PluginManager:
+    """A plugin manager with tectum's hook specifications and every plugin
+    of the ``tectum`` entry-point group loaded."""
+    pm = pluggy.PluginManager(hookspecs.PROJECT)
+    pm.add_hookspecs(hookspecs)
+    if load_entry_points:
+        pm.load_setuptools_entrypoints(hookspecs.PROJECT)
+    if pm.get_plugin("core") is None:
+        raise RegistryError(
+            "tectum's built-in plugins were not found through the 'tectum' entry-point group: "
+            "install the package (pip install .) rather than importing it from the source tree"
+        )
+    return pm
+
+
+def build_registry(pm: pluggy.PluginManager) -> Registry:
+    """Call every plugin's registration hooks with a view naming it as owner."""
+    reg = Registry()
+    for name, plugin in pm.list_name_plugin():
+        reg.plugins[name] = getattr(plugin, "__name__", repr(plugin))
+    for hook in ("tectum_register_sources", "tectum_register_sinks", "tectum_register_operators"):
+        caller = getattr(pm.hook, hook)
+        for impl in reversed(caller.get_hookimpls()):  # registration order
+            impl.function(registry=RegistryView(reg, impl.plugin_name))
+    return reg
+
+
+_default: Registry | None = None
+
+
+def get_registry(*, reload: bool = False) -> Registry:
+    """The process-wide registry (built on first use)."""
+    global _default
+    if _default is None or reload:
+        _default = build_registry(plugin_manager())
+    return _default
+
+
+def _reset_for_tests(registry: Any = None) -> None:
+    global _default
+    _default = registry

@@ -1,0 +1,109 @@
+"""Instrumentation: per-node counts and time, drops, end-to-end latency."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+__all__ = ["NodeStats", "LatencyRecorder", "Stats"]
+
+
+@dataclass
+class NodeStats:
+    """Counters of one node. ``busy_ns`` is the time spent inside the node's
+    own code (operator calls, sink writes), in ns."""
+
+    packets_in: int = 0
+    events_in: int = 0
+    packets_out: int = 0
+    events_out: int = 0
+    busy_ns: int = 0
+    drops: int = 0
+    repairs: dict[str, int] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        d = dict(self.__dict__)
+        d["repairs"] = dict(self.repairs)
+        return d
+
+
+class LatencyRecorder:
+    """Latency samples in seconds, kept in a bounded reservoir (memory stays
+    flat however long the run)."""
+
+    def __init__(self, capacity: int = 65536, seed: int = 0) -> None:
+        self._buf = np.empty(capacity, np.float64)
+        self._n = 0
+        self._rng = np.random.default_rng(seed)
+
+    def add(self, seconds: float) -> None:
+        cap = self._buf.shape[0]
+        if self._n < cap:
+            self._buf[self._n] = seconds
+        else:
+            j = int(self._rng.integers(0, self._n + 1))
+            if j < cap:
+                self._buf[j] = seconds
+        self._n += 1
+
+    @property
+    def count(self) -> int:
+        return self._n
+
+    def percentiles(self, qs: tuple[float, ...] = (50, 90, 99, 99.9)) -> dict[str, float]:
+        """Percentiles in µs, keyed ``p50`` etc.; empty when nothing was seen."""
+        k = min(self._n, self._buf.shape[0])
+        if k == 0:
+            return {}
+        vals = np.percentile(self._buf[:k], qs) * 1e6
+        return {f"p{q:g}": float(v) for q, v in zip(qs, vals)} | {"max": float(self._buf[:k].max() * 1e6)}
+
+
+class Stats:
+    """Everything a run measured: nodes by id, latency by sink id."""
+
+    def __init__(self) -> None:
+        self.nodes: dict[str, NodeStats] = {}
+        self.latency: dict[str, LatencyRecorder] = {}
+        self.wall_s: float = 0.0
+
+    def node(self, node_id: str) -> NodeStats:
+        s = self.nodes.get(node_id)
+        if s is None:
+            s = self.nodes[node_id] = NodeStats()
+        return s
+
+    def latency_of(self, sink_id: str) -> LatencyRecorder:
+        r = self.latency.get(sink_id)
+        if r is None:
+            r = self.latency[sink_id] = LatencyRecorder()
+        return r
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "wall_s": self.wall_s,
+            "nodes": {k: v.as_dict() for k, v in self.nodes.items()},
+            "latency_us": {k: v.percentiles() for k, v in self.latency.items()},
+        }
+
+    def report(self) -> str:
+        """A human-readable table."""
+        lines = [f"{'node':<24}{'pk in':>9}{'ev in':>12}{'ev out':>12}{'ms busy':>10}{'drops':>8}"]
+        for nid, s in self.nodes.items():
+            lines.append(
+                f"{nid:<24}{s.packets_in:>9}{s.events_in:>12}{s.events_out:>12}"
+                f"{s.busy_ns / 1e6:>10.1f}{s.drops:>8}"
+            )
+            for k, v in s.repairs.items():
+                lines.append(f"  repaired: {k} = {v}")
+        for sid, rec in self.latency.items():
+            p = rec.percentiles()
+            if p:
+                lines.append(
+                    f"latency to {sid}: p50 {p['p50']:.0f} µs, p99 {p['p99']:.0f} µs, "
+                    f"max {p['max']:.0f} µs ({rec.count} packets)"
+                )
+        lines.append(f"wall time {self.wall_s:.3f} s")
+        return "\n".join(lines)

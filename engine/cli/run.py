@@ -1,0 +1,77 @@
+"""``tectum run``: run a chain from the command line, or a pipeline file."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from tectum import BatchPolicy, Pipeline, run
+
+from ._args import split_op, split_query
+
+HELP = "run SOURCE through operators into sinks, or run PIPELINE.toml"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("source", help="a file, a URL (pattern:, tcp://HOST:PORT ...) or a pipeline .toml; "
+                   "source parameters after '?' (pattern:?speed=500)")
+    p.add_argument("--op", action="append", default=[], metavar="NAME[:k=v,...]",
+                   help="an operator, applied in order (repeatable)")
+    p.add_argument("--sink", action="append", default=[], metavar="SINK",
+                   help="a file or URL written with the chain's output (repeatable); parameters after '?'")
+    p.add_argument("--stats", action="store_true", help="print per-node counts, time and latency")
+    p.add_argument("--stats-json", metavar="FILE", help="write the stats as JSON")
+    p.add_argument("--max-events", type=int, help="largest packet in events (1: event by event)")
+    p.add_argument("--max-latency-us", type=int, help="with --pace: release events in windows of this many µs")
+    p.add_argument("--pace", type=float, help="replay speed (1 = real time); default as fast as possible")
+    p.add_argument("--repair", type=int, metavar="US",
+                   help="repair the source stream (re-sort within US µs, drop bad events) instead of failing")
+
+
+def build(args: argparse.Namespace) -> Pipeline:
+    kw = {}
+    if args.max_events is not None:
+        kw["max_events"] = args.max_events
+    if args.max_latency_us is not None:
+        kw["max_latency_us"] = args.max_latency_us
+    if args.pace is not None:
+        kw["pace"] = args.pace
+    if args.source.endswith(".toml"):
+        p = Pipeline.from_toml(args.source)
+        if kw:
+            p.batch = BatchPolicy(**{**p.batch.__dict__, **kw})
+        if args.op or args.sink:
+            from tectum.errors import PipelineError
+
+            raise PipelineError("--op and --sink do not combine with a pipeline file")
+        return p
+    p = Pipeline(BatchPolicy(**kw))
+    uri, params = split_query(args.source)
+    node = p.source(uri, id="source", repair=args.repair, **params)
+    for i, spec in enumerate(args.op):
+        name, oparams = split_op(spec)
+        node = p.op(name, node, id=f"{i + 1}:{name}", **oparams)
+    for i, spec in enumerate(args.sink):
+        uri, sparams = split_query(spec)
+        p.sink(uri, node, id=f"sink{i + 1}" if len(args.sink) > 1 else "sink", **sparams)
+    return p
+
+
+def main(args: argparse.Namespace) -> int:
+    p = build(args)
+    if not any(n.role == "sink" for n in p.nodes):
+        from tectum.sinks.null import NullSink
+
+        p.sink(NullSink(), p.nodes[-1].id, id="count")
+    stats = run(p)
+    if args.stats:
+        print(stats.report())
+    else:
+        last = [n.id for n in p.nodes if n.role != "sink"][-1]
+        s = stats.nodes.get(last)
+        if s is not None:
+            print(f"{s.events_out} events out of {last!r} in {stats.wall_s:.2f} s")
+    if args.stats_json:
+        with open(args.stats_json, "w") as f:
+            json.dump(stats.as_dict(), f, indent=1)
+    return 0

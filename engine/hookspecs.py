@@ -1,0 +1,46 @@
+"""Every hook specification of tectum, in one place.
+
+Plugins are found through the ``tectum`` entry-point group (built-ins go
+through the same group). Each hook receives a *registry* object and calls its
+``add_operator`` / ``add_source`` / ``add_sink`` methods; hooks run once, when
+the registry is built, never per event. A name registered twice fails at
+start-up with both owners named.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import pluggy
+
+if TYPE_CHECKING:
+    from ._registry import RegistryView
+
+PROJECT = "tectum"
+hookspec = pluggy.HookspecMarker(PROJECT)
+hookimpl = pluggy.HookimplMarker(PROJECT)
+
+
+@hookspec
+def tectum_register_operators(registry: "RegistryView") -> None:
+    """Register operator classes with ``registry.add_operator(cls)``.
+
+    Each class is a :class:`tectum.Operator` subclass whose ``name`` is
+    ``family.method`` with family one of ``filter``, ``flow``, ``lifetime``,
+    ``map``, ``tracker``, ``repr``.
+    """
+
+
+@hookspec
+def tectum_register_sources(registry: "RegistryView") -> None:
+    """Register source classes with ``registry.add_source(cls)``.
+
+    A source declares the URL ``schemes`` and file ``extensions`` it opens and
+    may recognise files by content through ``sniff(head)``.
+    """
+
+
+@hookspec
+def tectum_register_sinks(registry: "RegistryView") -> None:
+    """Register sink classes with ``registry.add_sink(cls)``, chosen the same
+    way as sources (scheme, then extension)."""

@@ -1,0 +1,53 @@
+"""``filter.refractory``: a per-pixel refractory period."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from tectum import EventPacket, Operator
+
+__all__ = ["Refractory", "refractory_kernel"]
+
+_NEVER = np.iinfo(np.int64).min // 2
+
+
+@njit(cache=True, nogil=True)
+def refractory_kernel(t, x, y, last, period_us, keep):  # type: ignore[no-untyped-def]
+    """Mark in ``keep`` the events at least ``period_us`` after the last kept
+    event of their pixel; ``last`` (H, W) int64 is the per-pixel state, updated
+    in place. Returns the number kept."""
+    n = 0
+    for i in range(t.shape[0]):
+        yy, xx = y[i], x[i]
+        if t[i] - last[yy, xx] >= period_us:
+            last[yy, xx] = t[i]
+            keep[i] = True
+            n += 1
+        else:
+            keep[i] = False
+    return n
+
+
+class Refractory(Operator):
+    """Drop events that come less than ``period_us`` µs after the last *kept*
+    event of the same pixel (dropped events do not extend the period).
+
+    State: one int64 timestamp per pixel (8 bytes x width x height).
+    """
+
+    name = "filter.refractory"
+
+    def __init__(self, period_us: int = 1000) -> None:
+        if period_us < 0:
+            raise ValueError("period_us must be >= 0")
+        self.period_us = int(period_us)
+        self.last: np.ndarray | None = None
+
+    def process(self, packet: EventPacket) -> list[EventPacket]:
+        if self.last is None:
+            w, h = packet.sensor
+            self.last = np.full((h, w), _NEVER, np.int64)
+        keep = np.empty(len(packet), np.bool_)
+        refractory_kernel(packet.t, packet.x, packet.y, self.last, self.period_us, keep)
+        return [packet.select(keep)]

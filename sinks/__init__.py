@@ -1,0 +1,1 @@
+"""Built-in sinks: files, and (in later modules) display and network."""
