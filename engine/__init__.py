@@ -3,6 +3,7 @@
 The public API, re-exported from the private modules that implement it.
 """
 
+from ._adapters import from_structured as from_structured, to_structured as to_structured
 from ._boundary import Guard as Guard, Repair as Repair
 from ._edge import Edge as Edge
 from ._embed import Stepper as Stepper, ThreadedPipeline as ThreadedPipeline

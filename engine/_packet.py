@@ -155,10 +155,12 @@ class Packet:
             if stop >= n:
                 yield self._take_slice(start, n, lo, self.t_end)
                 return
-            # keep the run of equal timestamps around `stop` together
+            # keep the run of equal timestamps around `stop` together: cut
+            # before it, or after it when it fills the whole batch
             ts = t[stop - 1]
             if t[stop] == ts:
-                stop = int(np.searchsorted(t, ts, side="right"))
+                before = int(np.searchsorted(t, ts, side="left"))
+                stop = before if before > start else int(np.searchsorted(t, ts, side="right"))
                 if stop >= n:
                     yield self._take_slice(start, n, lo, self.t_end)
                     return

@@ -105,8 +105,14 @@ class Pipeline:
         self._nodes[spec.id] = spec
         return spec.id
 
-    def _auto_id(self, base: str) -> str:
-        base = base.split(":")[0].split("/")[-1].split(".")[-1] or "node"
+    def _auto_id(self, base: str, role: Role = "source") -> str:
+        if role == "operator":
+            base = base.split(".")[-1]
+        elif "://" in base or base.endswith(":") or (":" in base and "/" not in base.split(":")[0]):
+            base = base.split(":")[0]  # a URL: its scheme
+        else:
+            base = os.path.splitext(os.path.basename(base))[0]  # a path: its stem
+        base = base or "node"
         i, cand = 1, base
         while cand in self._nodes:
             i += 1
@@ -136,7 +142,7 @@ class Pipeline:
         comp = name if isinstance(name, Operator) else None
         nm = comp.name if comp is not None else str(name)
         inputs = (input,) if isinstance(input, str) else tuple(input)
-        return self._add(NodeSpec(id or self._auto_id(nm or "op"), "operator", nm,
+        return self._add(NodeSpec(id or self._auto_id(nm or "op", "operator"), "operator", nm,
                                   MappingProxyType(dict(params)), inputs, component=comp))
 
     def sink(self, arg: str | Sink, input: str, *, id: str | None = None,

@@ -105,7 +105,9 @@ async def open_pipeline(
             nursery.start_soon(_main, plan, graph, edges, scope, failure)
             yield running
     except BaseExceptionGroup as eg:
-        raise _unwrap(eg) from None
+        err = _unwrap(eg)
+        err.__suppress_context__ = True  # keep __cause__ (the node's own error)
+        raise err
     finally:
         stats.wall_s = time.perf_counter() - t_wall
         for k, e in tap_edges.items():
