@@ -51,11 +51,47 @@ class Edge:
                 self.drops += 1
             else:
                 self.drops += 1
-                await trio.lowlevel.checkpoint()
+                await trio.lowlevel.checkpoint_if_cancelled()
                 return
         self._q.append(item)
-        self._readers.unpark()
-        await trio.lowlevel.checkpoint()
+        if self._readers:
+            self._readers.unpark()
+        # No checkpoint while there is room: the sender yields on its own
+        # schedule (see the scheduler), so items are handed over in bursts.
+
+    async def send_all(self, items: list[Any]) -> None:
+        """Put several items, in order, each under the policy."""
+        q, cap = self._q, self.capacity
+        for item in items:
+            if self._closed:
+                raise trio.ClosedResourceError("edge is closed")
+            if len(q) < cap:
+                q.append(item)
+            elif self.policy == "block":
+                if self._readers:
+                    self._readers.unpark()
+                await self.send(item)
+            elif self.policy == "keep_latest":
+                q.popleft()
+                q.append(item)
+                self.drops += 1
+            else:
+                self.drops += 1
+        if self._readers:
+            self._readers.unpark()
+
+    async def receive_all(self) -> list[Any]:
+        """Everything queued (waits for at least one item); raises
+        :class:`trio.EndOfChannel` once closed and empty."""
+        while not self._q:
+            if self._closed:
+                raise trio.EndOfChannel
+            await self._readers.park()
+        items = list(self._q)
+        self._q.clear()
+        if self._writers:
+            self._writers.unpark_all()
+        return items
 
     def close(self) -> None:
         """No more items: the receiver drains what is queued, then ends."""
@@ -70,8 +106,8 @@ class Edge:
                 raise trio.EndOfChannel
             await self._readers.park()
         item = self._q.popleft()
-        self._writers.unpark()
-        await trio.lowlevel.checkpoint()
+        if self._writers:
+            self._writers.unpark()
         return item
 
     def __aiter__(self) -> "Edge":

@@ -9,7 +9,7 @@ by timestamp, releasing samples once every input's watermark has passed.
 
 from __future__ import annotations
 
-import time
+from time import perf_counter_ns
 from collections.abc import Iterable, Sequence
 from typing import Any
 
@@ -32,6 +32,7 @@ class _End:
 #: Marker delivered to a sink when all of its input has ended.
 END: Any = _End()
 Delivery = tuple[str, Any]  # (sink or tap id, packet or END)
+_OP, _SINK, _MERGE = 0, 1, 2
 
 
 class Merger:
@@ -154,6 +155,7 @@ class Graph:
                 self.open_inputs[nid] = len(node.spec.inputs)
             if node.role == "operator" and len(node.spec.inputs) > 1:
                 self.mergers[nid] = Merger([plan.nodes[i].provides for i in node.spec.inputs])
+        self._wire()
 
     # -- driving ----------------------------------------------------------------
     def push(self, node_id: str, pkt: Packet) -> list[Delivery]:
@@ -169,52 +171,66 @@ class Graph:
         return out
 
     # -- internals ----------------------------------------------------------------
-    def _emit(self, nid: str, pkt: Packet, out: list[Delivery]) -> None:
-        if nid in self.taps:
-            out.append(("tap:" + nid, pkt))
-        for child in self.plan.nodes[nid].children:
-            self._deliver(child, nid, pkt, out)
+    # The hot path: plain calls over routes precomputed in _wire(); kinds are
+    # tested against tuples (identity first), lengths read from t.shape.
+    def _wire(self) -> None:
+        self._routes: dict[str, tuple[tuple[int, str, tuple[Kind, ...]], ...]] = {}
+        for nid in self.plan.order:
+            routes = []
+            for child in self.plan.nodes[nid].children:
+                node = self.plan.nodes[child]
+                if node.role == "sink":
+                    routes.append((_SINK, child, tuple(node.cls.consumes)))
+                elif child in self.mergers:
+                    routes.append((_MERGE, child, ()))
+                else:
+                    routes.append((_OP, child, ()))
+            self._routes[nid] = tuple(routes)
+        self._opinfo = {nid: (op, tuple(op.consumes), self.stats.nodes[nid]) for nid, op in self.ops.items()}
 
-    def _deliver(self, nid: str, from_id: str, pkt: Packet, out: list[Delivery]) -> None:
-        node = self.plan.nodes[nid]
-        if node.role == "sink":
-            if pkt.kind in node.cls.consumes:
-                out.append((nid, pkt))
-            return
-        m = self.mergers.get(nid)
-        if m is None:
-            self._run(nid, pkt, out)
-            return
-        try:
-            merged = m.push(node.spec.inputs.index(from_id), pkt)
-        except Exception as e:
-            raise NodeError(nid, e) from e
-        for q in merged:
-            self._run(nid, q, out)
+    def _emit(self, nid: str, pkt: Packet, out: list[Delivery]) -> None:
+        if self.taps and nid in self.taps:
+            out.append(("tap:" + nid, pkt))
+        for how, child, kinds in self._routes[nid]:
+            if how == _OP:
+                self._run(child, pkt, out)
+            elif how == _SINK:
+                if pkt.kind in kinds:
+                    out.append((child, pkt))
+            else:
+                node = self.plan.nodes[child]
+                try:
+                    merged = self.mergers[child].push(node.spec.inputs.index(nid), pkt)
+                except Exception as e:
+                    raise NodeError(child, e) from e
+                for q in merged:
+                    self._run(child, q, out)
 
     def _run(self, nid: str, pkt: Packet, out: list[Delivery]) -> None:
-        op = self.ops[nid]
-        st = self.stats.nodes[nid]
-        if pkt.kind not in op.consumes:
+        op, consumes, st = self._opinfo[nid]
+        if pkt.kind not in consumes:
             self._emit(nid, pkt, out)  # passes by
             return
         st.packets_in += 1
-        st.events_in += len(pkt)
-        t0 = time.perf_counter_ns()
+        st.events_in += pkt.t.shape[0]
+        t0 = perf_counter_ns()
         try:
-            res = as_packets(op.process(pkt))
+            res = op.process(pkt)
         except NodeError:
             raise
         except Exception as e:
             raise NodeError(nid, e) from e
-        st.busy_ns += time.perf_counter_ns() - t0
-        self._forward(nid, res, out)
+        st.busy_ns += perf_counter_ns() - t0
+        for q in res if type(res) is list else as_packets(res):
+            st.packets_out += 1
+            st.events_out += q.t.shape[0]
+            self._emit(nid, q, out)
 
     def _forward(self, nid: str, res: Sequence[Packet], out: list[Delivery]) -> None:
         st = self.stats.nodes[nid]
         for q in res:
             st.packets_out += 1
-            st.events_out += len(q)
+            st.events_out += q.t.shape[0]
             self._emit(nid, q, out)
 
     def _end(self, nid: str, out: list[Delivery]) -> None:

@@ -44,6 +44,7 @@ __all__ = [
 ]
 
 _BASE = ("t", "x", "y", "p")
+_NO_COLUMNS: Mapping[str, np.ndarray] = MappingProxyType({})
 _DTYPES = {"t": np.dtype(np.int64), "x": np.dtype(np.uint16), "y": np.dtype(np.uint16), "p": np.dtype(np.int8)}
 
 
@@ -149,23 +150,31 @@ class Packet:
             yield self
             return
         t = self.t
+        take = self._take_slice
+        if max_samples == 1:  # one timestamp per packet: walk the runs
+            runs = (np.flatnonzero(t[1:] != t[:-1]) + 1).tolist()
+            ts = t[runs].tolist()
+            lo, start = self.t_start, 0
+            for stop, hi in zip(runs, ts):
+                yield take(start, stop, lo, hi)
+                start, lo = stop, hi
+            yield take(start, n, lo, self.t_end)
+            return
         start, lo = 0, self.t_start
         while start < n:
             stop = start + max_samples
             if stop >= n:
-                yield self._take_slice(start, n, lo, self.t_end)
+                yield take(start, n, lo, self.t_end)
                 return
-            # keep the run of equal timestamps around `stop` together: cut
-            # before it, or after it when it fills the whole batch
-            ts = t[stop - 1]
-            if t[stop] == ts:
-                before = int(np.searchsorted(t, ts, side="left"))
-                stop = before if before > start else int(np.searchsorted(t, ts, side="right"))
+            ts_ = t[stop - 1]
+            if t[stop] == ts_:  # a run straddles the cut: cut before it, or after it
+                before = int(np.searchsorted(t, ts_, side="left"))
+                stop = before if before > start else int(np.searchsorted(t, ts_, side="right"))
                 if stop >= n:
-                    yield self._take_slice(start, n, lo, self.t_end)
+                    yield take(start, n, lo, self.t_end)
                     return
             hi = int(t[stop])
-            yield self._take_slice(start, stop, lo, hi)
+            yield take(start, stop, lo, hi)
             start, lo = stop, hi
 
 
@@ -235,6 +244,22 @@ class EventPacket(Packet):
         self._init_interval(t, t_start, t_end)
 
     # -- construction -------------------------------------------------------
+    @classmethod
+    def _trusted(cls, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, sensor: tuple[int, int],
+                 t_start: int, t_end: int, columns: Mapping[str, np.ndarray]) -> "EventPacket":
+        """Internal: build from arrays already known to satisfy the contract
+        (views and selections of a valid packet); skips every check."""
+        pkt = _new(cls)
+        _set_t(pkt, t)
+        _set_x(pkt, x)
+        _set_y(pkt, y)
+        _set_p(pkt, p)
+        _set_sensor(pkt, sensor)
+        _set_columns(pkt, MappingProxyType(dict(columns)) if columns else _NO_COLUMNS)
+        _set_t_start(pkt, t_start)
+        _set_t_end(pkt, t_end)
+        return pkt
+
     @classmethod
     def empty(cls, sensor: tuple[int, int], t_start: int, t_end: int | None = None) -> "EventPacket":
         """A packet with no events covering ``[t_start, t_end)`` µs (a tick)."""
@@ -310,19 +335,21 @@ class EventPacket(Packet):
 
     # -- views ----------------------------------------------------------------
     def _take_slice(self, i: int, j: int, t_start: int, t_end: int) -> "EventPacket":
-        return EventPacket(
-            self.t[i:j], self.x[i:j], self.y[i:j], self.p[i:j],
-            sensor=self.sensor, t_start=t_start, t_end=t_end,
-            columns={k: v[i:j] for k, v in self.columns.items()},
+        cols = self.columns
+        return EventPacket._trusted(
+            self.t[i:j], self.x[i:j], self.y[i:j], self.p[i:j], self.sensor, t_start, t_end,
+            {k: v[i:j] for k, v in cols.items()} if cols else cols,
         )
 
     def select(self, mask: np.ndarray) -> "EventPacket":
-        """The events where ``mask`` is true (a copy), same interval."""
+        """The events where ``mask`` (bool, one per event) is true (a copy),
+        same interval."""
         mask = np.asarray(mask)
-        return EventPacket(
-            self.t[mask], self.x[mask], self.y[mask], self.p[mask],
-            sensor=self.sensor, t_start=self.t_start, t_end=self.t_end,
-            columns={k: v[mask] for k, v in self.columns.items()},
+        if mask.dtype != np.bool_ or mask.shape != self.t.shape:
+            raise PacketError(f"select needs a bool mask of shape {self.t.shape}, got {mask.dtype} {mask.shape}")
+        return EventPacket._trusted(
+            self.t[mask], self.x[mask], self.y[mask], self.p[mask], self.sensor, self.t_start, self.t_end,
+            {k: v[mask] for k, v in self.columns.items()},
         )
 
     def with_columns(self, **columns: np.ndarray) -> "EventPacket":
@@ -367,6 +394,14 @@ class EventPacket(Packet):
             f"EventPacket({len(self)} events, [{self.t_start}, {self.t_end}) µs, "
             f"sensor={self.sensor[0]}x{self.sensor[1]}{extra})"
         )
+
+
+# Slot setters for EventPacket._trusted (faster than object.__setattr__).
+_new = object.__new__
+_set_t, _set_x, _set_y, _set_p, _set_sensor, _set_columns = (
+    EventPacket.__dict__[n].__set__ for n in ("t", "x", "y", "p", "sensor", "columns")
+)
+_set_t_start, _set_t_end = (Packet.__dict__[n].__set__ for n in ("t_start", "t_end"))
 
 
 def _polarity(p: np.ndarray) -> np.ndarray:

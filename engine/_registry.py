@@ -164,7 +164,7 @@ def build_registry(pm: pluggy.PluginManager) -> Registry:
         reg.plugins[name] = getattr(plugin, "__name__", repr(plugin))
     for hook in ("tectum_register_sources", "tectum_register_sinks", "tectum_register_operators"):
         caller = getattr(pm.hook, hook)
-        for impl in reversed(caller.get_hookimpls()):  # registration order
+        for impl in caller.get_hookimpls():  # registration order
             impl.function(registry=RegistryView(reg, impl.plugin_name))
     return reg
 

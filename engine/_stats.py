@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import random
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -10,7 +11,7 @@ import numpy as np
 __all__ = ["NodeStats", "LatencyRecorder", "Stats"]
 
 
-@dataclass
+@dataclass(slots=True)
 class NodeStats:
     """Counters of one node. ``busy_ns`` is the time spent inside the node's
     own code (operator calls, sink writes), in ns."""
@@ -24,9 +25,9 @@ class NodeStats:
     repairs: dict[str, int] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
-        d = dict(self.__dict__)
-        d["repairs"] = dict(self.repairs)
-        return d
+        from dataclasses import asdict
+
+        return asdict(self)
 
 
 class LatencyRecorder:
@@ -34,17 +35,17 @@ class LatencyRecorder:
     flat however long the run)."""
 
     def __init__(self, capacity: int = 65536, seed: int = 0) -> None:
-        self._buf = np.empty(capacity, np.float64)
+        self._buf: list[float] = []
+        self._cap = capacity
         self._n = 0
-        self._rng = np.random.default_rng(seed)
+        self._rng = random.Random(seed)
 
     def add(self, seconds: float) -> None:
-        cap = self._buf.shape[0]
-        if self._n < cap:
-            self._buf[self._n] = seconds
+        if self._n < self._cap:
+            self._buf.append(seconds)
         else:
-            j = int(self._rng.integers(0, self._n + 1))
-            if j < cap:
+            j = self._rng.randrange(self._n + 1)
+            if j < self._cap:
                 self._buf[j] = seconds
         self._n += 1
 
@@ -54,11 +55,11 @@ class LatencyRecorder:
 
     def percentiles(self, qs: tuple[float, ...] = (50, 90, 99, 99.9)) -> dict[str, float]:
         """Percentiles in µs, keyed ``p50`` etc.; empty when nothing was seen."""
-        k = min(self._n, self._buf.shape[0])
-        if k == 0:
+        if not self._buf:
             return {}
-        vals = np.percentile(self._buf[:k], qs) * 1e6
-        return {f"p{q:g}": float(v) for q, v in zip(qs, vals)} | {"max": float(self._buf[:k].max() * 1e6)}
+        buf = np.asarray(self._buf)
+        vals = np.percentile(buf, qs) * 1e6
+        return {f"p{q:g}": float(v) for q, v in zip(qs, vals)} | {"max": float(buf.max() * 1e6)}
 
 
 class Stats:

@@ -1,0 +1,108 @@
+"""Engine overhead: per packet and per operator, event-by-event and
+micro-batch throughput through a chain of trivial operators, and paced
+end-to-end latency."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trio
+
+import tectum
+from tectum import EventPacket, Operator, Pipeline
+from tectum.testing import ListSource
+
+from . import table
+
+
+class Identity(Operator):
+    """Passes packets on unchanged (measures the engine, not the work)."""
+
+    name = "filter.identity_bench"
+
+    def process(self, packet: EventPacket) -> list[EventPacket]:
+        return [packet]
+
+
+def stream(n: int, rate_hz: float = 1e6, sensor: tuple[int, int] = (346, 260), seed: int = 0) -> EventPacket:
+    """``n`` events at ``rate_hz`` (distinct timestamps when rate <= 1 MHz)."""
+    rng = np.random.default_rng(seed)
+    t = np.floor(np.arange(n) * (1e6 / rate_hz)).astype(np.int64)
+    return EventPacket(t, rng.integers(0, sensor[0], n).astype(np.uint16), rng.integers(0, sensor[1], n).astype(np.uint16),
+                       np.where(rng.random(n) < 0.5, 1, -1).astype(np.int8), sensor=sensor,
+                       t_start=0, t_end=int(t[-1]) + 1)
+
+
+def _chain(pk: EventPacket, n_ops: int, **batch: Any) -> Pipeline:
+    from tectum.sinks.null import NullSink
+
+    p = Pipeline(**batch)
+    node = p.source(ListSource([pk]), id="src")
+    for i in range(n_ops):
+        node = p.op(Identity(), node, id=f"op{i}")
+    p.sink(NullSink(), node, id="sink")
+    return p
+
+
+def _run(p: Pipeline) -> tuple[float, tectum.Stats]:
+    t0 = time.perf_counter()
+    stats = tectum.run(p)
+    return time.perf_counter() - t0, stats
+
+
+def chain_rate(pk: EventPacket, n_ops: int, max_events: int) -> dict[str, float]:
+    """Events/s through ``n_ops`` identity operators with ``max_events`` packets."""
+    _run(_chain(pk, n_ops, max_events=max_events))  # warm-up
+    best, packets = float("inf"), 0
+    for _ in range(3):
+        dt, stats = _run(_chain(pk, n_ops, max_events=max_events))
+        best = min(best, dt)
+        packets = stats.nodes["src"].packets_out
+    return {"events_s": len(pk) / best, "packets": packets, "us_per_packet": best / packets * 1e6}
+
+
+def per_operator_overhead(pk: EventPacket, max_events: int) -> float:
+    """µs per packet per operator: the slope of time against chain length."""
+    rows = []
+    for n_ops in (0, 4, 8):
+        r = chain_rate(pk, n_ops, max_events)
+        rows.append((n_ops, r["us_per_packet"]))
+    x = np.array([r[0] for r in rows], float)
+    y = np.array([r[1] for r in rows], float)
+    return float(np.polyfit(x, y, 1)[0])
+
+
+def paced_latency(rate_hz: float, duration_s: float, window_us: int) -> dict[str, float]:
+    """Latency percentiles (µs) replaying ``rate_hz`` in real time, released
+    in ``window_us`` windows, through 3 identity operators."""
+    pk = stream(int(rate_hz * duration_s), rate_hz)
+    p = _chain(pk, 3, pace=1.0, max_latency_us=window_us)
+    stats = tectum.run(p)
+    return stats.latency["sink"].percentiles()
+
+
+def run(out: Path, quick: bool) -> dict[str, Any]:
+    n_ebe = 20_000 if quick else 100_000
+    n_mb = 1_000_000 if quick else 5_000_000
+    ebe = chain_rate(stream(n_ebe), 3, 1)
+    mb = chain_rate(stream(n_mb), 3, 4096)
+    res = {
+        "event_by_event_3ops": ebe,
+        "micro_batch_4096_3ops": mb,
+        "overhead_us_per_packet_per_op_ebe": per_operator_overhead(stream(n_ebe // 2), 1),
+        "overhead_us_per_packet_per_op_batch": per_operator_overhead(stream(n_mb // 5), 4096),
+        "latency_1mevs_1ms_us": paced_latency(1e6, 1.0 if quick else 3.0, 1000),
+    }
+    rows = [
+        {"measure": "event by event, 3 ops", "value": ebe["events_s"], "unit": "events/s", "target": ">= 200k"},
+        {"measure": "micro-batch 4096, 3 ops", "value": mb["events_s"], "unit": "events/s", "target": ""},
+        {"measure": "per packet per op (ebe)", "value": res["overhead_us_per_packet_per_op_ebe"], "unit": "µs", "target": ""},
+        {"measure": "per packet per op (batch)", "value": res["overhead_us_per_packet_per_op_batch"], "unit": "µs", "target": "<= 5"},
+        {"measure": "latency p50 @1 Mev/s, 1 ms", "value": res["latency_1mevs_1ms_us"].get("p50", float("nan")), "unit": "µs", "target": ""},
+        {"measure": "latency p99 @1 Mev/s, 1 ms", "value": res["latency_1mevs_1ms_us"].get("p99", float("nan")), "unit": "µs", "target": "< 1000"},
+    ]
+    print(table(rows, ["measure", "value", "unit", "target"]))
+    return res

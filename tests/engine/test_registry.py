@@ -1,0 +1,135 @@
+"""Plugins: hooks, entry points, duplicate names, the sample third-party plugin."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pluggy
+import pytest
+
+import tectum
+from tectum import DuplicateNameError, Operator, RegistryError, hookimpl
+from tectum._registry import build_registry, plugin_manager
+
+SAMPLE = Path(__file__).resolve().parents[1] / "sample_plugin"
+
+
+class A(Operator):
+    name = "filter.same_test"
+
+
+class B(Operator):
+    name = "filter.same_test"
+
+
+class PluginA:
+    @hookimpl
+    def tectum_register_operators(self, registry):
+        registry.add_operator(A)
+
+
+class PluginB:
+    @hookimpl
+    def tectum_register_operators(self, registry):
+        registry.add_operator(B)
+
+
+def test_builtins_come_through_entry_points():
+    reg = tectum.get_registry()
+    assert reg.operators["filter.refractory"].owner == "filter"
+    assert reg.sources["npz"].owner == "core" and reg.sinks["npz"].owner == "core"
+
+
+def test_duplicate_names_fail_naming_both_owners():
+    pm = plugin_manager()
+    pm.register(PluginA(), name="alpha")
+    pm.register(PluginB(), name="beta")
+    with pytest.raises(DuplicateNameError, match=r"operator 'filter.same_test' is registered twice: by plugin 'alpha' .*A\) and by plugin 'beta' .*B\)"):
+        build_registry(pm)
+
+
+@pytest.mark.parametrize("bad", ["refractory", "nofamily.x", "filter.Bad-Name"])
+def test_operator_names_are_family_method(bad):
+    class Bad(Operator):
+        name = bad
+
+    class P:
+        @hookimpl
+        def tectum_register_operators(self, registry):
+            registry.add_operator(Bad)
+
+    pm = pluggy.PluginManager("tectum")
+    from tectum import hookspecs
+
+    pm.add_hookspecs(hookspecs)
+    pm.register(P(), name="p")
+    with pytest.raises(RegistryError, match="is not 'family.method'"):
+        build_registry(pm)
+
+
+def test_sources_and_sinks_are_chosen_by_scheme_content_and_extension(tmp_path):
+    reg = tectum.get_registry()
+    assert reg.source_for("pattern:?speed=3").name == "pattern"
+    f = tmp_path / "recording.bin"
+    from tectum.sinks.npz import write_npz
+    from helpers import bars
+
+    write_npz(str(tmp_path / "x.npz"), bars(2000))
+    os.replace(tmp_path / "x.npz", f)
+    assert reg.source_for(str(f)).name == "npz"  # by content, whatever the name
+    assert reg.sink_for(str(tmp_path / "new.npz")).name == "npz"
+    with pytest.raises(RegistryError, match="no such file"):
+        reg.source_for(str(tmp_path / "missing.xyz"))
+
+
+@pytest.fixture(scope="module")
+def sample_plugin_path(tmp_path_factory):
+    """The sample plugin installed (with its entry point) into a folder of its own."""
+    target = tmp_path_factory.mktemp("plugin-site")
+    subprocess.run(
+        [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation",
+         "--target", str(target), str(SAMPLE)],
+        check=True, capture_output=True,
+    )
+    return target
+
+
+def _env(extra: Path) -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(extra), env.get("PYTHONPATH", "")])
+    return env
+
+
+def test_sample_plugin_from_the_cli(sample_plugin_path, tmp_path):
+    tectum_cmd = [sys.executable, "-m", "tectum"]
+    out = subprocess.run([*tectum_cmd, "plugins", "--json"], env=_env(sample_plugin_path),
+                         capture_output=True, text=True, check=True)
+    ops = {o["name"]: o for o in json.loads(out.stdout)["operators"]}
+    assert ops["filter.every_nth"]["plugin"] == "sample"
+    dst = tmp_path / "half.npz"
+    subprocess.run([*tectum_cmd, "run", "pattern:?duration_us=20000&sensor=32x24", "--op", "filter.every_nth:n=2",
+                    "--sink", str(dst)], env=_env(sample_plugin_path), check=True, capture_output=True)
+    src = tmp_path / "all.npz"
+    subprocess.run([*tectum_cmd, "run", "pattern:?duration_us=20000&sensor=32x24", "--sink", str(src)],
+                   check=True, capture_output=True)
+    import numpy as np
+
+    a, h = np.load(src), np.load(dst)
+    assert np.array_equal(a["t"][::2], h["t"]) and np.array_equal(a["x"][::2], h["x"])
+
+
+def test_sample_plugin_from_a_pipeline_file(sample_plugin_path, tmp_path):
+    f = tmp_path / "p.toml"
+    f.write_text(
+        '[[source]]\nid = "cam"\nuri = "pattern:"\nparams = { duration_us = 10000, sensor = "32x24" }\n'
+        '[[op]]\nid = "nth"\nname = "filter.every_nth"\ninput = "cam"\nparams = { n = 3 }\n'
+        '[[sink]]\nuri = "out.npz"\ninput = "nth"\n'
+    )
+    r = subprocess.run([sys.executable, "-m", "tectum", "run", str(f), "--stats"], env=_env(sample_plugin_path),
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "nth" in r.stdout and (tmp_path / "out.npz").exists()
