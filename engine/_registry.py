@@ -90,6 +90,8 @@ class Registry:
                     return e.cls
             known = sorted({s for e in table.values() for s in e.cls.schemes})
             raise RegistryError(f"no {role} handles the scheme {scheme!r} (known: {', '.join(known)})")
+        if role == "source" and not os.path.exists(arg):
+            raise RegistryError(f"{arg!r}: no such file, and not a URL with a known scheme")
         if role == "source" and os.path.isfile(arg):
             with open(arg, "rb") as f:
                 head = f.read(4096)
@@ -104,8 +106,6 @@ class Registry:
                     best = (len(ext), e.cls)
         if best:
             return best[1]
-        if role == "source" and not os.path.exists(arg):
-            raise RegistryError(f"{arg!r}: no such file, and not a URL with a known scheme")
         exts = sorted({x for e in table.values() for x in e.cls.extensions})
         raise RegistryError(f"no {role} recognises {arg!r} (known extensions: {', '.join(exts)})")
 

@@ -32,8 +32,9 @@ class _Column:
         self.f: IO[bytes] = zf.open(member)
         try:
             version = np.lib.format.read_magic(self.f)
-            shape, fortran, dtype = np.lib.format._read_array_header(self.f, version)  # type: ignore[attr-defined]
-        except ValueError as e:
+            read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            shape, fortran, dtype = read_header(self.f)
+        except (ValueError, OSError, EOFError) as e:
             raise FormatError(f"column {self.name!r} is not a valid .npy array: {e}", path=path) from None
         if dtype.hasobject:
             raise FormatError(f"column {self.name!r} holds Python objects; refusing to unpickle", path=path)
