@@ -1,0 +1,128 @@
+"""``tectum bench io``: decode/encode Mev/s per file format, side by side with
+peers (dv-processing, expelliarmus, faery) where they import, and text
+parsing against ``numpy.loadtxt``. Uses the shared recordings when present
+(``TECTUM_SHARED_DATA`` or ../shared/data), else generated files."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tectum import EventPacket
+from tectum.bench import peer, table, throughput
+
+FILES = {"evt2": "prophesee/gen31_evt2.raw", "evt3": "prophesee/imx636_evt3.raw", "dat": "prophesee/gen4.dat",
+         "aedat4": "aedat/dvxplorer_2.aedat4", "aedat2": "aedat/davis240_imu_rotdisk.aedat",
+         "text": "ecd/slider_depth/events.txt"}
+EXT = {"text": ".txt", "aedat4": ".aedat4", "evt2": ".raw", "evt3": ".evt3.raw", "dat": ".dat", "hdf5": ".h5",
+       "npy": ".npy"}
+
+
+def _shared() -> Path | None:
+    env = os.environ.get("TECTUM_SHARED_DATA")
+    cands = [Path(env)] if env else []
+    cands.append(Path(__file__).resolve().parents[2] / ".." / "shared" / "data")
+    return next((c for c in cands if c.is_dir()), None)
+
+
+def _decode(path: str) -> int:
+    from tectum.sources.files import open_file
+
+    return sum(len(q) for q in open_file(path).packets() if isinstance(q, EventPacket))
+
+
+def _peers(fmt: str, path: str) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    if fmt == "aedat4" and peer("dv_processing"):
+        import dv_processing as dv
+
+        def run() -> None:
+            r = dv.io.MonoCameraRecording(path)
+            while r.getNextEventBatch() is not None:
+                pass
+        out["dv-processing"] = run
+    if fmt in ("evt2", "evt3", "dat") and peer("expelliarmus"):
+        from expelliarmus import Wizard
+
+        enc = {"evt2": "evt2", "evt3": "evt3", "dat": "dat"}[fmt]
+        out["expelliarmus"] = lambda: Wizard(encoding=enc).read(path)
+    if fmt in ("evt2", "evt3", "dat", "aedat4") and peer("faery"):
+        import faery
+
+        out["faery"] = lambda: faery.events_stream_from_file(path).to_array()
+    if fmt == "text":
+        out["numpy.loadtxt"] = lambda: np.loadtxt(path)
+    return out
+
+
+def run(out: Path, quick: bool) -> dict:
+    rows: list[dict[str, Any]] = []
+    shared = _shared()
+    repeat = 2 if quick else 5
+    for fmt, rel in FILES.items():
+        if shared is None or not (shared / rel).exists():
+            continue
+        path = str(shared / rel)
+        n = _decode(path)
+        r = throughput(lambda: _decode(path), n, repeat=repeat)
+        rows.append({"format": fmt, "op": "decode", "reader": "tectum", "events": n, "mev_s": r["mev_s"]})
+        for name, fn in _peers(fmt, path).items():
+            try:
+                r = throughput(fn, n, repeat=repeat)
+            except Exception as e:  # a peer that cannot read the file is reported, not fatal
+                rows.append({"format": fmt, "op": "decode", "reader": name, "events": n, "mev_s": float("nan"),
+                             "note": str(e)[:60]})
+                continue
+            rows.append({"format": fmt, "op": "decode", "reader": name, "events": n, "mev_s": r["mev_s"]})
+    rows += _encode(quick)
+    print(table(rows, ["format", "op", "reader", "events", "mev_s", "note"]))
+    return {"rows": rows}
+
+
+def _encode(quick: bool) -> list[dict[str, Any]]:
+    from tectum.sinks.files import SINKS
+    from tectum.sinks.files._common import write_all
+
+    n = 1_000_000 if quick else 4_000_000
+    rng = np.random.default_rng(0)
+    pkt = EventPacket(np.sort(rng.integers(0, 10_000_000, n)).astype(np.int64),
+                      rng.integers(0, 640, n).astype(np.uint16), rng.integers(0, 480, n).astype(np.uint16),
+                      rng.choice(np.array([-1, 1], np.int8), n), sensor=(640, 480))
+    rows = []
+    with tempfile.TemporaryDirectory() as d:
+        for cls in SINKS:
+            f = os.path.join(d, "o" + EXT[cls.name])
+            parts = list(pkt.batches(1 << 18))
+            r = throughput(lambda: write_all(cls(f), parts), n, repeat=2 if quick else 3)
+            rows.append({"format": cls.name, "op": "encode", "reader": "tectum", "events": n, "mev_s": r["mev_s"]})
+            r = throughput(lambda: _decode(f), n, repeat=2 if quick else 3)
+            rows.append({"format": cls.name, "op": "decode-generated", "reader": "tectum", "events": n,
+                         "mev_s": r["mev_s"]})
+        if peer("dv_processing"):
+            try:
+                rows.append(_dv_encode(pkt, os.path.join(d, "dv.aedat4"), quick))
+            except Exception as e:  # API differences between dv-processing versions
+                rows.append({"format": "aedat4", "op": "encode", "reader": "dv-processing", "note": str(e)[:60]})
+    return rows
+
+
+def _dv_encode(pkt: EventPacket, path: str, quick: bool) -> dict[str, Any]:
+    import dv_processing as dv
+
+    store = dv.EventStore()
+    for i in range(len(pkt)):
+        if i > 200_000:
+            break
+        store.push_back(int(pkt.t[i]), int(pkt.x[i]), int(pkt.y[i]), bool(pkt.p[i] > 0))
+    n = len(store)
+
+    def write() -> None:
+        w = dv.io.MonoCameraWriter(path, dv.io.MonoCameraWriter.EventOnlyConfig("tectum", (640, 480)))
+        w.writeEvents(store)
+        del w
+    r = throughput(write, n, repeat=2 if quick else 3)
+    return {"format": "aedat4", "op": "encode", "reader": "dv-processing", "events": n, "mev_s": r["mev_s"]}

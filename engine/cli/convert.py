@@ -1,0 +1,44 @@
+"""``tectum convert IN OUT``: stream events from any readable format to any
+writable one (formats from content / extension)."""
+
+from __future__ import annotations
+
+import argparse
+
+HELP = "convert an event file to another format, streaming (e.g. in.raw out.aedat4)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("input", help="event file to read (format detected from its content)")
+    p.add_argument("output", help="file to write (format from its extension: .txt .csv .aedat4 .raw "
+                                  ".evt3.raw .dat .h5 .npy .npz); OUT?k=v passes sink options")
+    p.add_argument("--sensor", default=None, help="WIDTHxHEIGHT for inputs that do not say")
+    p.add_argument("--skip-bad", action="store_true", help="drop undecodable parts instead of failing")
+    p.add_argument("--start-us", type=int, default=None, help="first time to keep (absolute µs)")
+    p.add_argument("--end-us", type=int, default=None, help="end of the time range (absolute µs)")
+
+
+def main(args: argparse.Namespace) -> int:
+    from tectum import EventPacket, get_registry
+    from tectum.cli._args import split_query
+    from tectum.sources.files import open_file
+
+    kw = {"sensor": args.sensor, "skip_bad": args.skip_bad, "t_start_us": args.start_us,
+          "t_end_us": args.end_us}
+    src = open_file(args.input, **{k: v for k, v in kw.items() if v not in (None, False)})
+    out, params = split_query(args.output)
+    sink = get_registry().sink_for(out)(out, **params)
+    n = 0
+    sink.open()
+    try:
+        for pkt in src.packets():
+            if pkt.kind in sink.consumes:
+                sink.write(pkt)
+                n += len(pkt) if isinstance(pkt, EventPacket) else 0
+    except BaseException:
+        sink.abort()
+        raise
+    sink.close()
+    extra = f", skipped {src.skipped_events}" if src.skipped_events else ""
+    print(f"{n:,} events -> {out}{extra}")
+    return 0

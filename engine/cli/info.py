@@ -1,0 +1,37 @@
+"""``tectum info FILE``: what an event file holds."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+HELP = "describe an event file: format, sensor size, duration, events, rate, streams, t0 offset"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("file", help="an event file (format detected from its content)")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument("--sensor", default=None, help="WIDTHxHEIGHT for files that do not say")
+
+
+def main(args: argparse.Namespace) -> int:
+    from tectum.sources.files import open_file
+
+    kw = {"sensor": args.sensor} if args.sensor else {}
+    info = open_file(args.file, **kw).info()
+    if args.json:
+        print(json.dumps(info, indent=1, default=str))
+        return 0
+    s = info.get("sensor")
+    lines = [("file", info["path"]), ("format", info["format"]),
+             ("sensor", f"{s[0]}x{s[1]}" if s else "unknown"), ("events", f"{info['events']:,}"),
+             ("duration", f"{info['duration_us'] / 1e6:.6f} s"),
+             ("first / last", f"{info['t_first_us']} / {info['t_last_us']} µs"),
+             ("rate", f"{info['rate_mev_s']:.4f} Mev/s"),
+             ("streams", ", ".join(f"{k} {v:,}" for k, v in info["streams"].items()) or "none"),
+             ("t0 offset", f"{info['t0_offset_us']} µs")]
+    if info.get("skipped_events"):
+        lines.append(("skipped", str(info["skipped_events"])))
+    for k, v in lines:
+        print(f"{k:>13}: {v}")
+    return 0

@@ -1,0 +1,28 @@
+"""File sinks: ECD text/CSV, AEDAT 4.0, Prophesee EVT 2.0/3.0 and DAT, HDF5
+(DSEC layout) and structured ``.npy``. Each streams into a temporary file
+beside the target and renames it into place on close; abort removes it."""
+
+from __future__ import annotations
+
+from tectum.hookspecs import hookimpl
+
+__all__ = ["SINKS"]
+
+
+def _classes() -> list[type]:
+    from .aedat4 import Aedat4Sink
+    from .hdf5 import Hdf5Sink
+    from .npy import NpySink
+    from .prophesee import DatSink, Evt2Sink, Evt3Sink
+    from .text import TextSink
+
+    return [TextSink, Aedat4Sink, Evt2Sink, Evt3Sink, DatSink, Hdf5Sink, NpySink]
+
+
+SINKS = _classes()
+
+
+@hookimpl
+def tectum_register_sinks(registry) -> None:  # type: ignore[no-untyped-def]
+    for cls in SINKS:
+        registry.add_sink(cls)

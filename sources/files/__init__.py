@@ -1,0 +1,63 @@
+"""File sources for every common event format, recognised by content.
+
+One module per format (see each for its layout and conventions): Prophesee
+RAW EVT 2.0/3.0 and DAT (:mod:`.prophesee`), jAER AEDAT 2.0 (:mod:`.aedat2`),
+AEDAT 3.1 (:mod:`.aedat31`), AEDAT 4.0 (:mod:`.aedat4`, codec in
+:mod:`.aedat4_codec`), text/CSV (:mod:`.text`), HDF5 (:mod:`.hdf5`),
+structured ``.npy`` (:mod:`.npy`). All output tectum's conventions: absolute
+µs, top-left origin, polarity ±1 (see :mod:`._common`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from tectum.hookspecs import hookimpl
+
+__all__ = ["SOURCES", "open_file"]
+
+
+def _classes() -> list[type]:
+    from .aedat2 import Aedat2Source
+    from .aedat4 import Aedat4Source
+    from .aedat31 import Aedat31Source
+    from .hdf5 import Hdf5Source
+    from .npy import NpySource
+    from .prophesee import DatSource, Evt2Source, Evt3Source
+    from .text import TextSource
+
+    return [Evt2Source, Evt3Source, DatSource, Aedat2Source, Aedat31Source, Aedat4Source, Hdf5Source,
+            NpySource, TextSource]
+
+
+SOURCES = _classes()
+
+
+def source_class(path: str) -> type:
+    """The source class for ``path``: by content, then by extension."""
+    import os
+
+    from tectum import FormatError
+
+    with open(path, "rb") as f:
+        head = f.read(4096)
+    for cls in SOURCES:
+        if cls.sniff(head):
+            return cls
+    low = path.lower()
+    for cls in SOURCES:
+        if any(low.endswith(e) for e in cls.extensions):
+            return cls
+    raise FormatError(f"unrecognised event file format (first bytes {head[:16]!r})", path=os.fspath(path),
+                      offset=0)
+
+
+def open_file(path: str, **kw: Any) -> Any:
+    """A source for ``path``, its format detected from the content."""
+    return source_class(path)(path, **kw)
+
+
+@hookimpl
+def tectum_register_sources(registry) -> None:  # type: ignore[no-untyped-def]
+    for cls in SOURCES:
+        registry.add_source(cls)

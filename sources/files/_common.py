@@ -1,0 +1,350 @@
+"""What every file source shares: the base class, header parsing and the
+assembler that turns decoded chunks into packets obeying the packet contract.
+
+Conventions (all formats)
+-------------------------
+* Time ``t`` is int64 µs, *absolute*: header offsets (``% t0``, DSEC
+  ``t_offset``) are added and reported in :attr:`FileSource.t0_offset`;
+  32-bit and 24-bit timestamp wrap-arounds are unrolled.
+* ``x``/``y`` in pixels with the origin at the **top-left** corner, ``p`` in
+  {+1 (ON, brighter), -1 (OFF)}: formats with other conventions (jAER AEDAT 2.0
+  bottom-left y, DVS128 mirrored x, 0/1 polarity) are converted at the edge.
+* Bad input raises :class:`tectum.FormatError` naming the file and the byte
+  offset; with ``skip_bad=True`` the bad parts are dropped instead, counted in
+  :attr:`FileSource.skipped_events` and listed (byte ranges) in
+  :attr:`FileSource.skipped_ranges`.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Iterator
+from typing import Any, ClassVar
+
+import numpy as np
+
+from tectum import EventPacket, FormatError, Kind, Packet, Source
+
+__all__ = ["FileSource", "EventAssembler", "parse_size", "read_prefixed_header", "sensor_from_header",
+           "DEFAULT_CHUNK_BYTES"]
+
+DEFAULT_CHUNK_BYTES = 1 << 22
+
+#: Prophesee sensors whose RAW headers give no geometry, by ``system_ID``
+#: (Metavision SDK system ids) or plugin name fragment.
+_PROPHESEE_GEOMETRY = {
+    "system_id": {"21": (640, 480), "28": (640, 480), "30": (640, 480), "31": (640, 480), "35": (1280, 720),
+                  "39": (1280, 720), "40": (320, 320), "47": (1280, 720), "48": (1280, 720), "49": (1280, 720),
+                  "52": (320, 320), "53": (320, 320)},
+    "plugin": {"gen3": (640, 480), "gen31": (640, 480), "gen41": (1280, 720), "imx636": (1280, 720),
+               "imx646": (1280, 720), "genx320": (320, 320), "gen4": (1280, 720)},
+}
+
+
+def parse_size(s: str | tuple[int, int] | None) -> tuple[int, int] | None:
+    """``"640x480"`` (or a pair) -> ``(640, 480)``; None stays None."""
+    if s is None or s == "":
+        return None
+    if isinstance(s, tuple):
+        return int(s[0]), int(s[1])
+    m = re.fullmatch(r"\s*(\d+)\s*[xX,]\s*(\d+)\s*", str(s))
+    if not m:
+        raise ValueError(f"sensor size {s!r} is not WIDTHxHEIGHT")
+    return int(m.group(1)), int(m.group(2))
+
+
+def read_prefixed_header(f: Any, prefix: bytes, path: str, limit: int = 1 << 20) -> tuple[list[str], int]:
+    """Read the text header lines starting with ``prefix`` at the top of ``f``.
+
+    Returns the lines (prefix and line end stripped) and the byte offset of
+    the first byte after the header. A ``% end`` line closes the header.
+    """
+    f.seek(0)
+    lines: list[str] = []
+    pos = 0
+    while True:
+        first = f.read(1)
+        if first != prefix:
+            break
+        rest = f.readline(limit)
+        if not rest.endswith(b"\n"):
+            raise FormatError("header line is not terminated (truncated or not a text header)", path=path,
+                              offset=pos)
+        pos += 1 + len(rest)
+        if pos > limit:
+            raise FormatError(f"header longer than {limit} bytes", path=path, offset=pos)
+        line = rest.rstrip(b"\r\n").decode("latin1").strip()
+        lines.append(line)
+        if prefix == b"%" and line.lower() == "end":
+            break
+    f.seek(pos)
+    return lines, pos
+
+
+def header_dict(lines: list[str]) -> dict[str, str]:
+    """``key value`` lines -> lower-cased keys mapping to values."""
+    out: dict[str, str] = {}
+    for line in lines:
+        parts = line.split(None, 1)
+        if parts:
+            out.setdefault(parts[0].lower().rstrip(":"), parts[1].strip() if len(parts) > 1 else "")
+    return out
+
+
+def sensor_from_header(h: dict[str, str]) -> tuple[int, int] | None:
+    """Geometry from a Prophesee header: ``geometry WxH``, ``width``/``height``,
+    or a known sensor (``system_ID``/``plugin_name``)."""
+    if "geometry" in h:
+        try:
+            return parse_size(h["geometry"])
+        except ValueError:
+            return None
+    if "width" in h and "height" in h:
+        try:
+            return int(h["width"]), int(h["height"])
+        except ValueError:
+            return None
+    plugin = h.get("plugin_name", "").lower()
+    for frag, size in sorted(_PROPHESEE_GEOMETRY["plugin"].items(), key=lambda kv: -len(kv[0])):
+        if frag in plugin:
+            return size
+    return _PROPHESEE_GEOMETRY["system_id"].get(h.get("system_id", ""))
+
+
+def t0_from_header(h: dict[str, str], path: str) -> int:
+    """The ``% t0 N`` (µs) time offset of a header, 0 when absent."""
+    for key in ("t0", "t_offset", "time_offset"):
+        if key in h:
+            try:
+                return int(h[key].split()[0])
+            except (ValueError, IndexError):
+                raise FormatError(f"header {key!r} is not an integer µs: {h[key]!r}", path=path) from None
+    return 0
+
+
+class EventAssembler:
+    """Turn decoded chunks (arrays) into contract-abiding packets.
+
+    Adds the time offset, checks order and geometry (raising or dropping,
+    per ``skip_bad``), keeps runs of equal timestamps in one packet (the last
+    run of a chunk waits for the next chunk), clips to ``[t_min, t_max)``
+    and makes the intervals tile time without gaps.
+    """
+
+    def __init__(self, src: "FileSource", sensor: tuple[int, int], *, offset: int = 0,
+                 check_geometry: bool = True) -> None:
+        self.src = src
+        self.sensor = sensor
+        self.offset = offset
+        self.check_geometry = check_geometry
+        self.last_t: int | None = None
+        self.next_start: int | None = src.t_start_us
+        self.carry: tuple[np.ndarray, ...] | None = None
+        self.count = 0
+
+    def push(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray,
+             byte_offset: int = 0, where: np.ndarray | None = None) -> list[EventPacket]:
+        """Add decoded events (``t`` before the offset); ``where`` maps each
+        event to its byte offset in the file (for error messages)."""
+        if self.offset:
+            t = t + self.offset
+        t, x, y, p = self._check(t, x, y, p, byte_offset, where)
+        if t.shape[0] == 0:
+            return []
+        t, x, y, p = self._clip(t, x, y, p)
+        if self.carry is not None:
+            ct, cx, cy, cp = self.carry
+            t, x, y, p = (np.concatenate(a) for a in ((ct, t), (cx, x), (cy, y), (cp, p)))
+            self.carry = None
+        if t.shape[0] == 0:
+            return []
+        i = int(np.searchsorted(t, t[-1], side="left"))
+        self.carry = (t[i:], x[i:], y[i:], p[i:])
+        if i == 0:
+            return []
+        return [self._packet(t[:i], x[:i], y[:i], p[:i], int(t[i]))]
+
+    def finish(self) -> list[EventPacket]:
+        """End of file: the held-back run, or an empty packet for the range."""
+        out = []
+        end = self.src.t_end_us
+        if self.carry is not None and self.carry[0].shape[0]:
+            t, x, y, p = self.carry
+            self.carry = None
+            out.append(self._packet(t, x, y, p, end if end is not None else int(t[-1]) + 1))
+        elif self.next_start is not None and end is not None and end > self.next_start:
+            out.append(EventPacket.empty(self.sensor, self.next_start, end))
+            self.next_start = end
+        return out
+
+    def _packet(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, t_end: int) -> EventPacket:
+        start = self.next_start if self.next_start is not None else int(t[0])
+        self.next_start = t_end
+        self.count += t.shape[0]
+        return EventPacket(np.ascontiguousarray(t, np.int64), np.ascontiguousarray(x, np.uint16),
+                           np.ascontiguousarray(y, np.uint16), np.ascontiguousarray(p, np.int8),
+                           sensor=self.sensor, t_start=start, t_end=t_end)
+
+    def _clip(self, t: np.ndarray, *rest: np.ndarray) -> tuple[np.ndarray, ...]:
+        lo, hi = self.src.t_start_us, self.src.t_end_us
+        if lo is None and hi is None:
+            return (t, *rest)
+        i = 0 if lo is None else int(np.searchsorted(t, lo, side="left"))
+        j = t.shape[0] if hi is None else int(np.searchsorted(t, hi, side="left"))
+        return tuple(a[i:j] for a in (t, *rest))
+
+    def _check(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, byte_offset: int,
+               where: np.ndarray | None) -> tuple[np.ndarray, ...]:
+        n = t.shape[0]
+        if n == 0:
+            return t, x, y, p
+        prev = self.last_t if self.last_t is not None else int(t[0])
+        dec = (t[0] < prev) or (n > 1 and bool(np.any(t[1:] < t[:-1])))
+        bad = None
+        if dec:
+            run = np.maximum.accumulate(t)
+            if prev > run[0]:
+                run = np.maximum(run, prev)
+            bad = t < run
+        if self.check_geometry:
+            w, h = self.sensor
+            geo = (x >= w) | (y >= h)
+            if geo.any():
+                bad = geo if bad is None else (bad | geo)
+        if bad is None:
+            self.last_t = int(t[-1])
+            return t, x, y, p
+        i = int(np.flatnonzero(bad)[0])
+        at = int(where[i]) if where is not None else byte_offset
+        if not self.src.skip_bad:
+            w, h = self.sensor
+            if x[i] >= w or y[i] >= h:
+                msg = f"event ({int(x[i])}, {int(y[i])}) lies outside the {w}x{h} sensor"
+            else:
+                before = prev if i == 0 else int(np.max(t[:i]))
+                msg = f"timestamp decreases: {int(t[i])} µs after {before} µs"
+            raise FormatError(msg, path=self.src.path, offset=at)
+        keep = ~bad
+        dropped = int(bad.sum())
+        self.src._note_skip(at, int(where[np.flatnonzero(bad)[-1]]) if where is not None else at, dropped)
+        t, x, y, p = t[keep], x[keep], y[keep], p[keep]
+        if t.shape[0]:
+            self.last_t = int(t[-1])
+        return t, x, y, p
+
+
+class FileSource(Source):
+    """Base of the file sources: options every format shares.
+
+    Parameters
+    ----------
+    path:
+        The file.
+    sensor:
+        ``"WIDTHxHEIGHT"`` in pixels, for files that do not say (or to check
+        the file against).
+    skip_bad:
+        Drop undecodable parts (counted, see :attr:`skipped_events`) instead
+        of raising :class:`tectum.FormatError`.
+    t_start_us, t_end_us:
+        Read only ``[t_start_us, t_end_us)`` (absolute µs, after offsets),
+        seeking where the format has an index.
+    chunk_bytes:
+        Bytes read at a time (memory stays bounded by a small multiple).
+    apply_t0:
+        Add header time offsets (``% t0``, ``t_offset``) to timestamps
+        (default); the offset is reported in :attr:`t0_offset` either way.
+    """
+
+    format: ClassVar[str] = ""
+    produces: ClassVar[tuple[Kind, ...]] = (Kind.EVENTS,)
+
+    def __init__(self, path: str, sensor: str | None = None, skip_bad: bool = False,
+                 t_start_us: int | None = None, t_end_us: int | None = None,
+                 chunk_bytes: int = DEFAULT_CHUNK_BYTES, apply_t0: bool = True) -> None:
+        if chunk_bytes < 64:
+            raise ValueError("chunk_bytes must be >= 64")
+        if t_start_us is not None and t_end_us is not None and t_end_us < t_start_us:
+            raise ValueError("t_end_us is before t_start_us")
+        self.path = os.fspath(path)
+        self.sensor_opt = parse_size(sensor)
+        self.skip_bad = bool(skip_bad)
+        self.t_start_us = None if t_start_us is None else int(t_start_us)
+        self.t_end_us = None if t_end_us is None else int(t_end_us)
+        self.chunk_bytes = int(chunk_bytes)
+        self.apply_t0 = bool(apply_t0)
+        #: Header time offset found in the file, µs (added when ``apply_t0``).
+        self.t0_offset = 0
+        #: Events (or records) dropped because of bad input (``skip_bad``).
+        self.skipped_events = 0
+        #: Byte ranges ``(first, last)`` holding what was dropped.
+        self.skipped_ranges: list[tuple[int, int]] = []
+        self._files: list[Any] = []
+
+    # -- helpers for subclasses ------------------------------------------------
+    def _open(self) -> Any:
+        try:
+            f = open(self.path, "rb")
+        except OSError as e:
+            raise FormatError(f"cannot open: {e.strerror}", path=self.path) from None
+        self._files.append(f)
+        return f
+
+    def _note_skip(self, first: int, last: int, n: int) -> None:
+        self.skipped_events += n
+        if self.skipped_ranges and self.skipped_ranges[-1][1] >= first - 8:
+            a, b = self.skipped_ranges[-1]
+            self.skipped_ranges[-1] = (a, max(b, last))
+        else:
+            self.skipped_ranges.append((first, last))
+
+    def _fail(self, message: str, offset: int | None = None) -> None:
+        raise FormatError(message, path=self.path, offset=offset)
+
+    def _sensor(self, found: tuple[int, int] | None) -> tuple[int, int] | None:
+        if self.sensor_opt and found and self.sensor_opt != found:
+            self._fail(f"the file says sensor {found[0]}x{found[1]}, the option says "
+                       f"{self.sensor_opt[0]}x{self.sensor_opt[1]}")
+        return found or self.sensor_opt
+
+    # -- public ------------------------------------------------------------------
+    def packets(self) -> Iterator[Packet]:
+        try:
+            yield from self._packets()
+        finally:
+            self.close()
+
+    def _packets(self) -> Iterator[Packet]:
+        raise NotImplementedError
+
+    def info(self) -> dict[str, Any]:
+        """Format, sensor, duration, event count, streams and offsets: a full
+        pass over the file (streaming), unless the format keeps an index."""
+        counts: dict[str, int] = {}
+        first: int | None = None
+        last: int | None = None
+        sensor = None
+        for pkt in self.packets():
+            k = str(pkt.kind)
+            counts[k] = counts.get(k, 0) + len(pkt)
+            if isinstance(pkt, EventPacket):
+                sensor = pkt.sensor
+                if len(pkt):
+                    first = int(pkt.t[0]) if first is None else first
+                    last = int(pkt.t[-1])
+        n = counts.get("events", 0)
+        dur = (last - first) if first is not None and last is not None else 0
+        return {"format": self.format, "path": self.path, "sensor": sensor, "events": n,
+                "t_first_us": first, "t_last_us": last, "duration_us": dur,
+                "rate_mev_s": (n / dur) if dur > 0 else 0.0,
+                "streams": {k: v for k, v in counts.items()}, "t0_offset_us": self.t0_offset,
+                "skipped_events": self.skipped_events}
+
+    def close(self) -> None:
+        for f in self._files:
+            try:
+                f.close()
+            except OSError:
+                pass
+        self._files = []

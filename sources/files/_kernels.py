@@ -1,0 +1,245 @@
+"""Numba decode kernels for the binary event formats.
+
+Each kernel is a pure function on arrays: it decodes a chunk of raw words
+into preallocated output arrays, keeps the decoder state (time base, wrap
+count, vector base...) in a small int64 ``state`` array so a chunk boundary
+can fall anywhere, and never raises. It returns ``(n_events, n_triggers,
+bad, n_bad)``: ``bad`` is the index of the first invalid word (-1 when none)
+and, when ``strict`` is true, decoding stops there.
+
+``where`` receives, for each event, the index of the word it came from (for
+error messages with a byte offset).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+# --- Prophesee EVT 2.0 ------------------------------------------------------------
+# state: 0 time_high (28 bits, unrolled with wraps), 1 have time_high, 2 last raw high,
+#        3 wraps, 4 events dropped before the first time_high
+EVT2_STATE = 5
+
+
+@njit(cache=True, nogil=True)
+def decode_evt2(words, state, strict, t, x, y, p, where, trig):  # pragma: no cover - numba
+    n = 0
+    nt = 0
+    bad = -1
+    nbad = 0
+    th = state[0]
+    have = state[1]
+    last_raw = state[2]
+    wraps = state[3]
+    for i in range(words.shape[0]):
+        w = np.int64(words[i])
+        typ = w >> 28
+        if typ == 8:
+            raw = w & 0x0FFFFFFF
+            if have == 1 and raw < last_raw and last_raw - raw > (1 << 27):
+                wraps += 1
+            last_raw = raw
+            th = (wraps << 28) + raw
+            have = 1
+        elif typ <= 1:
+            if have == 0:
+                state[4] += 1
+                continue
+            t[n] = (th << 6) | ((w >> 22) & 0x3F)
+            x[n] = (w >> 11) & 0x7FF
+            y[n] = w & 0x7FF
+            p[n] = 1 if typ == 1 else -1
+            where[n] = i
+            n += 1
+        elif typ == 0xA:
+            if have == 1:
+                trig[nt] = (th << 6) | ((w >> 22) & 0x3F)
+                nt += 1
+        elif typ == 0xE or typ == 0xF:
+            pass
+        else:
+            if bad < 0:
+                bad = i
+            nbad += 1
+            if strict:
+                break
+    state[0] = th
+    state[1] = have
+    state[2] = last_raw
+    state[3] = wraps
+    return n, nt, bad, nbad
+
+
+# --- Prophesee EVT 3.0 ------------------------------------------------------------
+# state: 0 time_high raw (12 bits), 1 time_low, 2 wraps, 3 have_high, 4 y, 5 base_x,
+#        6 polarity of vector, 7 dropped before time base, 8 have_low
+EVT3_STATE = 9
+
+
+@njit(cache=True, nogil=True)
+def decode_evt3(words, state, strict, t, x, y, p, where, trig):  # pragma: no cover - numba
+    n = 0
+    nt = 0
+    bad = -1
+    nbad = 0
+    high = state[0]
+    low = state[1]
+    wraps = state[2]
+    have = state[3]
+    cy = state[4]
+    bx = state[5]
+    vp = state[6] if state[6] != 0 else -1  # no VECT_BASE_X seen yet: OFF, as a zeroed register would say
+    tb = (wraps << 24) | (high << 12) | low
+    for i in range(words.shape[0]):
+        w = np.int64(words[i])
+        typ = w >> 12
+        if typ == 0x0:
+            cy = w & 0x7FF
+        elif typ == 0x2:
+            if have == 0:
+                state[7] += 1
+                continue
+            t[n] = tb
+            x[n] = w & 0x7FF
+            y[n] = cy
+            p[n] = 1 if (w >> 11) & 1 else -1
+            where[n] = i
+            n += 1
+        elif typ == 0x3:
+            bx = w & 0x7FF
+            vp = 1 if (w >> 11) & 1 else -1
+        elif typ == 0x4 or typ == 0x5:
+            nb = 12 if typ == 0x4 else 8
+            if have == 0:
+                bx += nb
+                state[7] += 1
+                continue
+            m = w & 0xFFF
+            for b in range(nb):
+                if (m >> b) & 1:
+                    t[n] = tb
+                    x[n] = bx + b
+                    y[n] = cy
+                    p[n] = vp
+                    where[n] = i
+                    n += 1
+            bx += nb
+        elif typ == 0x6:
+            low = w & 0xFFF
+            tb = (wraps << 24) | (high << 12) | low
+        elif typ == 0x8:
+            nh = w & 0xFFF
+            if have == 1 and nh < high and high - nh > 2048:
+                wraps += 1
+            high = nh
+            have = 1
+            tb = (wraps << 24) | (high << 12) | low
+        elif typ == 0xA:
+            if have == 1:
+                trig[nt] = tb
+                nt += 1
+        elif typ == 0x7 or typ == 0xE or typ == 0xF:
+            pass
+        else:
+            if bad < 0:
+                bad = i
+            nbad += 1
+            if strict:
+                break
+    state[0] = high
+    state[1] = low
+    state[2] = wraps
+    state[3] = have
+    state[4] = cy
+    state[5] = bx
+    state[6] = vp
+    return n, nt, bad, nbad
+
+
+# --- Prophesee DAT (EventCD / Event2d: 32-bit time, 14-bit x, 14-bit y, 4-bit p) -----
+# state: 0 wraps, 1 last raw time, 2 have last
+DAT_STATE = 3
+
+
+@njit(cache=True, nogil=True)
+def decode_dat(words, state, t, x, y, p):  # pragma: no cover - numba
+    """``words`` are uint32 pairs (time, data); returns n_events."""
+    wraps = state[0]
+    last = state[1]
+    have = state[2]
+    m = words.shape[0] // 2
+    for i in range(m):
+        raw = np.int64(words[2 * i])
+        if have == 1 and raw < last and last - raw > (np.int64(1) << 31):
+            wraps += 1
+        last = raw
+        have = 1
+        d = words[2 * i + 1]
+        t[i] = (wraps << 32) + raw
+        x[i] = d & 0x3FFF
+        y[i] = (d >> 14) & 0x3FFF
+        p[i] = 1 if (d >> 28) & 0xF else -1
+    state[0] = wraps
+    state[1] = last
+    state[2] = have
+    return m
+
+
+# --- jAER AEDAT 2.0 (big-endian int32 address, int32 timestamp) -----------------------
+# state: 0 wraps, 1 last raw time, 2 have last
+AEDAT2_STATE = 3
+
+
+@njit(cache=True, nogil=True)
+def decode_aedat2(words, state, davis, w, h, t, x, y, p, where, imu_t, imu_v):  # pragma: no cover
+    """``words`` are byte-swapped uint32 pairs (address, time).
+
+    DVS128: bit 0 polarity (0 = ON, as jAER reads it), bits 1-7 x (mirrored),
+    bits 8-14 y (bottom-left origin), bit 15 external event. DAVIS: bit 31
+    APS/IMU, bits 22-30 y (bottom-left), bits 12-21 x (mirrored), bit 11
+    polarity (1 = ON), bit 10 external event; IMU
+    words are APS-type with bits 10-11 = 3, bits 28-30 the sample's component
+    and bits 12-27 its value (7 words per sample).
+    Returns (n_events, n_imu_words)."""
+    wraps = state[0]
+    last = state[1]
+    have = state[2]
+    n = 0
+    ni = 0
+    m = words.shape[0] // 2
+    for i in range(m):
+        a = np.int64(words[2 * i])
+        raw = np.int64(words[2 * i + 1])
+        if have == 1 and raw < last and last - raw > (np.int64(1) << 31):
+            wraps += 1
+        last = raw
+        have = 1
+        ts = (wraps << 32) + raw
+        if davis:
+            if (a >> 31) & 1:
+                if (a >> 10) & 3 == 3:
+                    imu_t[ni] = ts
+                    imu_v[ni, 0] = (a >> 28) & 7
+                    imu_v[ni, 1] = (a >> 12) & 0xFFFF
+                    ni += 1
+                continue
+            if (a >> 10) & 1:
+                continue
+            t[n] = ts
+            x[n] = w - 1 - ((a >> 12) & 0x3FF)
+            y[n] = h - 1 - ((a >> 22) & 0x1FF)
+            p[n] = 1 if (a >> 11) & 1 else -1
+        else:
+            if (a >> 15) & 1:
+                continue
+            t[n] = ts
+            x[n] = w - 1 - ((a >> 1) & 0x7F)
+            y[n] = h - 1 - ((a >> 8) & 0x7F)
+            p[n] = -1 if a & 1 else 1
+        where[n] = i
+        n += 1
+    state[0] = wraps
+    state[1] = last
+    state[2] = have
+    return n, ni

@@ -1,0 +1,283 @@
+"""Prophesee RAW (EVT 2.0, EVT 3.0) and DAT files.
+
+RAW files start with ``% key value`` header lines (``% evt 2.0`` or
+``% format EVT3``, ``% geometry WxH``, optionally ``% end``); DAT files with
+``% ...`` lines, then two bytes: event type (0 Event2d, 12 EventCD) and size
+(8). Layouts follow Prophesee's documentation:
+
+* EVT 2.0: 32-bit words, type in bits 31-28: CD_OFF 0x0 / CD_ON 0x1 (6-bit
+  time LSB, 11-bit x, 11-bit y), EV_TIME_HIGH 0x8 (28 bits, time >> 6),
+  EXT_TRIGGER 0xA, OTHERS 0xE, CONTINUED 0xF. Time has 34 bits; wraps unrolled.
+* EVT 3.0: 16-bit words, type in bits 15-12: ADDR_Y 0x0, ADDR_X 0x2,
+  VECT_BASE_X 0x3, VECT_12 0x4, VECT_8 0x5, TIME_LOW 0x6, CONTINUED_4 0x7,
+  TIME_HIGH 0x8, EXT_TRIGGER 0xA, OTHERS 0xE, CONTINUED_12 0xF. Time has 24
+  bits (wraps every 16.8 s): a TIME_HIGH falling by more than half its range
+  counts one wrap.
+* DAT: 8-byte records, uint32 time (µs, wraps unrolled), uint32 with x in
+  bits 0-13, y in bits 14-27, polarity in bits 28-31.
+
+Events before the first time base (EVT ``TIME_HIGH``) have no time and are
+dropped (counted in :attr:`RawSource.untimed_events`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any, ClassVar
+
+import numpy as np
+
+from tectum import FormatError, Packet
+
+from . import _kernels as K
+from ._common import EventAssembler, FileSource, header_dict, read_prefixed_header, sensor_from_header, t0_from_header
+
+__all__ = ["Evt2Source", "Evt3Source", "DatSource", "raw_format_of"]
+
+
+def raw_format_of(h: dict[str, str]) -> str | None:
+    """"evt2", "evt3" or None from a RAW header dictionary."""
+    fmt = h.get("format", "").split(";")[0].strip().upper()
+    evt = h.get("evt", "").strip()
+    if fmt in ("EVT3", "EVT3.0") or evt.startswith("3"):
+        return "evt3"
+    if fmt in ("EVT2", "EVT2.0") or evt.startswith("2"):
+        return "evt2"
+    return None
+
+
+class RawSource(FileSource):
+    """Common part of the EVT 2.0 and EVT 3.0 readers."""
+
+    extensions: ClassVar[tuple[str, ...]] = (".raw",)
+    word: ClassVar[type] = np.uint32
+    state_size: ClassVar[int] = 0
+    evt: ClassVar[str] = ""
+    #: events a word can yield at most
+    fanout: ClassVar[int] = 1
+
+    @classmethod
+    def sniff(cls, head: bytes) -> bool:
+        if not head.startswith(b"%"):
+            return False
+        lines = [ln[1:].strip().decode("latin1", "replace") for ln in head.split(b"\n")[:64] if ln.startswith(b"%")]
+        return raw_format_of(header_dict(lines)) == cls.evt
+
+    def _header(self, f: Any) -> tuple[dict[str, str], int, tuple[int, int] | None]:
+        lines, start = read_prefixed_header(f, b"%", self.path)
+        h = header_dict(lines)
+        fmt = raw_format_of(h)
+        if fmt is not None and fmt != self.evt:
+            self._fail(f"the header says {fmt}, this reader reads {self.evt}")
+        self.t0_offset = t0_from_header(h, self.path)
+        self.header = h
+        return h, start, sensor_from_header(h)
+
+    def _decode(self, words: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, ...]:
+        n = words.shape[0] * self.fanout
+        t = np.empty(n, np.int64)
+        x = np.empty(n, np.uint16)
+        y = np.empty(n, np.uint16)
+        p = np.empty(n, np.int8)
+        where = np.empty(n, np.int64)
+        trig = np.empty(words.shape[0], np.int64)
+        kernel = K.decode_evt2 if self.evt == "evt2" else K.decode_evt3
+        ne, nt, bad, nbad = kernel(words, state, not self.skip_bad, t, x, y, p, where, trig)
+        return t[:ne], x[:ne], y[:ne], p[:ne], where[:ne], int(bad), int(nbad), int(nt)
+
+    def _words(self, f: Any, start: int) -> Iterator[tuple[int, np.ndarray]]:
+        size = np.dtype(self.word).itemsize
+        step = max(size, self.chunk_bytes - self.chunk_bytes % size)
+        pos = start
+        while True:
+            buf = f.read(step)
+            if not buf:
+                return
+            k = len(buf) - len(buf) % size
+            if k < len(buf):
+                if not self.skip_bad:
+                    self._fail(f"file ends inside a {size}-byte word (truncated)", pos + k)
+                self._note_skip(pos + k, pos + len(buf) - 1, 1)
+            yield pos, np.frombuffer(buf, dtype="<" + np.dtype(self.word).str[1:], count=k // size)
+            pos += len(buf)
+
+    def _packets(self) -> Iterator[Packet]:
+        f = self._open()
+        h, start, sensor = self._header(f)
+        sensor = self._sensor(sensor)
+        if sensor is None:
+            sensor = self._scan_extent(f, start)
+        yield from self._events(f, start, sensor)
+
+    def _scan_extent(self, f: Any, start: int) -> tuple[int, int]:
+        """No geometry in the file or options: the extent of the coordinates."""
+        state = np.zeros(self.state_size, np.int64)
+        w = h = 1
+        f.seek(start)
+        for _, words in self._words(f, start):
+            t, x, y, *_ = self._decode(words, state)
+            if t.shape[0]:
+                w, h = max(w, int(x.max()) + 1), max(h, int(y.max()) + 1)
+        f.seek(start)
+        return w, h
+
+    def _events(self, f: Any, start: int, sensor: tuple[int, int]) -> Iterator[Packet]:
+        state = np.zeros(self.state_size, np.int64)
+        asm = EventAssembler(self, sensor, offset=self.t0_offset if self.apply_t0 else 0)
+        size = np.dtype(self.word).itemsize
+        self.triggers = 0
+        for pos, words in self._words(f, start):
+            t, x, y, p, where, bad, nbad, nt = self._decode(words, state)
+            self.triggers += nt
+            if bad >= 0:
+                if not self.skip_bad:
+                    self._fail(f"invalid {self.evt.upper()} word 0x{int(words[bad]):0{2 * size}x}",
+                               pos + bad * size)
+                self._note_skip(pos + bad * size, pos + bad * size + size - 1, nbad)
+            yield from asm.push(t, x, y, p, pos, pos + where * size)
+            if self.t_end_us is not None and asm.last_t is not None and asm.last_t >= self.t_end_us:
+                break
+        self.untimed_events = int(state[4] if self.evt == "evt2" else state[7])
+        yield from asm.finish()
+
+
+class Evt2Source(RawSource):
+    """Prophesee RAW EVT 2.0 files (``% evt 2.0``)."""
+
+    name = "evt2"
+    format = "evt2"
+    evt = "evt2"
+    word = np.uint32
+    state_size = K.EVT2_STATE
+    fanout = 1
+
+
+class Evt3Source(RawSource):
+    """Prophesee RAW EVT 3.0 files (``% evt 3.0`` / ``% format EVT3``)."""
+
+    name = "evt3"
+    format = "evt3"
+    evt = "evt3"
+    word = np.uint16
+    state_size = K.EVT3_STATE
+    fanout = 12
+
+
+class DatSource(FileSource):
+    """Prophesee ``.dat`` files (EventCD and the older Event2d).
+
+    The records are fixed-size and sorted, so a time range is found by
+    bisection on the file, without decoding what comes before it.
+    """
+
+    name = "dat"
+    format = "dat"
+    extensions = (".dat",)
+
+    @classmethod
+    def sniff(cls, head: bytes) -> bool:
+        if not head.startswith(b"% "):
+            return False
+        low = head[:2048].lower()
+        return b"% data file" in low or (b"% version" in low and b"% evt" not in low and b"format evt" not in low)
+
+    def _header(self, f: Any) -> tuple[int, tuple[int, int] | None]:
+        lines, start = read_prefixed_header(f, b"%", self.path)
+        h = header_dict(lines)
+        self.header = h
+        self.t0_offset = t0_from_header(h, self.path)
+        if raw_format_of(h) is not None:
+            self._fail("this is a RAW (EVT) file, not DAT")
+        tb = f.read(2)
+        if len(tb) < 2:
+            self._fail("file ends before the event type and size bytes (truncated)", start)
+        ev_type, ev_size = tb[0], tb[1]
+        if ev_size != 8:
+            self._fail(f"event size {ev_size} is not 8 (type {ev_type})", start + 1)
+        if ev_type not in (0, 12):
+            self._fail(f"event type {ev_type} is not Event2d (0) or EventCD (12)", start)
+        self.event_type = ev_type
+        return start + 2, sensor_from_header(h)
+
+    def _packets(self) -> Iterator[Packet]:
+        f = self._open()
+        start, sensor = self._header(f)
+        sensor = self._sensor(sensor)
+        size = f.seek(0, 2)
+        end = start + (size - start) // 8 * 8
+        if end < size and not self.skip_bad:
+            self._fail(f"file ends inside an 8-byte record (truncated, {size - end} bytes left)", end)
+        if end < size:
+            self._note_skip(end, size - 1, 1)
+        if sensor is None:
+            sensor = self._scan_extent(f, start, end)
+        pos = start
+        if self.t_start_us is not None:
+            pos = self._bisect(f, start, end, self.t_start_us - (self.t0_offset if self.apply_t0 else 0))
+        yield from self._events(f, pos, end, sensor)
+
+    def _bisect(self, f: Any, start: int, end: int, t: int) -> int:
+        """First record at or after time ``t`` (raw µs), assuming no wrap."""
+        lo, hi = 0, (end - start) // 8
+        while lo < hi:
+            mid = (lo + hi) // 2
+            f.seek(start + mid * 8)
+            if int.from_bytes(f.read(4), "little") < t:
+                lo = mid + 1
+            else:
+                hi = mid
+        return start + lo * 8
+
+    def _chunks(self, f: Any, pos: int, end: int) -> Iterator[tuple[int, np.ndarray]]:
+        step = max(8, self.chunk_bytes // 8 * 8)
+        f.seek(pos)
+        while pos < end:
+            buf = f.read(min(step, end - pos))
+            if not buf:
+                return
+            yield pos, np.frombuffer(buf, "<u4")
+            pos += len(buf)
+
+    def _decode(self, words: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, ...]:
+        m = words.shape[0] // 2
+        t, x, y = np.empty(m, np.int64), np.empty(m, np.uint16), np.empty(m, np.uint16)
+        p = np.empty(m, np.int8)
+        K.decode_dat(words, state, t, x, y, p)
+        return t, x, y, p
+
+    def _scan_extent(self, f: Any, start: int, end: int) -> tuple[int, int]:
+        w = h = 1
+        state = np.zeros(K.DAT_STATE, np.int64)
+        for _, words in self._chunks(f, start, end):
+            _, x, y, _ = self._decode(words, state)
+            if x.shape[0]:
+                w, h = max(w, int(x.max()) + 1), max(h, int(y.max()) + 1)
+        return w, h
+
+    def _events(self, f: Any, pos: int, end: int, sensor: tuple[int, int]) -> Iterator[Packet]:
+        state = np.zeros(K.DAT_STATE, np.int64)
+        asm = EventAssembler(self, sensor, offset=self.t0_offset if self.apply_t0 else 0)
+        for at, words in self._chunks(f, pos, end):
+            t, x, y, p = self._decode(words, state)
+            yield from asm.push(t, x, y, p, at, at + 8 * np.arange(t.shape[0], dtype=np.int64)
+                                if self._needs_where(t, x, y, sensor) else None)
+            if self.t_end_us is not None and asm.last_t is not None and asm.last_t >= self.t_end_us:
+                break
+        yield from asm.finish()
+
+    @staticmethod
+    def _needs_where(t: np.ndarray, x: np.ndarray, y: np.ndarray, sensor: tuple[int, int]) -> bool:
+        """Byte offsets per event are only built when something is wrong."""
+        if t.shape[0] == 0:
+            return False
+        return bool(np.any(t[1:] < t[:-1]) or x.max() >= sensor[0] or y.max() >= sensor[1])
+
+
+def check_raw_header(path: str) -> str:
+    """"evt2" or "evt3" for a RAW file (from its header), else FormatError."""
+    with open(path, "rb") as f:
+        lines, _ = read_prefixed_header(f, b"%", path)
+    fmt = raw_format_of(header_dict(lines))
+    if fmt is None:
+        raise FormatError("RAW header names no event format (% evt / % format)", path=path, offset=0)
+    return fmt
