@@ -17,6 +17,7 @@ from ._packet import (
     PosePacket as PosePacket,
     ResultPacket as ResultPacket,
     SamplePacket as SamplePacket,
+    TriggerPacket as TriggerPacket,
     concat as concat,
 )
 from ._pipeline import BatchPolicy as BatchPolicy, Pipeline as Pipeline, Plan as Plan

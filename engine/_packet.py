@@ -39,6 +39,7 @@ __all__ = [
     "FramePacket",
     "ImuPacket",
     "PosePacket",
+    "TriggerPacket",
     "ResultPacket",
     "concat",
 ]
@@ -55,6 +56,7 @@ class Kind(str, enum.Enum):
     FRAMES = "frames"
     IMU = "imu"
     POSES = "poses"
+    TRIGGERS = "triggers"
     RESULTS = "results"
 
     def __str__(self) -> str:
@@ -497,6 +499,15 @@ class PosePacket(SamplePacket):
 
     kind = Kind.POSES
     fields = ("position", "orientation")
+
+
+class TriggerPacket(SamplePacket):
+    """External trigger / special events: ``channel`` (int, the input or
+    trigger id of the format) and ``value`` (1 rising edge, 0 falling edge,
+    or the format's own code), one per timestamp in µs."""
+
+    kind = Kind.TRIGGERS
+    fields = ("channel", "value")
 
 
 class ResultPacket(SamplePacket):
