@@ -1,14 +1,39 @@
-"""Family ``filter``: event filters (denoising, refractory, masks, geometry)."""
+"""Family ``filter``: event filters (denoising, refractory, masks, geometry,
+undistortion, rate limiting). Each operator is a thin class around numba
+kernels that are importable on their own."""
 
 from __future__ import annotations
 
 from tectum.hookspecs import hookimpl
 
-from .refractory import Refractory
+from .background_activity import BackgroundActivity, background_activity_kernel
+from .calibration import Camera, read_calibration, read_uzh_calib
+from .geometry import Downsample, Flip, Roi, Rotate
+from .hot_pixel import HotPixel
+from .mask import Mask
+from .metrics import binomial_pass, denoise_rates, roc_auc
+from .polarity import Polarity
+from .rate_limit import RateLimit
+from .refractory import Refractory, refractory_kernel
+from .stcf import SpatioTemporalCorrelation, stcf_kernel
+from .time_window import TimeWindow
+from .undistort import Undistort, undistort_lut
 
-__all__ = ["Refractory"]
+__all__ = [
+    "BackgroundActivity", "SpatioTemporalCorrelation", "Refractory", "HotPixel", "Mask", "Polarity",
+    "Roi", "Flip", "Rotate", "Downsample", "TimeWindow", "RateLimit", "Undistort",
+    "Camera", "read_calibration", "read_uzh_calib", "undistort_lut",
+    "background_activity_kernel", "stcf_kernel", "refractory_kernel",
+    "denoise_rates", "roc_auc", "binomial_pass", "OPERATORS",
+]
+
+OPERATORS = (
+    BackgroundActivity, SpatioTemporalCorrelation, Refractory, HotPixel, Mask, Polarity,
+    Roi, Flip, Rotate, Downsample, TimeWindow, RateLimit, Undistort,
+)
 
 
 @hookimpl
 def tectum_register_operators(registry) -> None:  # type: ignore[no-untyped-def]
-    registry.add_operator(Refractory)
+    for cls in OPERATORS:
+        registry.add_operator(cls)

@@ -7,9 +7,9 @@ from numba import njit
 
 from tectum import EventPacket, Operator
 
-__all__ = ["Refractory", "refractory_kernel"]
+from ._state import NEVER, select
 
-_NEVER = np.iinfo(np.int64).min // 2
+__all__ = ["Refractory", "refractory_kernel"]
 
 
 @njit(cache=True, nogil=True)
@@ -47,7 +47,7 @@ class Refractory(Operator):
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self.last is None:
             w, h = packet.sensor
-            self.last = np.full((h, w), _NEVER, np.int64)
+            self.last = np.full((h, w), NEVER, np.int64)
         keep = np.empty(len(packet), np.bool_)
         refractory_kernel(packet.t, packet.x, packet.y, self.last, self.period_us, keep)
-        return [packet.select(keep)]
+        return [select(packet, keep)]

@@ -1,0 +1,135 @@
+"""Slicing an event stream into windows for the ``repr`` operators.
+
+Two modes, the same rules for every representation:
+
+* time (``window_us``): windows ``[t0 + k W, t0 + (k + 1) W)`` from the first
+  packet's ``t_start`` ``t0``. A window is emitted as soon as the watermark
+  (``packet.t_end``) reaches its end, with or without events; its frame is
+  stamped with the window's last µs, ``end - 1``.
+* count (``count``): every ``count`` events make one window (events sharing a
+  timestamp may fall in two windows); the frame is stamped with the time of
+  its last event and emitted as soon as that event arrives.
+
+With ``partial`` (default) the unfinished window at end of stream is emitted
+too when it holds events (a count window is then stamped at the end of the
+stream). Windows depend only on timestamps and counts, never on packet
+boundaries: the output is batch invariant.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from tectum import EventPacket, FramePacket, Kind, Operator
+
+__all__ = ["Windowed"]
+
+
+class Windowed(Operator):
+    """Base of the ``repr`` operators. Subclasses implement :meth:`_start`
+    (allocate state for a sensor), :meth:`_add` (accumulate events, arrays
+    are views) and :meth:`_frame` (the image of the window whose events span
+    ``[t0, t1]`` µs, then reset per-window state)."""
+
+    consumes = (Kind.EVENTS,)
+    produces = (Kind.FRAMES,)
+
+    def __init__(self, window_us: int | None = None, count: int | None = None, partial: bool = True) -> None:
+        self._init_window(window_us, count, partial)
+
+    def _init_window(self, window_us: int | None, count: int | None, partial: bool) -> None:
+        if window_us is not None and count is not None:
+            raise ValueError("give window_us or count, not both")
+        if count is None and window_us is None:
+            window_us = 10_000
+        if (count is not None and count < 1) or (window_us is not None and window_us < 1):
+            raise ValueError("window_us and count must be >= 1")
+        self.window_us, self.count, self.partial = window_us, count, bool(partial)
+        self._sensor: tuple[int, int] | None = None
+        self._end = 0          # time mode: end of the current window (µs)
+        self._n = 0            # events in the current window
+        self._first = 0        # count mode: time of the window's first event
+        self._last = 0         # time of the latest event seen
+        self._out = 0          # watermark of the frame stream
+
+    # -- subclass hooks ---------------------------------------------------------
+    def _start(self, sensor: tuple[int, int]) -> None:
+        raise NotImplementedError
+
+    def _add(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray) -> None:
+        raise NotImplementedError
+
+    def _frame(self, t0: int, t1: int) -> np.ndarray:
+        raise NotImplementedError
+
+    # -- slicing ------------------------------------------------------------------
+    def process(self, packet: EventPacket) -> list[FramePacket]:
+        if self._sensor is None:
+            self._sensor = packet.sensor
+            self._start(packet.sensor)
+            self._out = packet.t_start
+            self._end = packet.t_start + (self.window_us or 0)
+        frames: list[tuple[int, np.ndarray]] = []
+        if self.count is None:
+            self._by_time(packet, frames)
+        else:
+            self._by_count(packet, frames)
+        if len(packet):
+            self._last = int(packet.t[-1])
+        return [self._emit(frames, packet.t_end)]
+
+    def _by_time(self, pk: EventPacket, frames: list[tuple[int, np.ndarray]]) -> None:
+        w = int(self.window_us)  # type: ignore[arg-type]
+        t, pos, n = pk.t, 0, len(pk)
+        while self._end <= pk.t_end:
+            j = int(np.searchsorted(t, self._end, side="left")) if pos < n else n
+            self._take(pk, pos, j)
+            frames.append((self._end - 1, self._frame(self._end - w, self._end - 1)))
+            self._n = 0
+            self._end += w
+            pos = j
+        self._take(pk, pos, n)
+
+    def _by_count(self, pk: EventPacket, frames: list[tuple[int, np.ndarray]]) -> None:
+        c = int(self.count)  # type: ignore[arg-type]
+        pos, n = 0, len(pk)
+        while n - pos >= c - self._n:
+            j = pos + c - self._n
+            self._take(pk, pos, j)
+            last = int(pk.t[j - 1])
+            frames.append((last, self._frame(self._first, last)))
+            self._n = 0
+            pos = j
+        self._take(pk, pos, n)
+
+    def _take(self, pk: EventPacket, i: int, j: int) -> None:
+        if j > i:
+            if self._n == 0:
+                self._first = int(pk.t[i])
+            self._add(pk.t[i:j], pk.x[i:j], pk.y[i:j], pk.p[i:j])
+            self._n += j - i
+
+    def _emit(self, frames: list[tuple[int, np.ndarray]], t_end: int) -> FramePacket:
+        t0 = self._out
+        self._out = max(t_end, self._out)
+        if not frames:
+            return FramePacket(np.empty(0, np.int64), images=np.empty((0, 0, 0)), t_start=t0, t_end=self._out)
+        ts = np.array([f[0] for f in frames], np.int64)
+        images = frames[0][1][None] if len(frames) == 1 else np.stack([f[1] for f in frames])
+        return FramePacket(ts, images=images, t_start=t0, t_end=self._out)
+
+    def finish(self) -> list[FramePacket]:
+        if not (self.partial and self._n and self._sensor is not None):
+            return []
+        if self.count is None:
+            stamp, image = self._end - 1, self._frame(self._end - self.window_us, self._end - 1)  # type: ignore[operator]
+        else:
+            stamp, image = max(self._last, self._out), self._frame(self._first, self._last)
+        self._n = 0
+        return [self._emit([(stamp, image)], stamp + 1)]
+
+    def describe(self) -> dict[str, Any]:
+        """The slicing parameters (for logs and sinks)."""
+        return {"window_us": self.window_us, "count": self.count, "partial": self.partial}

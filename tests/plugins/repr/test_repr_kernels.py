@@ -1,0 +1,71 @@
+"""The plain functions (tonic style) against slow obvious references."""
+
+import math
+
+import numpy as np
+import pytest
+from helpers import bars
+
+from tectum.plugins import repr as R
+from tectum.plugins.repr.kernels import NEVER
+
+
+@pytest.fixture
+def ev():
+    return bars(duration_us=20_000, sensor="20x12", noise_hz=100.0, speed=300.0)
+
+
+def loop(ev):
+    return zip(ev.t.tolist(), ev.x.tolist(), ev.y.tolist(), ev.p.tolist())
+
+
+def test_event_frame_accumulate_count(ev):
+    h, w = 12, 20
+    hist = np.zeros((h, w, 2), int)
+    signed = np.zeros((h, w), int)
+    for _, x, y, p in loop(ev):
+        hist[y, x, 1 if p > 0 else 0] += 1
+        signed[y, x] += p
+    assert np.array_equal(R.event_frame(ev), hist)
+    assert np.array_equal(R.accumulate(ev), signed)
+    assert np.array_equal(R.count_image(ev), hist.sum(2))
+
+
+def test_sae_and_time_surface(ev):
+    ref = np.full((12, 20, 2), NEVER, np.int64)
+    for t, x, y, p in loop(ev):
+        ref[y, x, 1 if p > 0 else 0] = t
+    assert np.array_equal(R.sae(ev), ref)
+    t_ref, tau = int(ev.t[-1]), 3000.0
+    ts = R.time_surface(ev, tau_us=tau, t_ref=t_ref)
+    exp = np.where(ref == NEVER, 0.0, np.exp(-(t_ref - ref.astype(float)) / tau))
+    assert ts.dtype == np.float32 and np.allclose(ts, exp, atol=1e-6)
+
+
+def test_voxel_grid(ev):
+    bins, t0, t1 = 4, int(ev.t[0]), int(ev.t[-1])
+    ref = np.zeros((12, 20, bins))
+    for t, x, y, p in loop(ev):
+        u = (bins - 1) * (t - t0) / (t1 - t0)
+        for b in range(bins):
+            ref[y, x, b] += p * max(0.0, 1.0 - abs(u - b))
+    vg = R.voxel_grid(ev, bins=bins)
+    assert vg.dtype == np.float32 and np.allclose(vg, ref, atol=1e-4)
+    # polarity is conserved
+    assert np.allclose(vg.sum(2), R.accumulate(ev), atol=1e-4)
+
+
+def test_color(ev):
+    img = R.color(ev, on="#ff0000", off="#0000ff", background="#101010")
+    last = {}
+    for _, x, y, p in loop(ev):
+        last[(x, y)] = p
+    assert img.shape == (12, 20, 3) and img.dtype == np.uint8
+    for (x, y), p in last.items():
+        assert tuple(img[y, x]) == ((255, 0, 0) if p > 0 else (0, 0, 255))
+    untouched = np.ones((12, 20), bool)
+    for x, y in last:
+        untouched[y, x] = False
+    assert np.all(img[untouched] == 16)
+    with pytest.raises(ValueError):
+        R.parse_color("#12345")
