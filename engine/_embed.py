@@ -45,6 +45,7 @@ class Stepper:
 
     @property
     def stats(self) -> Stats:
+        self.graph.collect_counters()
         return self.graph.stats
 
     def _route(self, deliveries: list[tuple[str, Any]]) -> dict[str, list[Packet]]:

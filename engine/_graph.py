@@ -157,6 +157,14 @@ class Graph:
                 self.mergers[nid] = Merger([plan.nodes[i].provides for i in node.spec.inputs])
         self._wire()
 
+    def collect_counters(self) -> None:
+        """Copy operators' own drop counters (an int ``dropped`` attribute,
+        e.g. a rate limiter's) into the stats."""
+        for nid, op in self.ops.items():
+            d = getattr(op, "dropped", None)
+            if isinstance(d, int):
+                self.stats.nodes[nid].drops = d
+
     # -- driving ----------------------------------------------------------------
     def push(self, node_id: str, pkt: Packet) -> list[Delivery]:
         """Emit ``pkt`` as the output of ``node_id`` (a source, usually)."""

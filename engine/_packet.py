@@ -349,9 +349,14 @@ class EventPacket(Packet):
         mask = np.asarray(mask)
         if mask.dtype != np.bool_ or mask.shape != self.t.shape:
             raise PacketError(f"select needs a bool mask of shape {self.t.shape}, got {mask.dtype} {mask.shape}")
+        idx = np.flatnonzero(mask)  # scan the mask once, not once per column
+        return self.take(idx)
+
+    def take(self, idx: np.ndarray) -> "EventPacket":
+        """The events at the increasing indices ``idx`` (a copy), same interval."""
         return EventPacket._trusted(
-            self.t[mask], self.x[mask], self.y[mask], self.p[mask], self.sensor, self.t_start, self.t_end,
-            {k: v[mask] for k, v in self.columns.items()},
+            self.t[idx], self.x[idx], self.y[idx], self.p[idx], self.sensor, self.t_start, self.t_end,
+            {k: v[idx] for k, v in self.columns.items()},
         )
 
     def with_columns(self, **columns: np.ndarray) -> "EventPacket":

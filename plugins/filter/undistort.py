@@ -66,6 +66,8 @@ class Undistort(Operator):
     """
 
     name = "filter.undistort"
+    #: For the batch-invariance check of every built-in (a 48x36 sensor, strong barrel distortion).
+    conformance_params = {"camera": Camera(K=[[40.0, 0, 24], [0, 40.0, 18], [0, 0, 1]], D=[-0.3, 0.1, 0, 0])}
 
     def __init__(self, calib: str = "", side: Literal["mono", "left", "right"] = "mono",
                  camera: Camera | None = None) -> None:

@@ -1,0 +1,275 @@
+"""``tectum bench flow``: speed and accuracy of the flow and lifetime methods.
+
+* speed: Mev/s and µs per event of every method/setting on one core, on a
+  346x260 textured scene (edges of three orientations translating);
+  contrast maximisation also as a real-time factor on a 1 Mev/s stream.
+* accuracy: on the reference scene (straight edges at 1000 px/s, 300 µs
+  timestamp jitter, 1 Hz/px noise; normal-flow methods against the normal
+  component of the truth), on texture (full flow), and on simulator scenes
+  when ``tectum.sources.simulate`` is there (normal-flow methods against the
+  truth projected on their estimated direction). AEE (px/s, %), median
+  relative error, AAE, density, noise given a flow; lifetime relative error.
+* failure maps: sweeps of noise rate, speed, texture density, edge
+  orientation and contrast threshold; per method the first value where the
+  median error doubles (against the sweep's best) or density falls under
+  half of its best. Charts (PNG) need matplotlib (extra ``charts``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tectum import EventPacket, concat
+from tectum.bench import table, throughput
+from tectum.plugins.flow import ContrastMax, EdgeSpeed, LucasKanade, PlaneFit
+from tectum.plugins.flow.metrics import flow_errors, lifetime_errors
+from tectum.plugins.flow.scenes import translating_edges
+from tectum.plugins.lifetime import PlaneFitLifetime
+from tectum.testing import feed
+
+#: method/setting -> (factory, flow type)
+METHODS: dict[str, tuple[Callable[[], Any], str]] = {
+    "edge_speed": (EdgeSpeed, "normal"),
+    "plane_fit naive 5x5": (lambda: PlaneFit(radius=2, n_iter=0, reject_us=1e12, max_rms=1e12), "normal"),
+    "plane_fit benosman 5x5": (PlaneFit, "normal"),
+    "plane_fit robust 5x5": (lambda: PlaneFit(radius=2, robust=True), "normal"),
+    "plane_fit robust 7x7": (lambda: PlaneFit(radius=3, robust=True), "normal"),
+    "lucas_kanade normal": (lambda: LucasKanade(radius=3, dt_us=2000, min_explained=0.0), "normal"),
+    "lucas_kanade full": (lambda: LucasKanade(radius=3, dt_us=2000, mode="full", min_explained=0.0), "full"),
+    "contrast_max 32px/10ms": (ContrastMax, "full"),
+}
+
+
+def _edges(speed: float = 1000.0, angle: float = 30.0, noise_hz: float = 1.0, jitter_us: float = 300.0,
+           spacing: float = 16.0, threshold: float = 0.5, duration_us: int = 60_000, sensor=(96, 96),
+           angles: tuple[float, ...] | None = None, seed: int = 1) -> EventPacket:
+    v = speed * np.array([np.cos(np.radians(angle)), np.sin(np.radians(angle))])
+    one = threshold >= 0.5  # the reference: one event per pixel crossing, sharp edges
+    return translating_edges(sensor, duration_us, v[0], v[1], angles_deg=angles or (angle,), spacing_px=spacing,
+                             contrast=(0.5, 0.5) if one else (0.3, 0.8), threshold=threshold,
+                             blur_px=0.0 if one else 1.0, jitter_us=jitter_us, noise_hz=noise_hz, seed=seed)
+
+
+def _run(make: Callable[[], Any], pkt: EventPacket) -> EventPacket:
+    return concat(feed(make(), [pkt.without_columns("vx", "vy", "lifetime")]))  # type: ignore[return-value]
+
+
+def _score(out: EventPacket, truth: EventPacket, kind: str, project: bool = False) -> dict[str, float]:
+    if kind == "full":
+        tx, ty = truth["vx"], truth["vy"]
+    elif project:  # simulator: truth projected on the estimated normal direction
+        ex, ey = out["vx"].astype(np.float64), out["vy"].astype(np.float64)
+        nrm = np.hypot(ex, ey)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ux, uy = ex / nrm, ey / nrm
+        s = truth["vx"] * ux + truth["vy"] * uy
+        ok = np.isfinite(s)
+        tx = np.where(ok, s * ux, truth["vx"])  # invalid estimates keep the (finite) truth: counted in density
+        ty = np.where(ok, s * uy, truth["vy"])
+    else:
+        tx, ty = truth["nvx"], truth["nvy"]
+    # events of still parts (true speed < 1 px/s) have no relative error: left out, like noise
+    still = np.hypot(truth["vx"], truth["vy"]) < 1.0
+    noise = ((truth["noise"] != 0) | still).astype(np.uint8)
+    return flow_errors(out["vx"], out["vy"], out["valid"], tx, ty, noise)
+
+
+def speed(quick: bool) -> list[dict[str, Any]]:
+    pkt = translating_edges((346, 260), 20_000 if quick else 60_000, 600.0, 250.0, angles_deg=(0, 60, 120),
+                            spacing_px=12, jitter_us=100, noise_hz=1.0, seed=3).without_columns("vx", "vy")
+    rows = []
+    for name, (make, _) in METHODS.items():
+        r = throughput(lambda: feed(make(), [pkt]), len(pkt), repeat=2 if quick else 3)
+        rows.append({"method": name, "mev_s": r["mev_s"], "us_per_event": 1.0 / r["mev_s"]})
+    r = throughput(lambda: PlaneFitLifetime().process(pkt), len(pkt), repeat=2 if quick else 3)
+    rows.append({"method": "lifetime plane_fit", "mev_s": r["mev_s"], "us_per_event": 1.0 / r["mev_s"]})
+    # contrast maximisation on a 1 Mev/s, 346x260 stream: compute time / stream time
+    dur = 100_000 if quick else 300_000
+    tex = translating_edges((346, 260), dur, 300.0, 150.0, angles_deg=(0, 60, 120), spacing_px=40,
+                            contrast=(0.5, 0.5), threshold=0.5, blur_px=0, jitter_us=100, noise_hz=1.0, seed=4)
+    rate = len(tex) / (dur * 1e-6) / 1e6
+    t0 = time.perf_counter()
+    feed(ContrastMax(), [tex.without_columns("vx", "vy")])
+    el = time.perf_counter() - t0
+    rows.append({"method": f"contrast_max real-time factor at {rate:.2f} Mev/s (346x260)",
+                 "mev_s": len(tex) / el / 1e6, "us_per_event": el / len(tex) * 1e6,
+                 "realtime_factor": (dur * 1e-6) / el})
+    return rows
+
+
+def accuracy(quick: bool) -> list[dict[str, Any]]:
+    rows = []
+    ref = _edges()
+    tex = _edges(speed=800.0, angle=30.0, angles=(0.0, 60.0, 120.0), spacing=12, jitter_us=300.0)
+    for name, (make, kind) in METHODS.items():
+        scene, truth = (ref, "reference edges 1000 px/s, 300 us jitter, 1 Hz/px (vs normal truth)") if kind == "normal" \
+            else (tex, "texture 800 px/s, 300 us jitter, 1 Hz/px (vs full truth)")
+        rows.append({"method": name, "scene": truth, **_score(_run(make, scene), scene, kind)})
+    out = PlaneFitLifetime().process(ref.without_columns("lifetime"))[0]
+    e = lifetime_errors(out["lifetime"], ref["lifetime"], ref["noise"])
+    rows.append({"method": "lifetime plane_fit", "scene": "reference edges (vs 1/|normal speed|)",
+                 "median_rel_pct": e["median_rel_pct"], "rel_aee_pct": e["mean_rel_pct"], "density": e["density"],
+                 "noise_valid": e["noise_valid"]})
+    rows += _simulated(quick)
+    return rows
+
+
+def _simulated(quick: bool) -> list[dict[str, Any]]:
+    try:
+        from tectum.sources.simulate import simulate
+    except Exception:  # the simulator is optional here
+        return []
+    rows = []
+    for scene in ("translation_edges", "moving_texture"):
+        try:
+            ev, _ = simulate(scene, duration_us=100_000 if quick else 300_000, seed=1, preset="realistic",
+                             sensor="160x120")
+        except Exception as exc:  # pragma: no cover - report, do not fail the bench
+            rows.append({"method": "-", "scene": f"simulate:{scene} failed: {exc}"})
+            continue
+        truth = ev
+        for name, (make, kind) in METHODS.items():
+            if "naive" in name or "robust 5x5" in name:
+                continue
+            rows.append({"method": name, "scene": f"simulate:{scene} realistic ({kind})",
+                         **_score(_run(make, ev), truth, kind, project=True)})
+        out = PlaneFitLifetime().process(ev.without_columns("lifetime"))[0]
+        life = np.where(np.isfinite(ev["lifetime"]), ev["lifetime"], np.nan)
+        e = lifetime_errors(out["lifetime"], life, (ev["noise"] != 0).astype(np.uint8))
+        rows.append({"method": "lifetime plane_fit", "scene": f"simulate:{scene} realistic",
+                     "median_rel_pct": e["median_rel_pct"], "rel_aee_pct": e["mean_rel_pct"],
+                     "density": e["density"], "noise_valid": e["noise_valid"]})
+    return rows
+
+
+SWEEPS: dict[str, tuple[str, list[float]]] = {
+    "noise_hz": ("noise rate (Hz/px)", [0.1, 1, 5, 20, 50, 100]),
+    "speed": ("speed (px/s)", [1, 10, 50, 200, 1000, 2000, 5000]),
+    "spacing": ("texture: edge spacing (px)", [3, 5, 8, 16, 32]),
+    "angle": ("edge orientation (deg)", [0, 15, 30, 45, 60, 75, 90]),
+    "threshold": ("contrast threshold (log)", [0.05, 0.1, 0.2, 0.4, 0.6, 0.8]),
+}
+
+
+def _sweep_scene(param: str, value: float, kind: str) -> EventPacket:
+    kw: dict[str, Any] = {"speed": 500.0, "jitter_us": 100.0, "noise_hz": 1.0}
+    if kind == "full":
+        kw.update(angles=(0.0, 60.0, 120.0), spacing=12.0)
+    if param == "noise_hz":
+        kw["noise_hz"] = value
+    elif param == "speed":
+        kw["speed"] = value
+    elif param == "spacing":
+        kw["spacing"] = value
+    elif param == "angle":
+        kw["angle"] = value
+        if kind == "full":
+            kw["angles"] = (value, value + 60.0, value + 120.0)
+    elif param == "threshold":
+        kw["threshold"] = value
+    sp = kw["speed"]
+    dur = int(np.clip(40 / sp * 1e6, 30_000, 2_000_000))
+    kw["duration_us"] = dur
+    if sp < 100:  # slow: long windows, smaller sensor to keep it short
+        kw["sensor"] = (48, 48)
+    return _edges(**kw)
+
+
+def failure_maps(quick: bool) -> dict[str, Any]:
+    methods = {k: v for k, v in METHODS.items() if "robust 5x5" not in k}
+    maps: dict[str, Any] = {}
+    for param, (label, values) in SWEEPS.items():
+        if quick:
+            values = values[::2] + ([values[-1]] if len(values) % 2 == 0 else [])
+        per: dict[str, list[dict[str, float]]] = {}
+        for name, (make, kind) in methods.items():
+            per[name] = []
+            for v in values:
+                scene = _sweep_scene(param, v, kind)
+                per[name].append(_score(_run(make, scene), scene, kind))
+        maps[param] = {"label": label, "values": values, "results": per, "boundary": _boundaries(values, per)}
+    return maps
+
+
+def _boundaries(values: list[float], per: dict[str, list[dict[str, float]]]) -> dict[str, str]:
+    out = {}
+    for name, res in per.items():
+        err = np.array([r["median_rel_pct"] for r in res], np.float64)
+        dens = np.array([r["density"] for r in res])
+        if not np.isfinite(err).any():
+            out[name] = "never valid"
+            continue
+        best_e, best_d = np.nanmin(err), dens.max()
+        bad = [(v, "error x2" if (not np.isfinite(e) or e > 2 * max(best_e, 1.0)) else "density /2")
+               for v, e, d in zip(values, err, dens) if not np.isfinite(e) or e > 2 * max(best_e, 1.0) or d < best_d / 2]
+        out[name] = ", ".join(f"{v:g} ({why})" for v, why in bad) or "none in range"
+    return out
+
+
+def _charts(out: Path, acc: list[dict[str, Any]], spd: list[dict[str, Any]], maps: dict[str, Any]) -> list[str]:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print("matplotlib missing (pip install tectum[charts]): no charts")
+        return []
+    files = []
+    fig, ax = plt.subplots(figsize=(7, 5))
+    speeds = {r["method"]: r["mev_s"] for r in spd}
+    for r in acc:
+        if r["method"] in METHODS and "simulate" not in r["scene"]:
+            ax.scatter(speeds[r["method"]], r["rel_aee_pct"], s=40)
+            ax.annotate(f"{r['method']} ({METHODS[r['method']][1]})", (speeds[r["method"]], r["rel_aee_pct"]),
+                        fontsize=7, xytext=(4, 4), textcoords="offset points")
+    ax.set_xscale("log")
+    ax.set_xlabel("speed (Mev/s, one core)")
+    ax.set_ylabel("relative AEE (%)")
+    ax.set_title("flow: speed vs accuracy (normal flow vs normal truth; full vs full)")
+    fig.tight_layout()
+    p = out / "flow-speed-vs-aee.png"
+    fig.savefig(p, dpi=120)
+    plt.close(fig)
+    files.append(str(p))
+    for param, m in maps.items():
+        fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
+        for name, res in m["results"].items():
+            a1.plot(m["values"], [r["median_rel_pct"] for r in res], marker="o", label=name)
+            a2.plot(m["values"], [r["density"] for r in res], marker="o", label=name)
+        for a in (a1, a2):
+            a.set_xlabel(m["label"])
+            if param in ("noise_hz", "speed", "threshold"):
+                a.set_xscale("log")
+        a1.set_ylabel("median relative error (%)")
+        a1.set_yscale("log")
+        a2.set_ylabel("density (signal events with a flow)")
+        a2.legend(fontsize=7)
+        fig.suptitle(f"failure map: {m['label']}")
+        fig.tight_layout()
+        p = out / f"flow-failure-{param}.png"
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        files.append(str(p))
+    return files
+
+
+def run(out: Path, quick: bool) -> dict[str, Any]:
+    out.mkdir(parents=True, exist_ok=True)
+    spd = speed(quick)
+    print(table(spd, ["method", "mev_s", "us_per_event", "realtime_factor"]))
+    acc = accuracy(quick)
+    print(table(acc, ["method", "scene", "aee", "rel_aee_pct", "median_rel_pct", "aae_deg", "density",
+                      "noise_valid"]))
+    maps = failure_maps(quick)
+    bounds = [{"sweep": m["label"], "method": k, "fails at": v} for m in maps.values() for k, v in m["boundary"].items()]
+    print(table(bounds, ["sweep", "method", "fails at"]))
+    charts = _charts(out, acc, spd, maps)
+    for c in charts:
+        print("chart:", c)
+    return {"speed": spd, "accuracy": acc, "failure_maps": maps, "charts": charts}
