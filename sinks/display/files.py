@@ -1,0 +1,135 @@
+"""Rendered events to a video file (``.mp4``, ``.avi`` through OpenCV) or
+to PNG snapshots, and to a Python callback."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Callable
+
+import cv2
+import numpy as np
+
+from tectum import EventPacket, Packet, Sink
+
+from .render import Mode, Renderer
+
+__all__ = ["VideoSink", "PngSink", "FrameCallbackSink"]
+
+
+class _Rendering(Sink):
+    def __init__(self, fps: float, mode: Mode, tau_us: float) -> None:
+        self.fps, self.mode, self.tau_us = fps, mode, tau_us
+        self.renderer: Renderer | None = None
+        self.frames = 0
+
+    def _frames(self, packet: Packet) -> list[tuple[int, np.ndarray]]:
+        assert isinstance(packet, EventPacket)
+        if self.renderer is None:
+            self.renderer = Renderer(packet.sensor, self.fps, self.mode, self.tau_us)
+        got = self.renderer.add(packet)
+        self.frames += len(got)
+        return got
+
+
+class VideoSink(_Rendering):
+    """A video of the events at ``fps`` frames per second of event time
+    (``mode`` polarity or time_surface, ``tau_us`` decay). ``.mp4`` is
+    written with the mp4v codec, ``.avi`` with MJPG; the file appears
+    (atomically) when the run ends well."""
+
+    name = "video"
+    extensions = (".mp4", ".avi")
+
+    def __init__(self, path: str, fps: float = 30.0, mode: Mode = "polarity", tau_us: float = 30_000.0) -> None:
+        super().__init__(fps, mode, tau_us)
+        self.path = path
+        self._writer: cv2.VideoWriter | None = None
+        self._tmp: str | None = None
+
+    def write(self, packet: Packet) -> None:
+        for _t, img in self._frames(packet):
+            if self._writer is None:
+                ext = os.path.splitext(self.path)[1].lower()
+                fd, self._tmp = tempfile.mkstemp(suffix=ext, prefix=".tectum-video-",
+                                                 dir=os.path.dirname(os.path.abspath(self.path)))
+                os.close(fd)
+                fourcc = cv2.VideoWriter_fourcc(*("mp4v" if ext == ".mp4" else "MJPG"))
+                h, w = img.shape[:2]
+                self._writer = cv2.VideoWriter(self._tmp, fourcc, self.fps, (w, h))
+                if not self._writer.isOpened():
+                    raise OSError(f"OpenCV cannot write {ext} video here (codec missing)")
+            self._writer.write(img)
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.release()
+            self._writer = None
+            assert self._tmp is not None
+            os.replace(self._tmp, self.path)
+            self._tmp = None
+
+    def abort(self) -> None:
+        if self._writer is not None:
+            self._writer.release()
+            self._writer = None
+        if self._tmp and os.path.exists(self._tmp):
+            os.remove(self._tmp)
+        self._tmp = None
+
+
+class PngSink(_Rendering):
+    """PNG snapshots: the last frame of the run (``out.png``), or every
+    frame when the path holds a ``%d`` pattern (``frames/f%05d.png``)."""
+
+    name = "png"
+    extensions = (".png",)
+
+    def __init__(self, path: str, fps: float = 30.0, mode: Mode = "polarity", tau_us: float = 30_000.0) -> None:
+        super().__init__(fps, mode, tau_us)
+        self.path = path
+        self.every = "%" in path
+        self._n = 0
+        self._last: np.ndarray | None = None
+
+    def write(self, packet: Packet) -> None:
+        for _t, img in self._frames(packet):
+            if self.every:
+                _write_png(self.path % self._n, img)
+                self._n += 1
+            self._last = img
+
+    def close(self) -> None:
+        if not self.every:
+            img = self._last
+            if img is None and self.renderer is not None:
+                img = self.renderer.render(self.renderer.next_t or 0)
+            if img is not None:
+                _write_png(self.path, img)
+
+
+def _write_png(path: str, img: np.ndarray) -> None:
+    ok, buf = cv2.imencode(".png", img)
+    if not ok:
+        raise OSError("PNG encoding failed")
+    tmp = path + ".tmp"
+    with open(tmp, "wb") as f:
+        f.write(buf.tobytes())
+    os.replace(tmp, path)
+
+
+class FrameCallbackSink(_Rendering):
+    """Calls ``callback(t_us, image)`` for each rendered frame (BGR uint8,
+    (H, W, 3)), in the pipeline's thread: for applications that draw
+    themselves. Python API only: ``p.sink(FrameCallbackSink(fn), node)``."""
+
+    name = "frame_callback"
+
+    def __init__(self, callback: Callable[[int, np.ndarray], None], fps: float = 30.0,
+                 mode: Mode = "polarity", tau_us: float = 30_000.0) -> None:
+        super().__init__(fps, mode, tau_us)
+        self.callback = callback
+
+    def write(self, packet: Packet) -> None:
+        for t, img in self._frames(packet):
+            self.callback(t, img)

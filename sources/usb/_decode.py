@@ -1,0 +1,303 @@
+"""Decoders of the cameras' USB byte streams into events with int64 µs time.
+
+Each decoder keeps its whole state in one int64 array (and one float array
+for a half-read IMU sample) passed to a numba kernel, so a stream can be fed
+in chunks of any size (a partial word is held back) and the result does not
+depend on where the chunks were cut.
+
+Time reconstruction: the device counts µs in 15 bits (DAVIS) or 14 bits
+(DVS128) and sends wrap words. We add the wraps into a 64-bit counter, so
+time never overflows (libcaer's 31-bit "big wrap" does not exist here). A
+timestamp reset (device counter back to 0) moves a base offset to just past
+the last emitted time, so the output stays non-decreasing across resets;
+resets, wraps, out-of-order times (clamped) and bad addresses are counted.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+__all__ = ["Dvs128Decoder", "DavisDecoder", "Decoded"]
+
+# state slots shared by both kernels
+_WRAP, _BASE, _LAST, _WRAPS, _RESETS, _NONMONO, _CUR, _BAD, _SPECIAL = 0, 1, 2, 3, 4, 5, 6, 7, 8
+# DAVIS only
+_LASTY, _IMU_ON, _IMU_N, _IMU_TYPE, _IMU_TMP, _ACC_SC, _GYR_SC, _SX, _SY, _INV, _IMU_BAD, _APS = (
+    9, 10, 11, 12, 13, 14, 15, 16, 17, 18, 19, 20)
+_NSTATE = 24
+G = 9.80665
+
+
+@njit(cache=True)
+def _emit_time(state: np.ndarray, dev: np.int64) -> np.int64:
+    t = state[_BASE] + dev
+    if t < state[_LAST]:
+        state[_NONMONO] += 1
+        t = state[_LAST]
+    state[_LAST] = t
+    return t
+
+
+@njit(cache=True)
+def _reset(state: np.ndarray) -> None:
+    state[_RESETS] += 1
+    state[_WRAP] = 0
+    state[_CUR] = 0
+    state[_BASE] = state[_LAST] + 1 if state[_LAST] >= 0 else 0
+
+
+@njit(cache=True)
+def dvs128_kernel(buf: np.ndarray, state: np.ndarray, t: np.ndarray, x: np.ndarray, y: np.ndarray,
+                  p: np.ndarray) -> int:
+    """Decode whole 4-byte words of ``buf``; returns the number of events written."""
+    n = 0
+    for i in range(0, buf.shape[0] - 3, 4):
+        b3 = buf[i + 3]
+        if b3 & 0x80:  # wrap: +2^14 µs
+            state[_WRAPS] += 1
+            state[_WRAP] += 0x4000
+            state[_CUR] = state[_WRAP]
+        elif b3 & 0x40:  # timestamp reset
+            _reset(state)
+        else:
+            addr = np.int64(buf[i]) | (np.int64(buf[i + 1]) << 8)
+            ts = np.int64(buf[i + 2]) | (np.int64(b3) << 8)
+            state[_CUR] = state[_WRAP] + ts
+            tt = _emit_time(state, state[_CUR])
+            if addr & 0x8000:  # external sync
+                state[_SPECIAL] += 1
+                continue
+            t[n] = tt
+            x[n] = 127 - ((addr >> 1) & 0x7F)
+            y[n] = 127 - ((addr >> 8) & 0x7F)
+            p[n] = 1 if (addr & 1) == 0 else -1
+            n += 1
+    return n
+
+
+@njit(cache=True)
+def davis_kernel(words: np.ndarray, state: np.ndarray, imu_cur: np.ndarray, t: np.ndarray, x: np.ndarray,
+                 y: np.ndarray, p: np.ndarray, imu_t: np.ndarray, imu_v: np.ndarray) -> tuple[int, int]:
+    """Decode 16-bit DAVIS words; returns (events written, IMU samples written).
+
+    ``imu_v`` rows: accel x, y, z (m/s²), temperature (°C), gyro x, y, z (rad/s).
+    """
+    n = 0
+    m = 0
+    for i in range(words.shape[0]):
+        w = np.int64(words[i])
+        if w & 0x8000:  # timestamp: 15 bits on top of the wraps
+            state[_CUR] = state[_WRAP] + (w & 0x7FFF)
+            continue
+        code = (w >> 12) & 0x7
+        data = w & 0x0FFF
+        if code == 0:
+            if data == 1:
+                _reset(state)
+            elif data == 2 or data == 3 or data == 4:
+                state[_SPECIAL] += 1
+            elif data == 5:  # IMU start
+                state[_IMU_ON] = 1
+                state[_IMU_N] = 0
+                state[_IMU_TYPE] = 0
+                imu_cur[:] = 0.0
+            elif data == 7:  # IMU end
+                if state[_IMU_ON] == 1:
+                    if state[_IMU_N] == 14:
+                        imu_t[m] = _emit_time(state, state[_CUR])
+                        acc = 65536.0 / (4 * (1 << state[_ACC_SC]))
+                        gyr = 65536.0 / (500 * (1 << state[_GYR_SC]))
+                        for k in range(3):
+                            imu_v[m, k] = imu_cur[k] / acc * G
+                            imu_v[m, 4 + k] = imu_cur[4 + k] / gyr * np.pi / 180.0
+                        imu_v[m, 3] = imu_cur[3] / 340.0 + 35.0
+                        m += 1
+                    else:
+                        state[_IMU_BAD] += 1
+            elif data >= 8:
+                state[_APS] += 1
+        elif code == 1:  # row address
+            if data >= (state[_SX] if state[_INV] else state[_SY]):
+                state[_BAD] += 1
+            else:
+                state[_LASTY] = data
+        elif code == 2 or code == 3:  # column address with polarity (3: ON)
+            if data >= (state[_SY] if state[_INV] else state[_SX]):
+                state[_BAD] += 1
+                continue
+            t[n] = _emit_time(state, state[_CUR])
+            if state[_INV]:
+                x[n] = state[_LASTY]
+                y[n] = data
+            else:
+                x[n] = data
+                y[n] = state[_LASTY]
+            p[n] = 1 if code == 3 else -1
+            n += 1
+        elif code == 4:  # APS ADC sample: frames are not decoded (counted)
+            state[_APS] += 1
+        elif code == 5:
+            mcode = (data >> 8) & 0xF
+            mdata = data & 0xFF
+            if mcode == 0:
+                if state[_IMU_ON] != 1:
+                    continue
+                c = state[_IMU_N]
+                if c % 2 == 0:
+                    state[_IMU_TMP] = mdata
+                elif c <= 13:
+                    raw = (state[_IMU_TMP] << 8) | mdata
+                    if raw >= 0x8000:
+                        raw -= 0x10000
+                    slot = (c - 1) // 2  # 0..6: ax ay az temp gx gy gz
+                    imu_cur[slot] = raw
+                    typ = state[_IMU_TYPE]
+                    if c == 5 and not (typ & 0x01):
+                        state[_IMU_N] += 2 if (typ & 0x02) else 8
+                    elif c == 7 and not (typ & 0x02):
+                        state[_IMU_N] += 6
+                state[_IMU_N] += 1
+            elif mcode == 3:
+                if state[_IMU_ON] != 1:
+                    continue
+                state[_ACC_SC] = (mdata >> 2) & 0x3
+                state[_GYR_SC] = mdata & 0x3
+                typ = (mdata >> 5) & 0x7
+                state[_IMU_TYPE] = typ
+                if typ & 0x04:
+                    state[_IMU_N] = 0
+                elif typ & 0x01:
+                    state[_IMU_N] = 6
+                elif typ & 0x02:
+                    state[_IMU_N] = 8
+                else:
+                    state[_IMU_N] = 14
+            else:
+                state[_APS] += 1
+        elif code == 6:
+            state[_APS] += 1
+        else:  # code 7: timestamp wrap, data = how many 2^15 µs steps
+            state[_WRAPS] += 1
+            state[_WRAP] += 0x8000 * data
+            state[_CUR] = state[_WRAP]
+    return n, m
+
+
+@dataclass
+class Decoded:
+    """One chunk's output: events (t µs, x, y, p ±1) and IMU samples
+    (``imu_t`` µs, ``imu`` rows of accel m/s², temperature °C, gyro rad/s)."""
+
+    t: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    p: np.ndarray
+    imu_t: np.ndarray
+    imu: np.ndarray
+
+
+_EMPTY_IMU = (np.empty(0, np.int64), np.empty((0, 7), np.float64))
+
+
+class _Base:
+    word = 1
+
+    def __init__(self) -> None:
+        self.state = np.zeros(_NSTATE, np.int64)
+        self.state[_LAST] = -1
+        self._rest = b""
+
+    def _take(self, data: bytes | bytearray | memoryview) -> np.ndarray:
+        raw = self._rest + bytes(data)
+        cut = len(raw) - len(raw) % self.word
+        self._rest = raw[cut:]
+        return np.frombuffer(raw[:cut], np.uint8)
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Counters: ``wraps``, ``resets``, ``nonmonotonic`` (clamped times),
+        ``bad_address``, ``special`` (sync/trigger words skipped)."""
+        s = self.state
+        return {"wraps": int(s[_WRAPS]), "resets": int(s[_RESETS]), "nonmonotonic": int(s[_NONMONO]),
+                "bad_address": int(s[_BAD]), "special": int(s[_SPECIAL])}
+
+    @property
+    def last_t(self) -> int:
+        """The newest time emitted, µs (-1 before any)."""
+        return int(self.state[_LAST])
+
+    @property
+    def device_now(self) -> int:
+        """The newest time the device announced (µs, our time base): no later
+        event can come before it."""
+        return int(self.state[_BASE] + self.state[_CUR])
+
+    def rebase(self) -> None:
+        """The device restarted (reconnect): its clock restarts from 0, our
+        output goes on from just past the last emitted time."""
+        s = self.state
+        s[_WRAP] = 0
+        s[_CUR] = 0
+        s[_BASE] = s[_LAST] + 1 if s[_LAST] >= 0 else 0
+        self._rest = b""
+
+
+class Dvs128Decoder(_Base):
+    """DVS128 words: 16-bit address (bit 0 polarity, inverted; bits 1-7 x,
+    bits 8-14 y, both mirrored; bit 15 sync) then 16-bit timestamp whose top
+    bits flag a wrap (0x8000: +2^14 µs) or a reset (0x4000)."""
+
+    word = 4
+    sensor = (128, 128)
+
+    def feed(self, data: bytes | bytearray | memoryview) -> Decoded:
+        buf = self._take(data)
+        k = buf.shape[0] // 4
+        t = np.empty(k, np.int64)
+        x = np.empty(k, np.uint16)
+        y = np.empty(k, np.uint16)
+        p = np.empty(k, np.int8)
+        n = dvs128_kernel(buf, self.state, t, x, y, p)
+        return Decoded(t[:n], x[:n], y[:n], p[:n], *_EMPTY_IMU)
+
+
+class DavisDecoder(_Base):
+    """DAVIS 16-bit words (little-endian): bit 15 set = timestamp (15 bits);
+    else a 3-bit code and 12 bits of data: 0 special (1 = timestamp reset,
+    5/7 IMU start/end, 8.. APS frame marks), 1 row, 2/3 column with polarity
+    OFF/ON, 4 APS sample, 5 misc 8-bit (IMU bytes, IMU scale, APS ROI),
+    6 misc 10-bit, 7 timestamp wrap (data x 2^15 µs)."""
+
+    word = 2
+
+    def __init__(self, sensor: tuple[int, int], invert_xy: bool = False) -> None:
+        super().__init__()
+        self.sensor = sensor
+        w, h = sensor
+        # the chip's own columns/rows (before a swap of x and y)
+        self.state[_SX], self.state[_SY] = (h, w) if invert_xy else (w, h)
+        self.state[_INV] = int(invert_xy)
+        self.imu_cur = np.zeros(7, np.float64)
+
+    def feed(self, data: bytes | bytearray | memoryview) -> Decoded:
+        words = self._take(data).view("<u2")
+        k = words.shape[0]
+        t = np.empty(k, np.int64)
+        x = np.empty(k, np.uint16)
+        y = np.empty(k, np.uint16)
+        p = np.empty(k, np.int8)
+        mi = k // 8 + 1
+        it = np.empty(mi, np.int64)
+        iv = np.empty((mi, 7), np.float64)
+        n, m = davis_kernel(words, self.state, self.imu_cur, t, x, y, p, it, iv)
+        return Decoded(t[:n], x[:n], y[:n], p[:n], it[:m], iv[:m])
+
+    @property
+    def counts(self) -> dict[str, int]:
+        c = super().counts
+        c["imu_incomplete"] = int(self.state[_IMU_BAD])
+        c["aps_words_skipped"] = int(self.state[_APS])
+        return c

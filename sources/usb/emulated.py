@@ -1,0 +1,430 @@
+"""An emulated iniVation camera behind a pyusb backend of ours.
+
+:class:`EmulatedBackend` is a ``usb.backend.IBackend``: pyusb's real code
+(``usb.core.find``, descriptors, ``ctrl_transfer``, ``read``) runs against
+it exactly as against libusb. Behind it, :class:`EmulatedCamera` plays a
+DVS128 or a DAVIS240/346: it enumerates with the right ids and string
+descriptors, answers the vendor requests (biases, start/stop, DAVIS
+configuration reads and writes, all logged in :attr:`EmulatedCamera.control_log`)
+and, once started, streams the moving-bars pattern encoded in the camera's
+own words, with timestamp wraps, an optional timestamp reset, IMU samples
+and APS words (DAVIS), injected overruns and a disconnect.
+
+The encoder here is written from the protocol description independently of
+the decoder in :mod:`tectum.sources.usb._decode`, so a round trip tests both.
+"""
+
+from __future__ import annotations
+
+import array
+import errno
+import struct
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import usb.backend
+import usb.core
+
+from tectum.sources.pattern import moving_bars
+
+from . import _protocol as P
+
+__all__ = ["EmulatedCamera", "EmulatedBackend", "Truth", "emulated_backend"]
+
+_SENSORS = {"dvs128": (128, 128), "davis240": (240, 180), "davis346": (346, 260)}
+_CHIPS = {"davis240": P.CHIP_DAVIS240C, "davis346": P.CHIP_DAVIS346B}
+
+
+@dataclass
+class Truth:
+    """What the camera sent, in the camera's pattern time (µs from start):
+    events and, for DAVIS, IMU samples (accel m/s², gyro rad/s)."""
+
+    t: list[np.ndarray] = field(default_factory=list)
+    x: list[np.ndarray] = field(default_factory=list)
+    y: list[np.ndarray] = field(default_factory=list)
+    p: list[np.ndarray] = field(default_factory=list)
+    imu_t: list[int] = field(default_factory=list)
+    accel: list[tuple[float, float, float]] = field(default_factory=list)
+    gyro: list[tuple[float, float, float]] = field(default_factory=list)
+
+    def events(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        cat = [np.concatenate(a) if a else np.empty(0, np.int64) for a in (self.t, self.x, self.y, self.p)]
+        return cat[0].astype(np.int64), cat[1].astype(np.uint16), cat[2].astype(np.uint16), cat[3].astype(np.int8)
+
+
+class EmulatedCamera:
+    """A camera of ``model`` ("dvs128", "davis240", "davis346", FX3 unless
+    ``fx2``) streaming ``duration_us`` µs of moving bars.
+
+    Faults: ``reset_at_us`` sends a timestamp reset there (the device clock
+    restarts at 0); ``overrun_reads`` are bulk-read indices that fail with
+    EOVERFLOW (the data stays queued: nothing is lost); ``disconnect_after``
+    unplugs the camera once that many stream bytes were read (reads fail
+    with ENODEV and it leaves the bus); ``replug_after_polls`` brings it back
+    (as a fresh device whose clock starts at 0) after that many enumerations.
+    ``max_transfer`` caps the bytes one bulk read returns (odd values split
+    words). ``realtime`` releases data only once its time has come on the
+    wall clock (for latency tests).
+    """
+
+    def __init__(self, model: str = "davis346", *, serial: str = "EMU00001", fx2: bool = False,
+                 duration_us: int = 100_000, speed: float = 2000.0, noise_hz: float = 2.0, seed: int = 0,
+                 window_us: int = 5_000, reset_at_us: int | None = None, overrun_reads: tuple[int, ...] = (),
+                 disconnect_after: int | None = None, replug_after_polls: int | None = None,
+                 max_transfer: int = 4096, imu_period_us: int = 1000, realtime: bool = False,
+                 bus: int = 1, address: int = 5) -> None:
+        if model not in _SENSORS:
+            raise ValueError(f"unknown model {model!r}; known: {sorted(_SENSORS)}")
+        self.model, self.serial, self.sensor = model, serial, _SENSORS[model]
+        self.pid = P.DVS128_PID if model == "dvs128" else (P.DAVIS_FX2_PID if fx2 else P.DAVIS_FX3_PID)
+        self.endpoint = P.DVS128_ENDPOINT if model == "dvs128" else P.DAVIS_ENDPOINT
+        self.duration_us, self.window_us = duration_us, window_us
+        self.pattern = dict(speed=speed, period_px=24, bar_px=8, noise_hz=noise_hz, jitter_us=20.0)
+        self.seed, self.reset_at_us = seed, reset_at_us
+        self.overrun_reads = set(overrun_reads)
+        self.disconnect_after, self.replug_after_polls = disconnect_after, replug_after_polls
+        self.max_transfer, self.imu_period_us, self.realtime = max_transfer, imu_period_us, realtime
+        self.bus, self.address = bus, address
+        self.control_log: list[tuple[int, int, int, int, bytes]] = []
+        self.config: dict[tuple[int, int], int] = {}
+        self.biases = b""
+        self.truth = Truth()
+        self.attached = True
+        self.replugged_at: int | None = None
+        self.reads = 0
+        self.sent = 0  # stream bytes handed to the host
+        self._polls_while_gone = 0
+        self._lock = threading.Lock()
+        self._boot()
+
+    # -- device life --------------------------------------------------------
+    def _boot(self) -> None:
+        self.streaming = False
+        self._buf = bytearray()
+        self._due: list[tuple[int, int]] = []  # (end offset in _buf, pattern time µs) for realtime
+        self._gen_t = 0  # pattern time generated so far
+        self._rng = np.random.default_rng(self.seed)
+        self._dev_origin = 0  # pattern time at which the device clock was 0
+        self._wrap = 0  # device-side wrap counter (µs)
+        self._last_ts: int | None = None
+        self._last_y: int | None = None
+        self._reset_sent = False
+        self._next_imu = 0
+        self._wall0 = 0.0
+        if self.model != "dvs128":
+            w, h = self.sensor
+            self.config.update({(P.MOD_SYSINFO, P.SYSINFO_LOGIC_VERSION): 18,
+                                (P.MOD_SYSINFO, P.SYSINFO_CHIP_ID): _CHIPS[self.model],
+                                (P.MOD_SYSINFO, P.SYSINFO_LOGIC_PATCH): 1,
+                                (P.MOD_SYSINFO, P.SYSINFO_IS_MASTER): 1,
+                                (P.MOD_DVS, P.DVS_SIZE_COLUMNS): w, (P.MOD_DVS, P.DVS_SIZE_ROWS): h,
+                                (P.MOD_DVS, P.DVS_ORIENTATION): 0,
+                                (P.MOD_APS, 0): w, (P.MOD_APS, 1): h, (P.MOD_IMU, P.IMU_TYPE): 1})
+
+    def unplug(self) -> None:
+        with self._lock:
+            self.attached = False
+            self._polls_while_gone = 0
+
+    def poll(self) -> bool:
+        """One enumeration: is the camera on the bus? (may replug it)."""
+        with self._lock:
+            if not self.attached and self.replug_after_polls is not None:
+                self._polls_while_gone += 1
+                if self._polls_while_gone >= self.replug_after_polls:
+                    self.attached = True
+                    self.disconnect_after = None
+                    self._boot_keep_time()
+            return self.attached
+
+    def _boot_keep_time(self) -> None:
+        """A replugged camera: fresh clock, the pattern goes on where it was."""
+        gen = self._gen_t
+        self.replugged_at = gen  # what the camera held unsent at the unplug is lost, as on hardware
+        self._boot()
+        self._gen_t = gen
+        self._dev_origin = gen
+        self._next_imu = gen
+        self._reset_sent = True
+
+    # -- control transfers -------------------------------------------------
+    def control(self, rtype: int, req: int, value: int, index: int, data: bytes, length: int) -> bytes | int:
+        if not self.attached:
+            raise usb.core.USBError("No such device (it may have been disconnected)", -4, errno.ENODEV)
+        self.control_log.append((rtype, req, value, index, bytes(data)))
+        if rtype == 0x80 and req == 6:  # GET_DESCRIPTOR (strings)
+            return self._string(value & 0xFF)[:length]
+        if self.model == "dvs128":
+            if req == P.DVS128_REQ_START:
+                self._start()
+            elif req == P.DVS128_REQ_STOP:
+                self.streaming = False
+            elif req == P.DVS128_REQ_BIASES:
+                self.biases = bytes(data)
+            elif req == P.DVS128_REQ_RESET_TS:
+                pass
+            else:
+                raise usb.core.USBError("Pipe error", -9, errno.EPIPE)
+            return len(data)
+        if req != P.REQ_CONFIG:
+            raise usb.core.USBError("Pipe error", -9, errno.EPIPE)
+        if rtype & 0x80:
+            return struct.pack(">I", self.config.get((value, index), 0))[:length]
+        self.config[(value, index)] = struct.unpack(">I", bytes(data))[0]
+        running = all(self.config.get(k, 0) for k in ((P.MOD_USB, P.USB_RUN), (P.MOD_MUX, P.MUX_RUN),
+                                                       (P.MOD_DVS, P.DVS_RUN)))
+        if running and not self.streaming:
+            self._start()
+        elif not running:
+            self.streaming = False
+        return len(data)
+
+    def _string(self, index: int) -> bytes:
+        if index == 0:
+            return bytes([4, 3, 0x09, 0x04])
+        s = {1: "iniVation (emulated)", 2: self.model.upper(), 3: self.serial}.get(index, "")
+        b = s.encode("utf-16-le")
+        return bytes([len(b) + 2, 3]) + b
+
+    def _start(self) -> None:
+        self.streaming = True
+        self._wall0 = time.monotonic() - self._gen_t / 1e6
+
+    # -- the stream ---------------------------------------------------------
+    def read(self, size: int, timeout_ms: int) -> bytes:
+        with self._lock:
+            if not self.attached:
+                raise usb.core.USBError("No such device (it may have been disconnected)", -4, errno.ENODEV)
+            k = self.reads
+            self.reads += 1
+            if k in self.overrun_reads:
+                raise usb.core.USBError("Overflow", -8, errno.EOVERFLOW)
+            if not self.streaming:
+                raise usb.core.USBTimeoutError("Operation timed out", -7, errno.ETIMEDOUT)
+            if self.disconnect_after is not None and self.sent >= self.disconnect_after:
+                self.attached = False
+                self._polls_while_gone = 0
+                raise usb.core.USBError("No such device (it may have been disconnected)", -4, errno.ENODEV)
+            limit = min(size, self.max_transfer)
+            if self.disconnect_after is not None:
+                limit = min(limit, self.disconnect_after - self.sent)
+            while len(self._buf) < limit and self._gen_t < self.duration_us:
+                self._generate()
+            n = min(limit, len(self._buf))
+            if self.realtime:
+                n = min(n, self._due_bytes())
+        if n == 0:
+            time.sleep(min(timeout_ms, 2) / 1e3)
+            raise usb.core.USBTimeoutError("Operation timed out", -7, errno.ETIMEDOUT)
+        with self._lock:
+            out = bytes(self._buf[:n])
+            del self._buf[:n]
+            self._due = [(e - n, t) for e, t in self._due if e - n > 0]
+            self.sent += n
+        return out
+
+    def _due_bytes(self) -> int:
+        now_us = (time.monotonic() - self._wall0) * 1e6
+        ready = 0
+        for end, t in self._due:
+            if t <= now_us:
+                ready = end
+            else:
+                break
+        return ready
+
+    def _generate(self) -> None:
+        t0 = self._gen_t
+        t1 = min(t0 + self.window_us, self.duration_us)
+        if self.reset_at_us is not None and not self._reset_sent and t0 <= self.reset_at_us < t1:
+            t1 = self.reset_at_us
+        if t1 > t0:
+            pk = moving_bars(t0, t1, sensor=self.sensor, rng=self._rng, **self.pattern)
+            self._encode(pk.t, pk.x, pk.y, pk.p, t1)
+            tr = self.truth
+            tr.t.append(pk.t.copy()), tr.x.append(pk.x.copy()), tr.y.append(pk.y.copy()), tr.p.append(pk.p.copy())
+        self._gen_t = t1
+        if self.reset_at_us is not None and not self._reset_sent and t1 == self.reset_at_us:
+            self._reset_sent = True
+            self._words_reset()
+            self._dev_origin = t1
+            self._wrap = 0
+            self._last_ts = None
+        self._due.append((len(self._buf), t1))
+
+    # per-model word writers
+    def _encode(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, t_end: int) -> None:
+        if self.model == "dvs128":
+            self._encode_dvs128(t, x, y, p)
+        else:
+            self._encode_davis(t, x, y, p, t_end)
+
+    def _words_reset(self) -> None:
+        self._buf += b"\x00\x00\x00\x40" if self.model == "dvs128" else struct.pack("<H", 0x0001)
+
+    def _encode_dvs128(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray) -> None:
+        out = bytearray()
+        for ti, xi, yi, pi in zip(t.tolist(), x.tolist(), y.tolist(), p.tolist()):
+            dev = ti - self._dev_origin
+            while dev - self._wrap >= 0x4000:
+                self._wrap += 0x4000
+                out += b"\x00\x00\x00\x80"
+            addr = ((127 - yi) << 8) | ((127 - xi) << 1) | (0 if pi > 0 else 1)
+            out += struct.pack("<HH", addr, dev - self._wrap)
+        self._buf += out
+
+    def _davis_time(self, out: list[int], dev: int) -> None:
+        steps = (dev - self._wrap) >> 15
+        while steps > 0:
+            k = min(steps, 0xFFF)
+            out.append(0x7000 | k)
+            self._wrap += k << 15
+            steps -= k
+            self._last_ts = None
+        if dev != self._last_ts:
+            out.append(0x8000 | (dev - self._wrap))
+            self._last_ts = dev
+
+    def _encode_davis(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, t_end: int) -> None:
+        out: list[int] = []
+        imu_times = list(range(self._next_imu, t_end, self.imu_period_us)) if self.imu_period_us else []
+        if imu_times:
+            self._next_imu = imu_times[-1] + self.imu_period_us
+        ts, j = t.tolist(), 0
+        for ti_imu in imu_times + [None]:
+            stop = len(ts) if ti_imu is None else int(np.searchsorted(t, ti_imu, side="left"))
+            for i in range(j, stop):
+                self._davis_time(out, ts[i] - self._dev_origin)
+                yi = int(y[i])
+                if yi != self._last_y:
+                    out.append(0x1000 | yi)
+                    self._last_y = yi
+                out.append((0x3000 if p[i] > 0 else 0x2000) | int(x[i]))
+            j = stop
+            if ti_imu is not None:
+                self._imu_words(out, ti_imu)
+        self._buf += array.array("H", out).tobytes() if out else b""
+
+    def _imu_words(self, out: list[int], t: int) -> None:
+        """One IMU sample at pattern time ``t``: accel (±2 g, scale 0) and gyro
+        (±250 °/s, scale 0) as slow sines, plus a few APS words now and then."""
+        self._davis_time(out, t - self._dev_origin)
+        ph = t / 1e5
+        acc_raw = [int(8192 * np.sin(ph + k)) for k in range(3)]
+        gyr_raw = [int(3000 * np.cos(ph + k)) for k in range(3)]
+        temp_raw = 1000
+        out.append(0x0005)
+        out.append(0x5300 | (0b111 << 5))  # accel+gyro+temp, both scales 0
+        for v in acc_raw + [temp_raw] + gyr_raw:
+            v &= 0xFFFF
+            out += [0x5000 | (v >> 8), 0x5000 | (v & 0xFF)]
+        out.append(0x0007)
+        self.truth.imu_t.append(t)
+        self.truth.accel.append(tuple(v * 4 / 65536 * 9.80665 for v in acc_raw))  # type: ignore[arg-type]
+        self.truth.gyro.append(tuple(v * 500 / 65536 * np.pi / 180 for v in gyr_raw))  # type: ignore[arg-type]
+        if (t // self.imu_period_us) % 10 == 0:  # an APS frame fragment, which hosts skip
+            out += [0x0008, 0x4123, 0x4456, 0x000A]
+
+
+# -- the pyusb backend ------------------------------------------------------
+class _Desc:
+    def __init__(self, **kw: Any) -> None:
+        self.__dict__.update(kw)
+        self.extra_descriptors = []
+
+
+class EmulatedBackend(usb.backend.IBackend):
+    """A pyusb backend whose bus holds the given emulated cameras."""
+
+    def __init__(self, *cameras: EmulatedCamera) -> None:
+        super().__init__()
+        self.cameras = list(cameras)
+
+    def enumerate_devices(self):  # type: ignore[no-untyped-def]
+        for cam in self.cameras:
+            if cam.poll():
+                yield cam
+
+    def get_device_descriptor(self, dev: EmulatedCamera) -> _Desc:
+        fw = 14 if dev.model == "dvs128" else (4 if dev.pid == P.DAVIS_FX2_PID else 6)
+        return _Desc(bLength=18, bDescriptorType=1, bcdUSB=0x0300 if dev.pid == P.DAVIS_FX3_PID else 0x0200,
+                     bDeviceClass=0, bDeviceSubClass=0, bDeviceProtocol=0, bMaxPacketSize0=64,
+                     idVendor=P.VID, idProduct=dev.pid, bcdDevice=fw, iManufacturer=1, iProduct=2,
+                     iSerialNumber=3, bNumConfigurations=1, address=dev.address, bus=dev.bus,
+                     port_number=1, port_numbers=(1,), speed=None)
+
+    def get_configuration_descriptor(self, dev: EmulatedCamera, config: int) -> _Desc:
+        return _Desc(bLength=9, bDescriptorType=2, wTotalLength=25, bNumInterfaces=1, bConfigurationValue=1,
+                     iConfiguration=0, bmAttributes=0x80, bMaxPower=250)
+
+    def get_interface_descriptor(self, dev: EmulatedCamera, intf: int, alt: int, config: int) -> _Desc:
+        if intf != 0 or alt != 0:
+            raise IndexError("no such interface")
+        return _Desc(bLength=9, bDescriptorType=4, bInterfaceNumber=0, bAlternateSetting=0, bNumEndpoints=1,
+                     bInterfaceClass=0xFF, bInterfaceSubClass=0, bInterfaceProtocol=0, iInterface=0)
+
+    def get_endpoint_descriptor(self, dev: EmulatedCamera, ep: int, intf: int, alt: int, config: int) -> _Desc:
+        if ep != 0:
+            raise IndexError("no such endpoint")
+        return _Desc(bLength=7, bDescriptorType=5, bEndpointAddress=dev.endpoint, bmAttributes=2,
+                     wMaxPacketSize=1024 if dev.pid == P.DAVIS_FX3_PID else 512, bInterval=0, bRefresh=0,
+                     bSynchAddress=0)
+
+    def open_device(self, dev: EmulatedCamera) -> EmulatedCamera:
+        if not dev.attached:
+            raise usb.core.USBError("No such device", -4, errno.ENODEV)
+        return dev
+
+    def close_device(self, dev_handle: EmulatedCamera) -> None:
+        pass
+
+    def set_configuration(self, dev_handle: EmulatedCamera, config_value: int) -> None:
+        pass
+
+    def get_configuration(self, dev_handle: EmulatedCamera) -> int:
+        return 1
+
+    def set_interface_altsetting(self, dev_handle: EmulatedCamera, intf: int, altsetting: int) -> None:
+        pass
+
+    def claim_interface(self, dev_handle: EmulatedCamera, intf: int) -> None:
+        if not dev_handle.attached:
+            raise usb.core.USBError("No such device", -4, errno.ENODEV)
+
+    def release_interface(self, dev_handle: EmulatedCamera, intf: int) -> None:
+        pass
+
+    def clear_halt(self, dev_handle: EmulatedCamera, ep: int) -> None:
+        pass
+
+    def is_kernel_driver_active(self, dev_handle: EmulatedCamera, intf: int) -> bool:
+        return False
+
+    def bulk_read(self, dev_handle: EmulatedCamera, ep: int, intf: int, buff: array.array, timeout: int) -> int:
+        if ep != dev_handle.endpoint:
+            raise usb.core.USBError("Pipe error", -9, errno.EPIPE)
+        data = dev_handle.read(len(buff) * buff.itemsize, timeout)
+        memoryview(buff).cast("B")[: len(data)] = data
+        return len(data)
+
+    def ctrl_transfer(self, dev_handle: EmulatedCamera, bmRequestType: int, bRequest: int, wValue: int,
+                      wIndex: int, data: array.array, timeout: int) -> int:
+        n = len(data) * data.itemsize
+        if bmRequestType & 0x80:
+            got = dev_handle.control(bmRequestType, bRequest, wValue, wIndex, b"", n)
+            assert isinstance(got, bytes)
+            memoryview(data).cast("B")[: len(got)] = got
+            return len(got)
+        return int(dev_handle.control(bmRequestType, bRequest, wValue, wIndex, data.tobytes(), n))
+
+
+def emulated_backend(spec: str) -> EmulatedBackend:
+    """A backend with one camera from a short spec: ``"davis346"``,
+    ``"dvs128"``, ``"davis240"``, optionally ``":realtime"``."""
+    model, _, opt = spec.partition(":")
+    return EmulatedBackend(EmulatedCamera(model, realtime=(opt == "realtime"), duration_us=10_000_000
+                                          if opt == "realtime" else 1_000_000))
