@@ -39,6 +39,7 @@ class Stepper:
         self.graph = Graph(plan, taps=self.outputs)
         self._sinks = {n.id: n.instantiate() for n in plan.of_role("sink")}
         for s in self._sinks.values():
+            s.bind_stats(self.graph.stats)
             s.open()
         self._sources = [n.id for n in plan.of_role("source")]
         self._closed = False

@@ -158,12 +158,15 @@ class Graph:
         self._wire()
 
     def collect_counters(self) -> None:
-        """Copy operators' own drop counters (an int ``dropped`` attribute,
-        e.g. a rate limiter's) into the stats."""
+        """Copy operators' own counters into the stats: an int ``dropped``
+        attribute (a rate limiter's drops) and a ``counts`` dict."""
         for nid, op in self.ops.items():
             d = getattr(op, "dropped", None)
             if isinstance(d, int):
                 self.stats.nodes[nid].drops = d
+            counts = getattr(op, "counts", None)
+            if isinstance(counts, dict):
+                self.stats.nodes[nid].counters.update({k: v for k, v in counts.items() if isinstance(v, int)})
 
     # -- driving ----------------------------------------------------------------
     def push(self, node_id: str, pkt: Packet) -> list[Delivery]:

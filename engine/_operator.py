@@ -86,6 +86,10 @@ class Source:
         they are never paced by the scheduler."""
         return self.is_async
 
+    #: Counters a source keeps (overruns, losses, rejected input ...); the
+    #: scheduler copies them into the node's stats at the end of the run.
+    counts: dict[str, int]
+
     def close(self) -> None:
         """Release files, devices and sockets (called once, always)."""
 
@@ -114,12 +118,24 @@ class Sink:
         """Async variant, for network sinks; defaults to :meth:`write`."""
         self.write(packet)
 
+    def bind_stats(self, stats: Any) -> None:
+        """Called before :meth:`open` with the run's :class:`tectum.Stats`,
+        for sinks that show them (a live view); default: ignored."""
+
     def close(self) -> None:
         """Flush and commit the output."""
 
     def abort(self) -> None:
         """Discard partial output after an error (default: :meth:`close`)."""
         self.close()
+
+    async def aclose(self) -> None:
+        """Async variant of :meth:`close` (network sinks); defaults to it."""
+        self.close()
+
+    async def aabort(self) -> None:
+        """Async variant of :meth:`abort`; defaults to it."""
+        self.abort()
 
 
 def component_params(cls: type) -> dict[str, inspect.Parameter]:

@@ -145,6 +145,7 @@ async def _main(plan: Plan, graph: Graph, edges: dict[str, Edge], scope: trio.Ca
     try:
         for sid, sink in sinks.items():
             try:
+                sink.bind_stats(graph.stats)
                 sink.open()
             except Exception as e:
                 raise NodeError(sid, e) from e
@@ -166,9 +167,9 @@ async def _main(plan: Plan, graph: Graph, edges: dict[str, Edge], scope: trio.Ca
             try:
                 with trio.CancelScope(shield=True):
                     if ok:
-                        sink.close()
+                        await sink.aclose()
                     else:
-                        sink.abort()
+                        await sink.aabort()
             except Exception as e:  # closing failed: report it, unless another error is on the way
                 if ok:
                     failure.append(NodeError(sid, e))
@@ -285,6 +286,9 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, edges: Mappi
     finally:
         if source is not None:
             source.close()
+            counts = getattr(source, "counts", None)
+            if isinstance(counts, dict):
+                st.counters.update({k: v for k, v in counts.items() if isinstance(v, int)})
 
 
 async def _read(source: Source, out: _Outbox) -> AsyncIterator[Packet]:

@@ -23,6 +23,7 @@ class NodeStats:
     busy_ns: int = 0
     drops: int = 0
     repairs: dict[str, int] = field(default_factory=dict)
+    counters: dict[str, int] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         from dataclasses import asdict
@@ -99,6 +100,8 @@ class Stats:
             )
             for k, v in s.repairs.items():
                 lines.append(f"  repaired: {k} = {v}")
+            for k, v in s.counters.items():
+                lines.append(f"  {k} = {v}")
         for sid, rec in self.latency.items():
             p = rec.percentiles()
             if p:
