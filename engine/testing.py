@@ -21,6 +21,7 @@ from ._packet import EventPacket, Kind, Packet, concat
 __all__ = [
     "assert_batch_invariant",
     "assert_streams_equal",
+    "assert_stream_contract",
     "split_stream",
     "feed",
     "ListSource",
@@ -114,6 +115,23 @@ def assert_streams_equal(expected: Sequence[Packet], got: Sequence[Packet], what
                     f"{what}: {k} column {name!r} differs (lengths {len(a[name])} vs {len(b[name])}, "
                     f"first difference at sample {diff})"
                 )
+
+
+def assert_stream_contract(packets: Sequence[Packet]) -> None:
+    """Assert that consecutive packets of one stream keep the packet
+    contract: each valid, intervals back to back (``next.t_start ==
+    prev.t_end``) and no timestamp split across two packets. For checking
+    what a source emits."""
+    for q in packets:
+        if isinstance(q, EventPacket):
+            q.validate()
+        else:
+            q._check_times()
+    for a, b in zip(packets, packets[1:]):
+        if a.t_end != b.t_start:
+            raise AssertionError(f"gap or overlap: [{a.t_start}, {a.t_end}) then [{b.t_start}, {b.t_end})")
+        if len(a) and len(b) and not a.t[-1] < b.t[0]:
+            raise AssertionError(f"timestamp {int(b.t[0])} µs is split across two packets")
 
 
 def assert_batch_invariant(

@@ -7,6 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from tectum.testing import assert_stream_contract
 from tectum import EventPacket, ImuPacket, PacketError, ResultPacket, concat, from_structured, to_structured
 
 
@@ -88,12 +89,8 @@ def test_batches_tile_the_interval_and_keep_equal_timestamps_together(ts, k):
     pk = make(ts, t_start=0, t_end=60)
     parts = list(pk.batches(k))
     assert parts[0].t_start == 0 and parts[-1].t_end == 60
-    for a, b in zip(parts, parts[1:]):
-        assert a.t_end == b.t_start
-        if len(a) and len(b):
-            assert a.t[-1] < b.t[0]
+    assert_stream_contract(parts)
     for q in parts:
-        q.validate()
         assert len(q) <= k or len(np.unique(q.t)) == 1
     back = concat(parts)
     assert back.t.tolist() == ts and (back.t_start, back.t_end) == (0, 60)
