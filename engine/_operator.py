@@ -69,6 +69,12 @@ class Source:
         """True when a file starting with ``head`` is in this source's format."""
         return False
 
+    @classmethod
+    def sniff_dir(cls, path: str) -> bool:
+        """True when the folder ``path`` is a recording this source opens
+        (a ROS 2 bag, a dataset sequence)."""
+        return False
+
     def packets(self) -> Iterator[Packet]:
         raise NotImplementedError
 

@@ -92,6 +92,11 @@ class Registry:
             raise RegistryError(f"no {role} handles the scheme {scheme!r} (known: {', '.join(known)})")
         if role == "source" and not os.path.exists(arg):
             raise RegistryError(f"{arg!r}: no such file, and not a URL with a known scheme")
+        if role == "source" and os.path.isdir(arg):
+            for e in table.values():
+                if e.cls.sniff_dir(arg):
+                    return e.cls
+            raise RegistryError(f"{arg!r} is a folder that no source recognises")
         if role == "source" and os.path.isfile(arg):
             with open(arg, "rb") as f:
                 head = f.read(4096)

@@ -15,7 +15,8 @@ import numpy as np
 from tectum import EventPacket
 from tectum.bench import peer, table, throughput
 
-FILES = {"rosbag": "bags/evt3_eventpacket_ros2_sqlite", "evt2": "prophesee/gen31_evt2.raw", "evt3": "prophesee/imx636_evt3.raw", "dat": "prophesee/gen4.dat",
+FILES = {"rosbag": "bags/evt3_eventpacket_ros2_sqlite",
+         "evt2": "prophesee/gen31_evt2.raw", "evt3": "prophesee/imx636_evt3.raw", "dat": "prophesee/gen4.dat",
          "aedat4": "aedat/dvxplorer_2.aedat4", "aedat2": "aedat/davis240_imu_rotdisk.aedat",
          "text": "ecd/slider_depth/events.txt"}
 EXT = {"text": ".txt", "aedat4": ".aedat4", "evt2": ".raw", "evt3": ".evt3.raw", "dat": ".dat", "hdf5": ".h5",

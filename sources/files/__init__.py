@@ -4,7 +4,7 @@ One module per format (see each for its layout and conventions): Prophesee
 RAW EVT 2.0/3.0 and DAT (:mod:`.prophesee`), jAER AEDAT 2.0 (:mod:`.aedat2`),
 AEDAT 3.1 (:mod:`.aedat31`), AEDAT 4.0 (:mod:`.aedat4`, codec in
 :mod:`.aedat4_codec`), text/CSV (:mod:`.text`), HDF5 (:mod:`.hdf5`),
-structured ``.npy`` (:mod:`.npy`). All output tectum's conventions: absolute
+structured ``.npy`` (:mod:`.npy`), ROS 1/2 bags (:mod:`.rosbag`). All output tectum's conventions: absolute
 µs, top-left origin, polarity ±1 (see :mod:`._common`).
 """
 
@@ -24,10 +24,11 @@ def _classes() -> list[type]:
     from .hdf5 import Hdf5Source
     from .npy import NpySource
     from .prophesee import DatSource, Evt2Source, Evt3Source
+    from .rosbag import RosbagSource
     from .text import TextSource
 
     return [Evt2Source, Evt3Source, DatSource, Aedat2Source, Aedat31Source, Aedat4Source, Hdf5Source,
-            NpySource, TextSource]
+            NpySource, RosbagSource, TextSource]
 
 
 SOURCES = _classes()
@@ -39,6 +40,12 @@ def source_class(path: str) -> type:
 
     from tectum import FormatError
 
+    if os.path.isdir(path):
+        if os.path.isfile(os.path.join(path, "metadata.yaml")):
+            from .rosbag import RosbagSource
+
+            return RosbagSource
+        raise FormatError("a folder that is not a ROS 2 bag (no metadata.yaml)", path=os.fspath(path), offset=0)
     with open(path, "rb") as f:
         head = f.read(4096)
     for cls in SOURCES:

@@ -24,10 +24,10 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from tectum import EventPacket, FormatError, Kind, Packet, Source
+from tectum import EventPacket, FormatError, Kind, Packet, SamplePacket, Source
 
-__all__ = ["FileSource", "EventAssembler", "parse_size", "read_prefixed_header", "sensor_from_header",
-           "DEFAULT_CHUNK_BYTES"]
+__all__ = ["FileSource", "EventAssembler", "SampleTiler", "parse_size", "read_prefixed_header",
+           "sensor_from_header", "DEFAULT_CHUNK_BYTES"]
 
 DEFAULT_CHUNK_BYTES = 1 << 22
 
@@ -144,9 +144,10 @@ class EventAssembler:
         self.count = 0
 
     def push(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray,
-             byte_offset: int = 0, where: np.ndarray | None = None) -> list[EventPacket]:
+             byte_offset: int = 0, where: Any = None) -> list[EventPacket]:
         """Add decoded events (``t`` before the offset); ``where`` maps each
-        event to its byte offset in the file (for error messages)."""
+        event to its byte offset in the file (for error messages), or is a
+        function building that map (called only when something is wrong)."""
         if self.offset:
             t = t + self.offset
         t, x, y, p = self._check(t, x, y, p, byte_offset, where)
@@ -195,7 +196,7 @@ class EventAssembler:
         return tuple(a[i:j] for a in (t, *rest))
 
     def _check(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, byte_offset: int,
-               where: np.ndarray | None) -> tuple[np.ndarray, ...]:
+               where: Any) -> tuple[np.ndarray, ...]:
         n = t.shape[0]
         if n == 0:
             return t, x, y, p
@@ -216,6 +217,8 @@ class EventAssembler:
             self.last_t = int(t[-1])
             return t, x, y, p
         i = int(np.flatnonzero(bad)[0])
+        if callable(where):
+            where = where()
         at = int(where[i]) if where is not None else byte_offset
         if not self.src.skip_bad:
             w, h = self.sensor
@@ -232,6 +235,48 @@ class EventAssembler:
         if t.shape[0]:
             self.last_t = int(t[-1])
         return t, x, y, p
+
+
+class SampleTiler:
+    """Turn decoded samples (frames, IMU, triggers...) of several streams into
+    packets: clip to the source's time range, drop (``skip_bad``) or raise on
+    samples going back in time, and tile each stream's intervals without gaps."""
+
+    def __init__(self, src: "FileSource") -> None:
+        self.src = src
+        self.ends: dict[Any, int] = {}
+
+    def push(self, cls: type[SamplePacket], key: Any, t: np.ndarray, pos: int = 0,
+             **data: np.ndarray) -> SamplePacket | None:
+        """Samples ``t`` (µs) with fields ``data`` of stream ``key``, found at
+        byte ``pos``; the packet to emit, or None when nothing is left."""
+        t = np.asarray(t, np.int64)
+        keep = np.ones(t.shape[0], bool)
+        lo, hi = self.src.t_start_us, self.src.t_end_us
+        if lo is not None:
+            keep &= t >= lo
+        if hi is not None:
+            keep &= t < hi
+        if t.shape[0] > 1 and bool(np.any(t[1:] < t[:-1])):
+            late = np.zeros(t.shape[0], bool)
+            late[1:] = t[1:] < np.maximum.accumulate(t)[:-1]
+        else:
+            late = None
+        prev = self.ends.get(key)
+        if prev is not None:
+            late = (t < prev) if late is None else (late | (t < prev))
+        if late is not None and bool(np.any(late & keep)):
+            if not self.src.skip_bad:
+                i = int(np.flatnonzero(late & keep)[0])
+                self.src._fail(f"stream {key} timestamps decrease ({int(t[i])} µs)", pos)
+            self.src._note_skip(pos, pos, int((late & keep).sum()))
+            keep &= ~late
+        if not keep.any():
+            return None
+        tk = t[keep]
+        start = prev if prev is not None else int(tk[0])
+        self.ends[key] = int(tk[-1]) + 1
+        return cls(tk, t_start=start, t_end=self.ends[key], **{k: np.asarray(v)[keep] for k, v in data.items()})
 
 
 class FileSource(Source):

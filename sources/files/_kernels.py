@@ -8,7 +8,9 @@ bad, n_bad)``: ``bad`` is the index of the first invalid word (-1 when none)
 and, when ``strict`` is true, decoding stops there.
 
 ``where`` receives, for each event, the index of the word it came from (for
-error messages with a byte offset).
+error messages with a byte offset); ``trig`` (int64, shape (n_words, 3))
+receives the external triggers as rows ``(t µs, channel id, value 1 rising /
+0 falling)``.
 """
 
 from __future__ import annotations
@@ -54,7 +56,9 @@ def decode_evt2(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
             n += 1
         elif typ == 0xA:
             if have == 1:
-                trig[nt] = (th << 6) | ((w >> 22) & 0x3F)
+                trig[nt, 0] = (th << 6) | ((w >> 22) & 0x3F)
+                trig[nt, 1] = (w >> 8) & 0x1F
+                trig[nt, 2] = w & 1
                 nt += 1
         elif typ == 0xE or typ == 0xF:
             pass
@@ -137,7 +141,9 @@ def decode_evt3(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
             tb = (wraps << 24) | (high << 12) | low
         elif typ == 0xA:
             if have == 1:
-                trig[nt] = tb
+                trig[nt, 0] = tb
+                trig[nt, 1] = (w >> 8) & 0xF
+                trig[nt, 2] = w & 1
                 nt += 1
         elif typ == 0x7 or typ == 0xE or typ == 0xF:
             pass

@@ -25,10 +25,10 @@ from typing import Any
 
 import numpy as np
 
-from tectum import EventPacket, FramePacket, ImuPacket, Kind, Packet, SamplePacket
+from tectum import EventPacket, Kind, Packet, SamplePacket
 
 from . import aedat4_codec as codec
-from ._common import EventAssembler, FileSource
+from ._common import EventAssembler, FileSource, SampleTiler
 from ._flatbuf import FlatError, root
 
 __all__ = ["Aedat4Source", "Stream", "PacketEntry", "read_io_header"]
@@ -117,16 +117,30 @@ class Aedat4Source(FileSource):
     use_index:
         Use the file's packet table to skip packets outside the time range
         (default); off, every packet is walked.
+    streams:
+        Comma-separated kinds to decode (``events,frames,imu,triggers``, the
+        default); packets of other streams are skipped undecompressed.
+
+    Event packets are decoded many at a time (up to ``chunk_bytes`` of
+    events): one FlatBuffer walk in compiled code per batch, one
+    :class:`tectum.EventPacket` out per batch rather than per file packet.
+    Only the first events stream is read (one sensor per source).
     """
 
     name = "aedat4"
     format = "aedat4"
     extensions = (".aedat4",)
-    produces = (Kind.EVENTS, Kind.FRAMES, Kind.IMU)
+    produces = (Kind.EVENTS, Kind.FRAMES, Kind.IMU, Kind.TRIGGERS)
 
-    def __init__(self, path: str, use_index: bool = True, **kw: Any) -> None:
+    def __init__(self, path: str, use_index: bool = True, streams: str = "events,frames,imu,triggers",
+                 **kw: Any) -> None:
         super().__init__(path, **kw)
         self.use_index = use_index
+        names = {"events": "EVTS", "frames": "FRME", "imu": "IMUS", "triggers": "TRIG"}
+        wanted = [w.strip() for w in streams.split(",") if w.strip()]
+        if not set(wanted) <= set(names):
+            raise ValueError(f"streams must be among {list(names)}, got {streams!r}")
+        self._kinds = {names[w] for w in wanted}
 
     @classmethod
     def sniff(cls, head: bytes) -> bool:
@@ -187,59 +201,34 @@ class Aedat4Source(FileSource):
             offsets = [(e.offset, e.stream, e.size) for e in entries if e.t_last >= lo and e.t_first < hi]
         else:
             offsets = None
-        asm = EventAssembler(self, sensor) if sensor is not None else None
-        ends: dict[int, int] = {}
-        for pos, sid, payload in self._walk(f, start, limit, offsets):
+        batch = _Batch(self, comp, sensor, ev_ids[0] if ev_ids else None)
+        want = {s.id for s in streams.values() if s.type_id in self._kinds}
+        for pos, sid, payload in self._walk(f, start, limit, offsets, want):
             s = streams.get(sid)
-            if s is None or s.type_id not in ("EVTS", "FRME", "IMUS"):
+            if s is None or s.type_id not in self._kinds:
                 continue
             try:
-                pkt = codec.decode_packet(s.type_id, payload, comp, sensor)
-            except (ValueError, FlatError, struct.error) as e:
+                buf = codec.decompress(payload, comp)
+            except ValueError as e:
                 if not self.skip_bad:
-                    self._fail(f"packet of stream {sid} ({s.type_id}) does not decode: {e}", pos)
+                    self._fail(f"packet of stream {sid} ({s.type_id}) does not decompress: {e}", pos)
                 self._note_skip(pos, pos + 8 + len(payload) - 1, 1)
                 continue
-            if isinstance(pkt, EventPacket):
-                assert asm is not None
-                yield from asm.push(pkt.t, pkt.x, pkt.y, pkt.p, pos)
-                if self.t_end_us is not None and asm.last_t is not None and asm.last_t >= self.t_end_us:
+            if s.type_id == "FRME":
+                yield from batch.frame(sid, buf, pos)
+            elif s.type_id != "EVTS" or sid == batch.ev_id:
+                batch.add(s.type_id, sid, buf, pos)
+            if batch.full():
+                yield from batch.flush()
+                if batch.done():
                     break
-            else:
-                out = self._sample(pkt, sid, ends, pos)
-                if out is not None:
-                    yield out
-        if asm is not None:
-            yield from asm.finish()
+        yield from batch.flush()
+        yield from batch.finish()
 
-    def _sample(self, pkt: Packet, sid: int, ends: dict[int, int], pos: int) -> Packet | None:
-        """Clip to the time range, drop out-of-order samples, tile intervals."""
-        assert isinstance(pkt, (FramePacket, ImuPacket))
-        t = pkt.t
-        keep = np.ones(len(t), bool)
-        if self.t_start_us is not None:
-            keep &= t >= self.t_start_us
-        if self.t_end_us is not None:
-            keep &= t < self.t_end_us
-        prev = ends.get(sid)
-        if prev is not None:
-            late = t < prev
-            if np.any(late & keep):
-                if not self.skip_bad:
-                    self._fail(f"stream {sid} timestamps decrease ({int(t[late][0])} µs after {prev - 1} µs)", pos)
-                self._note_skip(pos, pos, int((late & keep).sum()))
-                keep &= ~late
-        if not keep.any():
-            return None
-        data = {k: v[keep] for k, v in pkt.data.items()}
-        tk = t[keep]
-        start = prev if prev is not None else int(tk[0])
-        ends[sid] = int(tk[-1]) + 1
-        cls: type[SamplePacket] = type(pkt)
-        return cls(tk, t_start=start, t_end=ends[sid], **data)
-
-    def _walk(self, f: Any, start: int, limit: int,
-              offsets: list[tuple[int, int, int]] | None) -> Iterator[tuple[int, int, bytes]]:
+    def _walk(self, f: Any, start: int, limit: int, offsets: list[tuple[int, int, int]] | None,
+              want: set[int] | None = None) -> Iterator[tuple[int, int, bytes]]:
+        """(file offset, stream id, payload) of each packet (in ``want``, a
+        set of stream ids, when given)."""
         if offsets is not None:
             for off, sid, size in offsets:  # the table points at payloads, after the 8-byte header
                 f.seek(off - 8)
@@ -250,22 +239,35 @@ class Aedat4Source(FileSource):
             return
         pos = start
         f.seek(pos)
+        buf, base = b"", pos  # file offset of buf[0]
         while pos < limit:
-            hdr = f.read(8)
-            if len(hdr) < 8:
+            if pos + 8 - base > len(buf):
+                buf, base = buf[pos - base:] + f.read(max(self.chunk_bytes, 8)), pos
+            if len(buf) - (pos - base) < 8:
                 if not self.skip_bad:
                     self._fail("file ends inside a packet header (truncated)", pos)
                 self._note_skip(pos, limit - 1, 1)
                 return
-            sid, size = struct.unpack("<ii", hdr)
+            sid, size = struct.unpack_from("<ii", buf, pos - base)
             if size < 0 or size > _MAX_PACKET or pos + 8 + size > limit:
                 if not self.skip_bad:
                     self._fail(f"packet size {size} (stream {sid}) runs past the end of the data "
                                "(truncated or corrupt)", pos)
                 self._note_skip(pos, limit - 1, 1)
                 return
-            yield pos, sid, self._payload(f, pos, size, limit)
-            pos += 8 + size
+            end = pos + 8 + size
+            if want is not None and sid not in want:  # skipped unread
+                if end - base > len(buf):
+                    buf, base = b"", end
+                    f.seek(end)
+                pos = end
+                continue
+            if end - base > len(buf):
+                buf, base = buf[pos - base:] + f.read(max(self.chunk_bytes, end - pos)), pos
+                if end - base > len(buf):
+                    self._fail("file ends inside a packet (truncated)", pos)
+            yield pos, sid, memoryview(buf)[pos - base + 8:end - base]
+            pos = end
 
     def _payload(self, f: Any, pos: int, size: int, limit: int) -> bytes:
         data = f.read(size)
@@ -295,3 +297,81 @@ class Aedat4Source(FileSource):
                 "t_last_us": last, "duration_us": dur, "rate_mev_s": n / dur if dur > 0 else 0.0,
                 "streams": counts, "t0_offset_us": self.t0_offset, "compression": self.compression,
                 "indexed": True, "skipped_events": 0}
+
+
+class _Batch:
+    """Decompressed packets waiting to be decoded together, per stream."""
+
+    _DECODERS = {"IMUS": codec.imus_of, "TRIG": codec.triggers_of}
+
+    def __init__(self, src: Aedat4Source, comp: int, sensor: tuple[int, int] | None, ev_id: int | None) -> None:
+        self.src = src
+        self.ev_id = ev_id
+        self.asm = EventAssembler(src, sensor) if sensor is not None else None
+        self.tiler = SampleTiler(src)
+        self.parts: dict[tuple[str, int], tuple[list[bytes], list[int]]] = {}
+        self.ev_bytes = 0
+
+    def add(self, type_id: str, sid: int, buf: bytes, pos: int) -> None:
+        bufs, poss = self.parts.setdefault((type_id, sid), ([], []))
+        bufs.append(buf)
+        poss.append(pos)
+        if type_id == "EVTS":
+            self.ev_bytes += len(buf)
+
+    def full(self) -> bool:
+        return self.ev_bytes >= self.src.chunk_bytes
+
+    def done(self) -> bool:
+        end = self.src.t_end_us
+        return end is not None and self.asm is not None and self.asm.last_t is not None and self.asm.last_t >= end
+
+    def frame(self, sid: int, buf: bytes, pos: int) -> Iterator[Packet]:
+        try:
+            pkt = codec.decode_packet("FRME", buf, 0)
+        except (ValueError, struct.error) as e:
+            if not self.src.skip_bad:
+                self.src._fail(f"packet of stream {sid} (FRME) does not decode: {e}", pos)
+            self.src._note_skip(pos, pos, 1)
+            return
+        assert isinstance(pkt, SamplePacket)
+        out = self.tiler.push(type(pkt), sid, pkt.t, pos, **pkt.data)
+        if out is not None:
+            yield out
+
+    def _decode(self, type_id: str, bufs: list[bytes], poss: list[int]) -> tuple[Any, list[int]]:
+        """Decode the packets together; a malformed one is dropped (skip_bad)
+        or reported with its file offset."""
+        while True:
+            try:
+                if type_id == "EVTS":
+                    return codec.events_of(bufs), poss
+                sizes = np.fromiter((len(b) for b in bufs), np.int64, len(bufs))
+                ends = np.cumsum(sizes)
+                return self._DECODERS[type_id](b"".join(bufs), ends - sizes, ends), poss
+            except FlatError as e:
+                k = getattr(e, "packet", 0)
+                if not self.src.skip_bad:
+                    self.src._fail(f"packet of a {type_id} stream does not decode: {e}", poss[k])
+                self.src._note_skip(poss[k], poss[k] + 8 + len(bufs[k]) - 1, 1)
+                bufs, poss = bufs[:k] + bufs[k + 1:], poss[:k] + poss[k + 1:]
+
+    def flush(self) -> Iterator[Packet]:
+        parts, self.parts, self.ev_bytes = self.parts, {}, 0
+        for (type_id, sid), (bufs, poss) in parts.items():
+            if not bufs:
+                continue
+            out, poss = self._decode(type_id, bufs, poss)
+            if type_id == "EVTS":
+                assert self.asm is not None
+                t, x, y, p, counts = out
+                at = np.array(poss, np.int64)
+                yield from self.asm.push(t, x, y, p, poss[0], lambda: np.repeat(at, counts))
+            else:
+                q = self.tiler.push(type(out), sid, out.t, poss[0], **out.data)
+                if q is not None:
+                    yield q
+
+    def finish(self) -> Iterator[Packet]:
+        if self.asm is not None:
+            yield from self.asm.finish()

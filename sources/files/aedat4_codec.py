@@ -14,8 +14,7 @@ Public API
 ``decode_packet(type_id, payload, compression, sensor=None) -> Packet``
     ``type_id`` is the stream's ``typeIdentifier`` (``EVTS``, ``FRME``,
     ``IMUS``, ``TRIG``): gives an :class:`EventPacket` (needs ``sensor``),
-    :class:`FramePacket`, :class:`ImuPacket` or :class:`ResultPacket` of
-    ``(type, t)`` trigger items.
+    :class:`FramePacket`, :class:`ImuPacket` or :class:`TriggerPacket`.
 ``encode_events(pkt) / encode_frames(pkt) / encode_imu(pkt) -> bytes``
     The uncompressed size-prefixed FlatBuffer of one packet.
 ``encode_packet(pkt, compression) -> (type_id, bytes)``
@@ -36,13 +35,14 @@ from __future__ import annotations
 import struct
 
 import numpy as np
-from numba import njit
 
-from tectum import EventPacket, FramePacket, ImuPacket, Packet, ResultPacket
+from tectum import EventPacket, FramePacket, ImuPacket, Packet, TriggerPacket
 
+from . import _aedat4_kernels as K
 from ._flatbuf import FlatError, Table, build_table, root
 
 __all__ = ["COMPRESSION", "EVENT_DTYPE", "FlatError", "compress", "decompress", "decode_packet", "decode_events",
+           "events_of", "imus_of", "triggers_of",
            "encode_events", "encode_frames", "encode_imu", "encode_packet", "compression_code"]
 
 #: AEDAT 4.0 compression codes (IOHeader ``compression``).
@@ -98,18 +98,22 @@ def compress(buf: bytes, compression: int | str) -> bytes:
     return zstandard.ZstdCompressor(level=9 if c == 4 else 3).compress(buf)
 
 
-@njit(cache=True, nogil=True)
-def _split_events(raw, t, x, y, p):  # pragma: no cover - numba
-    n = t.shape[0]
-    for i in range(n):
-        b = 16 * i
-        v = np.int64(0)
-        for k in range(8):
-            v |= np.int64(raw[b + k]) << (8 * k)
-        t[i] = v
-        x[i] = np.int32(raw[b + 8]) | (np.int32(raw[b + 9]) << 8)
-        y[i] = np.int32(raw[b + 10]) | (np.int32(raw[b + 11]) << 8)
-        p[i] = 1 if raw[b + 12] else -1
+def events_of(bufs: list[bytes]) -> tuple[np.ndarray, ...]:
+    """(t, x, y, p, counts) of the EventPacket FlatBuffers ``bufs``, decoded
+    into one set of columns; FlatError names (``.packet``) the first bad one."""
+    cap = sum(len(b) for b in bufs) // 16
+    t, x, y, p = np.empty(cap, np.int64), np.empty(cap, np.uint16), np.empty(cap, np.uint16), np.empty(cap, np.int8)
+    counts = np.empty(len(bufs), np.int64)
+    o = 0
+    for k, b in enumerate(bufs):
+        n = K.fill_events(np.frombuffer(b, np.uint8), o, t, x, y, p)
+        if n < 0:
+            err = FlatError("malformed EventPacket FlatBuffer")
+            err.packet = k  # type: ignore[attr-defined]
+            raise err
+        counts[k] = n
+        o += n
+    return t[:o], x[:o], y[:o], p[:o], counts
 
 
 def decode_events(buf: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -117,16 +121,29 @@ def decode_events(buf: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.nd
 
     x and y are int16 on the wire: negative values come out >= 32768 (and
     fail geometry checks downstream)."""
-    tab = root(buf, size_prefixed=True, ident=None)
-    start, n = tab.vector(0, 16)
-    t = np.empty(n, np.int64)
-    x = np.empty(n, np.uint16)
-    y = np.empty(n, np.uint16)
-    p = np.empty(n, np.int8)
-    if n:
-        raw = np.frombuffer(buf, np.uint8, count=16 * n, offset=start)
-        _split_events(raw, t, x, y, p)
+    t, x, y, p, _ = events_of([buf])
     return t, x, y, p
+
+
+def _gather(raw: np.ndarray, pos: np.ndarray, dtype: str, default: float | int) -> np.ndarray:
+    """Values of type ``dtype`` at byte positions ``pos`` (-1: ``default``)."""
+    size = np.dtype(dtype).itemsize
+    idx = np.where(pos >= 0, pos, 0)[..., None] + np.arange(size)
+    vals = raw[idx].view(dtype)[..., 0] if raw.size else np.zeros(pos.shape, dtype)
+    return np.where(pos >= 0, vals, default)
+
+
+def _fields(buf: bytes | bytearray, fields: list[int], sizes: list[int], offs: np.ndarray | None = None,
+            ends: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    raw = np.frombuffer(buf, np.uint8)
+    if offs is None or ends is None:
+        offs, ends = np.zeros(1, np.int64), np.full(1, len(buf), np.int64)
+    pos, _, bad = K.table_fields(raw, offs, ends, np.array(fields, np.int64), np.array(sizes, np.int64))
+    if bad >= 0:
+        err = FlatError("malformed vector of tables")
+        err.packet = int(bad)  # type: ignore[attr-defined]
+        raise err
+    return raw, pos
 
 
 def _frames(buf: bytes) -> FramePacket:
@@ -147,23 +164,33 @@ def _frames(buf: bytes) -> FramePacket:
     return FramePacket(np.array([ts], np.int64), images=img.copy(), **extra)
 
 
-def _imus(buf: bytes) -> ImuPacket:
-    tab = root(buf, size_prefixed=True)
-    rows = []
-    for e in tab.tables(0):
-        rows.append((e.scalar(0, "q"), *(e.scalar(i, "f", 0.0) for i in range(1, 11))))
-    a = np.array(rows, np.float64).reshape(-1, 11)
-    t = np.array([r[0] for r in rows], np.int64)
-    return ImuPacket(t, accel=a[:, 2:5] * _G, gyro=np.deg2rad(a[:, 5:8]), temperature=a[:, 1],
-                     magnetometer=a[:, 8:11])
+def imus_of(buf: bytes | bytearray, offs: np.ndarray | None = None, ends: np.ndarray | None = None) -> ImuPacket:
+    """The IMU samples of one packet, or of the packets ``buf[offs[k]:ends[k]]``."""
+    raw, pos = _fields(buf, list(range(11)), [8] + [4] * 10, offs, ends)
+    t = _gather(raw, pos[:, 0], "<i8", 0).astype(np.int64)
+    a = _gather(raw, pos[:, 1:], "<f4", 0.0).astype(np.float64)
+    return ImuPacket(t, accel=a[:, 1:4] * _G, gyro=np.deg2rad(a[:, 4:7]), temperature=a[:, 0],
+                     magnetometer=a[:, 7:10])
 
 
-def _triggers(buf: bytes) -> ResultPacket:
-    tab = root(buf, size_prefixed=True)
-    items = [(int(e.scalar(1, "b")), int(e.scalar(0, "q"))) for e in tab.tables(0)]
-    t = np.array([it[1] for it in items], np.int64)
+#: dv ``TriggerType`` codes that mark a falling edge or an end (value 0); the
+#: others (reset, rising edges, pulses, starts) get value 1.
+_TRIGGER_FALLING = (2, 5, 7, 9)
+
+
+def triggers_of(buf: bytes | bytearray, offs: np.ndarray | None = None,
+                ends: np.ndarray | None = None) -> TriggerPacket:
+    """A ``TRIG`` packet: ``channel`` = dv ``TriggerType`` code (0 timestamp
+    reset, 1/2 external signal rising/falling, 3 pulse, 4/5 generator
+    rising/falling, 6/7 APS frame start/end, 8/9 exposure start/end) and
+    ``value`` 1 (rising/start) or 0 (falling/end)."""
+    raw, pos = _fields(buf, [0, 1], [8, 1], offs, ends)
+    t = _gather(raw, pos[:, 0], "<i8", 0).astype(np.int64)
+    typ = _gather(raw, pos[:, 1], "i1", 0).astype(np.int16)
     order = np.argsort(t, kind="stable")
-    return ResultPacket(t[order], [items[i] for i in order])
+    t, typ = t[order], typ[order]
+    value = np.where(np.isin(typ, _TRIGGER_FALLING), 0, 1).astype(np.int8)
+    return TriggerPacket(t, channel=typ, value=value)
 
 
 def decode_packet(type_id: str, payload: bytes | memoryview, compression: int | str,
@@ -181,9 +208,9 @@ def decode_packet(type_id: str, payload: bytes | memoryview, compression: int | 
     if type_id == "FRME":
         return _frames(buf)
     if type_id == "IMUS":
-        return _imus(buf)
+        return imus_of(buf)
     if type_id == "TRIG":
-        return _triggers(buf)
+        return triggers_of(buf)
     raise ValueError(f"unsupported AEDAT4 stream type {type_id!r}")
 
 

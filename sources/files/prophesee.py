@@ -17,7 +17,9 @@ RAW files start with ``% key value`` header lines (``% evt 2.0`` or
   bits 0-13, y in bits 14-27, polarity in bits 28-31.
 
 Events before the first time base (EVT ``TIME_HIGH``) have no time and are
-dropped (counted in :attr:`RawSource.untimed_events`).
+dropped (counted in :attr:`RawSource.untimed_events`). External triggers
+(``EXT_TRIGGER``) come out as :class:`tectum.TriggerPacket` (``channel`` =
+trigger id, ``value`` 1 rising / 0 falling edge).
 """
 
 from __future__ import annotations
@@ -27,10 +29,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from tectum import FormatError, Packet
+from tectum import FormatError, Kind, Packet, TriggerPacket
 
 from . import _kernels as K
-from ._common import EventAssembler, FileSource, header_dict, read_prefixed_header, sensor_from_header, t0_from_header
+from ._common import (EventAssembler, FileSource, SampleTiler, header_dict, read_prefixed_header,
+                      sensor_from_header, t0_from_header)
 
 __all__ = ["Evt2Source", "Evt3Source", "DatSource", "raw_format_of"]
 
@@ -55,6 +58,7 @@ class RawSource(FileSource):
     evt: ClassVar[str] = ""
     #: events a word can yield at most
     fanout: ClassVar[int] = 1
+    produces = (Kind.EVENTS, Kind.TRIGGERS)
 
     @classmethod
     def sniff(cls, head: bytes) -> bool:
@@ -80,10 +84,10 @@ class RawSource(FileSource):
         y = np.empty(n, np.uint16)
         p = np.empty(n, np.int8)
         where = np.empty(n, np.int64)
-        trig = np.empty(words.shape[0], np.int64)
+        trig = np.empty((words.shape[0], 3), np.int64)
         kernel = K.decode_evt2 if self.evt == "evt2" else K.decode_evt3
         ne, nt, bad, nbad = kernel(words, state, not self.skip_bad, t, x, y, p, where, trig)
-        return t[:ne], x[:ne], y[:ne], p[:ne], where[:ne], int(bad), int(nbad), int(nt)
+        return t[:ne], x[:ne], y[:ne], p[:ne], where[:ne], int(bad), int(nbad), trig[:nt]
 
     def _words(self, f: Any, start: int) -> Iterator[tuple[int, np.ndarray]]:
         size = np.dtype(self.word).itemsize
@@ -126,15 +130,22 @@ class RawSource(FileSource):
         asm = EventAssembler(self, sensor, offset=self.t0_offset if self.apply_t0 else 0)
         size = np.dtype(self.word).itemsize
         self.triggers = 0
+        tiler = SampleTiler(self)
+        off = self.t0_offset if self.apply_t0 else 0
         for pos, words in self._words(f, start):
-            t, x, y, p, where, bad, nbad, nt = self._decode(words, state)
-            self.triggers += nt
+            t, x, y, p, where, bad, nbad, trig = self._decode(words, state)
+            self.triggers += trig.shape[0]
             if bad >= 0:
                 if not self.skip_bad:
                     self._fail(f"invalid {self.evt.upper()} word 0x{int(words[bad]):0{2 * size}x}",
                                pos + bad * size)
                 self._note_skip(pos + bad * size, pos + bad * size + size - 1, nbad)
             yield from asm.push(t, x, y, p, pos, pos + where * size)
+            if trig.shape[0]:
+                tp = tiler.push(TriggerPacket, "triggers", trig[:, 0] + off, pos, channel=trig[:, 1].astype(np.int16),
+                                value=trig[:, 2].astype(np.int8))
+                if tp is not None:
+                    yield tp
             if self.t_end_us is not None and asm.last_t is not None and asm.last_t >= self.t_end_us:
                 break
         self.untimed_events = int(state[4] if self.evt == "evt2" else state[7])

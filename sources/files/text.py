@@ -31,102 +31,120 @@ from ._common import EventAssembler, FileSource
 __all__ = ["TextSource", "parse_lines"]
 
 _UNIT_DIGITS = {"s": 6, "ms": 3, "us": 0, "ns": -3}
+_HOLD = 1 << 21  # events held in memory while inferring the sensor size
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _sep(c):  # pragma: no cover - numba
+    return c == 32 or c == 9 or c == 44 or c == 13
 
 
 @njit(cache=True, nogil=True)
 def parse_lines(buf, order, digits, t, x, y, p, where):  # pragma: no cover - numba
-    """Parse complete lines of ``buf`` (uint8). ``order[k]`` is the field
-    (0 t, 1 x, 2 y, 3 p) of column k; ``digits`` the power of ten from the
-    time unit to µs. Returns (n_events, bytes consumed, bad line offset or -1)."""
+    """Parse complete lines of ``buf`` (uint8) in one pass. ``order[k]`` is
+    the field (0 t, 1 x, 2 y, 3 p) of column k; ``digits`` the power of ten
+    from the time unit to µs. Time is built from its decimal digits in
+    integer arithmetic: digits below 1 µs round half up (on the first dropped
+    digit; away from zero for negative times). Returns (n_events, bytes
+    consumed, bad line offset or -1)."""
     n = 0
     i = 0
     m = buf.shape[0]
-    while i < m:
-        # find the end of this line; stop at an incomplete last line
-        j = i
-        while j < m and buf[j] != 10:
-            j += 1
-        if j >= m:
-            break
+    # the last complete line ends at the last newline
+    last = m - 1
+    while last >= 0 and buf[last] != 10:
+        last -= 1
+    while i <= last:
+        start = i
         c = buf[i]
         if c == 35 or c == 37:  # '#' or '%': comment
-            i = j + 1
+            while buf[i] != 10:
+                i += 1
+            i += 1
             continue
-        k = i
         col = 0
         ok = True
-        blank = True
-        vals = np.zeros(4, np.int64)
-        while k < j and col < 5:
-            c = buf[k]
-            if c == 32 or c == 9 or c == 44 or c == 13:
-                k += 1
-                continue
-            blank = False
+        tv = np.int64(0)
+        xv = np.int64(0)
+        yv = np.int64(0)
+        pv = np.int64(0)
+        while True:
+            while i < last and _sep(buf[i]):
+                i += 1
+            c = buf[i]
+            if c == 10:
+                break
             neg = False
             if c == 45:
                 neg = True
-                k += 1
+                i += 1
             elif c == 43:
-                k += 1
+                i += 1
             ip = np.int64(0)
             nd = 0
-            while k < j and 48 <= buf[k] <= 57:
-                ip = ip * 10 + (buf[k] - 48)
-                k += 1
+            while 48 <= buf[i] <= 57:
+                ip = ip * 10 + (buf[i] - 48)
+                i += 1
                 nd += 1
             frac = np.int64(0)
             fd = 0
-            rnd = 0
-            if k < j and buf[k] == 46:
-                k += 1
-                while k < j and 48 <= buf[k] <= 57:
-                    d = buf[k] - 48
+            up = 0
+            nzfrac = False
+            if buf[i] == 46:
+                i += 1
+                while 48 <= buf[i] <= 57:
+                    d = buf[i] - 48
+                    if d:
+                        nzfrac = True
                     if fd < digits:
                         frac = frac * 10 + d
                         fd += 1
-                    elif fd == digits and rnd == 0:
-                        rnd = 1 if d >= 5 else 2
-                    k += 1
+                    elif fd == digits:
+                        up = 1 if d >= 5 else 0
+                        fd += 1
+                    i += 1
                     nd += 1
-            if nd == 0 or (k < j and not (buf[k] == 32 or buf[k] == 9 or buf[k] == 44 or buf[k] == 13)):
+            c = buf[i]
+            if nd == 0 or not (c == 10 or _sep(c)) or col >= 4:
                 ok = False
                 break
-            if col < 4:
-                f = order[col]
-                if f == 0:
-                    v = ip
-                    if digits >= 0:
-                        for _ in range(digits):
-                            v *= 10
-                        for _ in range(digits - fd):
-                            frac *= 10
-                        v += frac
-                        if rnd == 1:
-                            v += 1
-                    else:
-                        for _ in range(-digits):
-                            v //= 10
-                    vals[0] = -v if neg else v
+            f = order[col]
+            if f == 0:
+                v = ip
+                if digits >= 0:
+                    for _ in range(digits):
+                        v *= 10
+                    for _ in range(digits - min(fd, digits)):
+                        frac *= 10
+                    v += frac + up
                 else:
-                    if fd > 0 and frac != 0:
-                        ok = False
-                        break
-                    vals[f] = -ip if neg else ip
+                    for _ in range(-digits):
+                        v //= 10
+                tv = -v if neg else v
+            else:
+                if nzfrac:
+                    ok = False
+                    break
+                v = -ip if neg else ip
+                if f == 1:
+                    xv = v
+                elif f == 2:
+                    yv = v
+                else:
+                    pv = v
             col += 1
-        if blank:
-            i = j + 1
+        if not ok or (col != 4 and col != 0):
+            return n, start, start
+        i += 1  # past the newline
+        if col == 0:  # blank line
             continue
-        if not ok or col != 4:
-            return n, i, i
-        t[n] = vals[0]
-        x[n] = vals[1]
-        y[n] = vals[2]
-        p[n] = vals[3]
-        where[n] = i
+        t[n] = tv
+        x[n] = xv
+        y[n] = yv
+        p[n] = pv
+        where[n] = start
         n += 1
-        i = j + 1
-    return n, i, -1
+    return n, last + 1, -1
 
 
 _NUM = rb"[+-]?(?:\d+\.?\d*|\.\d+)"
@@ -183,6 +201,8 @@ class TextSource(FileSource):
         return looks_like_events_text(head)
 
     def _chunks(self) -> Iterator[tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        """(byte offset, t, x, y, p, byte offset of each line) per chunk; x, y,
+        p and the offsets live in buffers reused by the next chunk."""
         f = self._open()
         order = np.array(["txyp".index(c) for c in self.columns], np.int64)
         digits = _UNIT_DIGITS[self.time_unit]
@@ -190,6 +210,7 @@ class TextSource(FileSource):
         rest = b""
         first = True
         eof = False
+        scratch = [np.empty(0, np.int64)] * 4
         while True:
             data = b"" if eof else f.read(self.chunk_bytes)
             eof = eof or not data
@@ -206,8 +227,11 @@ class TextSource(FileSource):
                     pos += nl + 1
                     buf = buf[nl + 1:]
             arr = np.frombuffer(buf, np.uint8)
-            cap = buf.count(b"\n") + 1
-            t, x, y, p, where = (np.empty(cap, np.int64) for _ in range(5))
+            cap = len(buf) // 8 + 2  # a line has at least 8 bytes ("0 0 0 0\n"); untouched pages cost nothing
+            if scratch[0].shape[0] < cap:
+                scratch = [np.empty(cap, np.int64) for _ in range(4)]
+            x, y, p, where = (a[:cap] for a in scratch)  # reused: the caller copies what it keeps
+            t = np.empty(cap, np.int64)
             n, used, bad = parse_lines(arr, order, digits, t, x, y, p, where)
             if bad >= 0:
                 end = buf.find(b"\n", bad)
@@ -236,7 +260,7 @@ class TextSource(FileSource):
             self._fail(f"polarity {int(p[i])} is not 0/1 or -1/+1", int(where[i]))
         return np.where(p > 0, 1, -1).astype(np.int8)
 
-    def _sensor_guess(self) -> tuple[int, int]:
+    def _sensor_guess(self) -> tuple[int, int] | None:
         imgs = self._images()
         if imgs:
             import cv2
@@ -244,12 +268,33 @@ class TextSource(FileSource):
             img = cv2.imread(imgs[0][1], cv2.IMREAD_UNCHANGED)
             if img is not None:
                 return int(img.shape[1]), int(img.shape[0])
+        return None
+
+    def _extent(self, chunks: Any) -> tuple[int, int]:
         w = h = 1
-        for _, t, x, y, p, _ in self._chunks():
+        for _, t, x, y, p, _ in chunks:
             if x.size:
                 w, h = max(w, int(x.max()) + 1), max(h, int(y.max()) + 1)
-        self.close()
         return w, h
+
+    def _sized_chunks(self) -> tuple[tuple[int, int], Any]:
+        """(sensor, chunks): without a size from the option or images, the
+        extent of the coordinates; a small file (up to ``_HOLD`` events) is
+        parsed once and held, a larger one is read twice (bounded memory)."""
+        sensor = self._sensor(None) or self._sensor_guess()
+        if sensor is not None:
+            return sensor, self._chunks()
+        held, n = [], 0
+        for c in self._chunks():
+            held.append((c[0], c[1], *(a.copy() for a in c[2:])))
+            n += c[1].shape[0]
+            if n > _HOLD:
+                self.close()
+                sensor = self._extent(self._chunks())
+                self.close()
+                return sensor, self._chunks()
+        self.close()
+        return self._extent(held), iter(held)
 
     def _beside(self, name: str) -> str | None:
         if not self.companions:
@@ -272,9 +317,9 @@ class TextSource(FileSource):
 
     def _packets(self) -> Iterator[Packet]:
         self._pol_zero: bool | None = None
-        sensor = self._sensor(None) or self._sensor_guess()
+        sensor, chunks = self._sized_chunks()
         asm = EventAssembler(self, sensor)
-        for pos, t, x, y, p, where in self._chunks():
+        for pos, t, x, y, p, where in chunks:
             if x.size and (x.min() < 0 or y.min() < 0):
                 i = int(np.flatnonzero((x < 0) | (y < 0))[0])
                 if not self.skip_bad:

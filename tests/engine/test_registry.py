@@ -133,3 +133,11 @@ def test_sample_plugin_from_a_pipeline_file(sample_plugin_path, tmp_path):
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert "nth" in r.stdout and (tmp_path / "out.npz").exists()
+
+
+def test_folders_are_recognised_by_their_content(tmp_path):
+    reg = tectum.get_registry()
+    with pytest.raises(RegistryError, match="folder that no source recognises"):
+        reg.source_for(str(tmp_path))
+    (tmp_path / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    assert reg.source_for(str(tmp_path)).name == "rosbag"

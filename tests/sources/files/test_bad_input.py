@@ -160,8 +160,8 @@ def test_fuzz_random_bytes(cls: type, blob: bytes, tmp_path_factory) -> None:
     prefix = {"aedat4": b"#!AER-DAT4.0\r\n", "aedat2": b"#!AER-DAT2.0\r\n# AEChip: DVS128\r\n",
               "aedat31": b"#!AER-DAT3.1\r\n#!END-HEADER\r\n", "evt2": b"% evt 2.0\n% geometry 64x48\n",
               "evt3": b"% evt 3.0\n% geometry 64x48\n", "dat": b"% Version 2\n% Width 64\n% Height 48\n",
-              "npy": b"\x93NUMPY", "hdf5": b"\x89HDF\r\n\x1a\n", "text": b""}[cls.name]
-    f = tmp_path_factory.mktemp("rb") / "f.bin"
+              "npy": b"\x93NUMPY", "hdf5": b"\x89HDF\r\n\x1a\n", "text": b"", "rosbag": b"#ROSBAG V2.0\n"}[cls.name]
+    f = tmp_path_factory.mktemp("rb") / ("f.bag" if cls.name == "rosbag" else "f.bin")
     f.write_bytes(prefix + blob)
     _check_fuzz(f, cls)
 

@@ -125,3 +125,12 @@ def test_aedat4_against_dv_processing(shared: Path) -> None:
     ref = np.concatenate(parts)
     assert np.array_equal(ours.t, ref["timestamp"]) and np.array_equal(ours.x, ref["x"])
     assert np.array_equal(ours.y, ref["y"]) and np.array_equal(ours.p > 0, ref["polarity"] > 0)
+
+
+def test_aedat4_triggers_are_trigger_packets(shared: Path) -> None:
+    from tectum import Kind
+
+    trig = [q for q in open_file(str(shared / "aedat/davis346.aedat4")).packets() if q.kind == Kind.TRIGGERS]
+    t = concat(trig)
+    assert len(t) == 236 and set(np.unique(t.value)) <= {0, 1}
+    assert np.all(np.diff(t.t) >= 0)
