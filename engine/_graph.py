@@ -129,6 +129,15 @@ def _merge_parts(parts: list[Packet], t0: int, t1: int) -> Packet:
     return type(first)(t[order], t_start=t0, t_end=t1, **data)
 
 
+class _Node:
+    """A node's wiring for the hot path (one attribute load per field)."""
+
+    __slots__ = ("id", "op", "consumes", "st", "routes", "tapped")
+
+    def __init__(self, nid: str) -> None:
+        self.id = nid
+
+
 class Graph:
     """Operators of a plan, wired for synchronous execution.
 
@@ -172,7 +181,7 @@ class Graph:
     def push(self, node_id: str, pkt: Packet) -> list[Delivery]:
         """Emit ``pkt`` as the output of ``node_id`` (a source, usually)."""
         out: list[Delivery] = []
-        self._emit(node_id, pkt, out)
+        self._emit(self._recs[node_id], pkt, out)
         return out
 
     def end(self, node_id: str) -> list[Delivery]:
@@ -185,64 +194,69 @@ class Graph:
     # The hot path: plain calls over routes precomputed in _wire(); kinds are
     # tested against tuples (identity first), lengths read from t.shape.
     def _wire(self) -> None:
-        self._routes: dict[str, tuple[tuple[int, str, tuple[Kind, ...]], ...]] = {}
-        for nid in self.plan.order:
-            routes = []
+        recs = {nid: _Node(nid) for nid in self.plan.order}
+        for nid, rec in recs.items():
+            op = self.ops.get(nid)
+            rec.op = op
+            rec.consumes = tuple(op.consumes) if op is not None else ()
+            rec.st = self.stats.nodes[nid]
+            rec.tapped = nid in self.taps
+            routes: list[tuple[int, Any, tuple[Kind, ...]]] = []
             for child in self.plan.nodes[nid].children:
                 node = self.plan.nodes[child]
                 if node.role == "sink":
                     routes.append((_SINK, child, tuple(node.cls.consumes)))
                 elif child in self.mergers:
-                    routes.append((_MERGE, child, ()))
+                    routes.append((_MERGE, recs[child], ()))
                 else:
-                    routes.append((_OP, child, ()))
-            self._routes[nid] = tuple(routes)
-        self._opinfo = {nid: (op, tuple(op.consumes), self.stats.nodes[nid]) for nid, op in self.ops.items()}
+                    routes.append((_OP, recs[child], ()))
+            rec.routes = tuple(routes)
+        self._recs = recs
 
-    def _emit(self, nid: str, pkt: Packet, out: list[Delivery]) -> None:
-        if self.taps and nid in self.taps:
-            out.append(("tap:" + nid, pkt))
-        for how, child, kinds in self._routes[nid]:
+    def _emit(self, rec: "_Node", pkt: Packet, out: list[Delivery]) -> None:
+        if rec.tapped:
+            out.append(("tap:" + rec.id, pkt))
+        for how, child, kinds in rec.routes:
             if how == _OP:
                 self._run(child, pkt, out)
             elif how == _SINK:
                 if pkt.kind in kinds:
                     out.append((child, pkt))
             else:
-                node = self.plan.nodes[child]
+                node = self.plan.nodes[child.id]
                 try:
-                    merged = self.mergers[child].push(node.spec.inputs.index(nid), pkt)
+                    merged = self.mergers[child.id].push(node.spec.inputs.index(rec.id), pkt)
                 except Exception as e:
-                    raise NodeError(child, e) from e
+                    raise NodeError(child.id, e) from e
                 for q in merged:
                     self._run(child, q, out)
 
-    def _run(self, nid: str, pkt: Packet, out: list[Delivery]) -> None:
-        op, consumes, st = self._opinfo[nid]
-        if pkt.kind not in consumes:
-            self._emit(nid, pkt, out)  # passes by
+    def _run(self, rec: "_Node", pkt: Packet, out: list[Delivery]) -> None:
+        if pkt.kind not in rec.consumes:
+            self._emit(rec, pkt, out)  # passes by
             return
+        st = rec.st
         st.packets_in += 1
         st.events_in += pkt.t.shape[0]
         t0 = perf_counter_ns()
         try:
-            res = op.process(pkt)
+            res = rec.op.process(pkt)
         except NodeError:
             raise
         except Exception as e:
-            raise NodeError(nid, e) from e
+            raise NodeError(rec.id, e) from e
         st.busy_ns += perf_counter_ns() - t0
         for q in res if type(res) is list else as_packets(res):
             st.packets_out += 1
             st.events_out += q.t.shape[0]
-            self._emit(nid, q, out)
+            self._emit(rec, q, out)
 
     def _forward(self, nid: str, res: Sequence[Packet], out: list[Delivery]) -> None:
-        st = self.stats.nodes[nid]
+        rec = self._recs[nid]
         for q in res:
-            st.packets_out += 1
-            st.events_out += q.t.shape[0]
-            self._emit(nid, q, out)
+            rec.st.packets_out += 1
+            rec.st.events_out += q.t.shape[0]
+            self._emit(rec, q, out)
 
     def _end(self, nid: str, out: list[Delivery]) -> None:
         if nid in self.taps:
@@ -261,7 +275,7 @@ class Graph:
                 except Exception as e:
                     raise NodeError(child, e) from e
                 for q in flushed:
-                    self._run(child, q, out)
+                    self._run(self._recs[child], q, out)
             if self.open_inputs[child] == 0:
                 try:
                     res = as_packets(self.ops[child].finish())

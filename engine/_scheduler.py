@@ -200,8 +200,13 @@ async def _sink_task(sid: str, sink: Sink, edge: Edge, stats: Stats) -> None:
                 raise NodeError(sid, e) from e
         st.busy_ns += time.perf_counter_ns() - t0
         done = trio.current_time()  # once per burst: latency errs on the high side
-        for _, arrival in items:
-            lat.add(done - arrival)
+        run_arrival, run = items[0][1], 0
+        for _, arrival in items:  # packets of one slice share their arrival time
+            if arrival != run_arrival:
+                lat.add(done - run_arrival, run)
+                run_arrival, run = arrival, 0
+            run += 1
+        lat.add(done - run_arrival, run)
     st.drops += edge.drops
 
 
