@@ -10,23 +10,37 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
-from tectum import EventPacket, Packet, Sink
+from tectum import EventPacket, Kind, Packet, ResultPacket, Sink
 
-from .render import Mode, Renderer
+from .render import MODES, Mode, Renderer
 
 __all__ = ["VideoSink", "PngSink", "FrameCallbackSink"]
 
 
 class _Rendering(Sink):
+    consumes = (Kind.EVENTS, Kind.RESULTS)  # results: tracks drawn over the events
+
     def __init__(self, fps: float, mode: Mode, tau_us: float) -> None:
+        if mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
         self.fps, self.mode, self.tau_us = fps, mode, tau_us
         self.renderer: Renderer | None = None
         self.frames = 0
+        self._tracks: list[ResultPacket] = []
 
     def _frames(self, packet: Packet) -> list[tuple[int, np.ndarray]]:
+        if isinstance(packet, ResultPacket):
+            if self.renderer is None:
+                self._tracks.append(packet)
+            else:
+                self.renderer.add_tracks(packet)
+            return []
         assert isinstance(packet, EventPacket)
         if self.renderer is None:
             self.renderer = Renderer(packet.sensor, self.fps, self.mode, self.tau_us)
+            for r in self._tracks:
+                self.renderer.add_tracks(r)
+            self._tracks = []
         got = self.renderer.add(packet)
         self.frames += len(got)
         return got

@@ -6,7 +6,9 @@ never holds the pipeline back: it only ever gets the newest frame):
 
 * ``/`` an HTML page showing the frames and the stats, refreshed by script;
 * ``/frame.png`` the newest frame; ``/stream.mjpg`` an MJPEG stream;
-* ``/stats.json`` events and packets seen, event rate, frames, stream time.
+* ``/stats.json`` events and packets seen, event rate, frames, stream time,
+  and (``pipeline``) the whole run's stats: per node packets and events in
+  and out, drops, busy time, counters, latency percentiles.
 
 Frames are made at ``fps`` per second of event time; to watch a recording
 at its own speed, run the pipeline paced (``--pace 1``).
@@ -23,7 +25,7 @@ import cv2
 import numpy as np
 import trio
 
-from tectum import EventPacket, Packet, Sink
+from tectum import EventPacket, Kind, Packet, ResultPacket, Sink
 
 from .render import Mode, Renderer
 
@@ -34,6 +36,7 @@ _PAGE = """<!doctype html>
 <style>body{{margin:0;background:#202020;color:#ddd;font:13px monospace}}
 #f{{display:block;width:{w}px;height:{h}px;image-rendering:pixelated}}#s{{padding:4px}}</style></head>
 <body><img id="f" src="/frame.png" width="{w}" height="{h}" alt="events"><div id="s">waiting for events</div>
+<pre id="p"></pre>
 <script>
 const img = document.getElementById("f"), st = document.getElementById("s");
 let busy = false;
@@ -45,7 +48,17 @@ function tick() {{
   next.src = "/frame.png?" + Date.now();
   fetch("/stats.json").then(r => r.json()).then(s => {{
     st.textContent = `${{s.events}} events, ${{(s.rate_ev_s/1e6).toFixed(3)}} Mev/s, ` +
-      `frame ${{s.frames}}, t=${{(s.t_us/1e6).toFixed(3)}} s`; }}).catch(() => {{}});
+      `frame ${{s.frames}}, t=${{(s.t_us/1e6).toFixed(3)}} s`;
+    if (s.pipeline) {{
+      let rows = ["node                      ev in      ev out   drops  latency p50/p99 ms"];
+      for (const [k, n] of Object.entries(s.pipeline.nodes)) {{
+        const l = s.pipeline.latency_us[k] || {{}};
+        const lat = l.p50 !== undefined ? `${{(l.p50/1e3).toFixed(2)}}/${{(l.p99/1e3).toFixed(2)}}` : "";
+        rows.push(`${{k.padEnd(24)}}${{String(n.events_in).padStart(8)}}${{String(n.events_out).padStart(12)}}` +
+                  `${{String(n.drops).padStart(8)}}  ${{lat}}`);
+      }}
+      document.getElementById("p").textContent = rows.join("\n");
+    }} }}).catch(() => {{}});
 }}
 setInterval(tick, {interval});
 </script></body></html>
@@ -59,6 +72,7 @@ class LiveViewSink(Sink):
 
     name = "display"
     schemes = ("http",)
+    consumes = (Kind.EVENTS, Kind.RESULTS)  # results: tracks drawn over the events
 
     def __init__(self, url: str = "http://127.0.0.1:8080", fps: float = 30.0, mode: Mode = "polarity",
                  tau_us: float = 30_000.0, scale: int = 1) -> None:
@@ -84,6 +98,11 @@ class LiveViewSink(Sink):
         self._cancel: trio.CancelScope | None = None
         self._ready = threading.Event()
         self._error: BaseException | None = None
+        self._run_stats: Any = None
+
+    def bind_stats(self, stats: Any) -> None:
+        """The run's :class:`tectum.Stats`, shown on the page."""
+        self._run_stats = stats
 
     # -- pipeline side ----------------------------------------------------
     def open(self) -> None:
@@ -93,6 +112,10 @@ class LiveViewSink(Sink):
             raise OSError(f"live view could not listen on {self.host}:{self.port}: {self._error}")
 
     def write(self, packet: Packet) -> None:
+        if isinstance(packet, ResultPacket):
+            if self.renderer is not None:
+                self.renderer.add_tracks(packet)
+            return
         assert isinstance(packet, EventPacket)
         if self.renderer is None:
             self.renderer = Renderer(packet.sensor, self.fps, self.mode, self.tau_us)
@@ -176,7 +199,13 @@ class LiveViewSink(Sink):
                 png = buf.tobytes()
             return _http(200, "image/png", png)
         if path == "/stats.json":
-            return _http(200, "application/json", json.dumps(self._stats).encode())
+            body = dict(self._stats)
+            if self._run_stats is not None:
+                try:
+                    body["pipeline"] = self._run_stats.as_dict()
+                except RuntimeError:  # a dict changed size while the pipeline runs: next time
+                    pass
+            return _http(200, "application/json", json.dumps(body, default=float).encode())
         return _http(404, "text/plain", b"not found\n")
 
     async def _mjpeg(self, stream: trio.SocketStream) -> None:

@@ -49,10 +49,15 @@ class NetSource(Source):
         self.dropped_connections = 0
 
     @property
-    def counts(self) -> dict[str, object]:
+    def counts(self) -> dict[str, int]:
+        """Integer counters (the run's stats show them): accepted, events,
+        lost, late, sessions, rejected_total, ``rejected_<reason>`` and
+        dropped_connections."""
         c = self.receiver.counts()
-        c["dropped_connections"] = self.dropped_connections
-        return c
+        out = {k: v for k, v in c.items() if isinstance(v, int)}
+        out.update({f"rejected_{k}": v for k, v in self.receiver.rejected.items()})
+        out["dropped_connections"] = self.dropped_connections
+        return out
 
     async def apackets(self) -> AsyncIterator[EventPacket]:
         gen = self._tcp() if self.scheme == "tcp" else self._udp()

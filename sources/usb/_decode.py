@@ -11,11 +11,20 @@ time never overflows (libcaer's 31-bit "big wrap" does not exist here). A
 timestamp reset (device counter back to 0) moves a base offset to just past
 the last emitted time, so the output stays non-decreasing across resets;
 resets, wraps, out-of-order times (clamped) and bad addresses are counted.
+
+APS frames (DAVIS) follow libcaer's readout: a frame start (global or
+rolling shutter) opens a frame of the current ROI; per column, a reset read
+and a signal read (column start / ADC samples / column end, in either
+order); exposure start/end stamp the frame; at frame end each pixel is the
+correlated double sample ``reset - signal`` (10 bits, clipped; a reset
+under 384 or a signal of 0 means the pixel saw too much light: white),
+given as 8 bits (``>> 2``, as DV's 8-bit frames). A frame whose column
+counts are wrong is dropped and counted (``aps_bad_frames``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
@@ -27,7 +36,15 @@ _WRAP, _BASE, _LAST, _WRAPS, _RESETS, _NONMONO, _CUR, _BAD, _SPECIAL = 0, 1, 2, 
 # DAVIS only
 _LASTY, _IMU_ON, _IMU_N, _IMU_TYPE, _IMU_TMP, _ACC_SC, _GYR_SC, _SX, _SY, _INV, _IMU_BAD, _APS = (
     9, 10, 11, 12, 13, 14, 15, 16, 17, 18, 19, 20)
-_NSTATE = 24
+# APS (DAVIS): frame in progress, its times, readout type, counts per readout
+# type (column, row), ROI (start column/row, size), expected counts,
+# ROI-update sequence, orientation flags (1 flipY, 2 flipX, 4 invertXY),
+# DAVIS240 (samples x 2), frames made / dropped, full APS size
+(_A_ON, _A_SOF, _A_SEXP, _A_EEXP, _A_TYPE, _A_CX0, _A_CX1, _A_CY0, _A_CY1, _A_POSX, _A_POSY, _A_SIZEX,
+ _A_SIZEY, _A_EXPX, _A_EXPY, _A_ROITMP, _A_ROIUPD, _A_ORIENT, _A_IS240, _A_FRAMES, _A_BAD, _A_W, _A_H,
+ _A_ENDX, _A_ENDY) = range(24, 49)
+_NSTATE = 56
+_NMETA = 8  # per frame: start, end, exposure start, exposure end, position x, y, size x, y
 G = 9.80665
 
 
@@ -79,16 +96,76 @@ def dvs128_kernel(buf: np.ndarray, state: np.ndarray, t: np.ndarray, x: np.ndarr
 
 
 @njit(cache=True)
-def davis_kernel(words: np.ndarray, state: np.ndarray, imu_cur: np.ndarray, t: np.ndarray, x: np.ndarray,
-                 y: np.ndarray, p: np.ndarray, imu_t: np.ndarray, imu_v: np.ndarray) -> tuple[int, int]:
-    """Decode 16-bit DAVIS words; returns (events written, IMU samples written).
+def _aps_roi_sizes(state: np.ndarray) -> None:
+    """ROI start/end (as received) -> position and size, checked against
+    the APS size (libcaer falls back to the full array / position 0)."""
+    sx = state[_A_ENDX] + 1 - state[_A_POSX]
+    sy = state[_A_ENDY] + 1 - state[_A_POSY]
+    if sx <= 0 or sx > state[_A_W]:
+        sx = state[_A_W]
+    if sy <= 0 or sy > state[_A_H]:
+        sy = state[_A_H]
+    if state[_A_POSX] + sx > state[_A_W]:
+        state[_A_POSX] = 0
+    if state[_A_POSY] + sy > state[_A_H]:
+        state[_A_POSY] = 0
+    state[_A_SIZEX], state[_A_SIZEY] = sx, sy
+    if state[_A_ORIENT] & 4:
+        state[_A_EXPX], state[_A_EXPY] = sy, sx
+    else:
+        state[_A_EXPX], state[_A_EXPY] = sx, sy
+
+
+@njit(cache=True)
+def _aps_sample(state: np.ndarray, px: np.ndarray, data: np.int64) -> None:
+    """One ADC sample into the frame: a reset read is stored, a signal read
+    turns the pixel into its CDS value."""
+    typ = state[_A_TYPE]
+    cx = state[_A_CX1] if typ else state[_A_CX0]
+    cy = state[_A_CY1] if typ else state[_A_CY0]
+    if cx >= state[_A_EXPX] or cy >= state[_A_EXPY]:  # lost column marks: ignore, as libcaer
+        return
+    if state[_A_IS240]:
+        data = data << 1
+    xp = state[_A_EXPX] - 1 - cx if state[_A_ORIENT] & 2 else cx
+    yp = state[_A_EXPY] - 1 - cy if state[_A_ORIENT] & 1 else cy
+    if state[_A_ORIENT] & 4:
+        xp, yp = yp, xp
+    k = yp * state[_A_SIZEX] + xp
+    if typ == 0:
+        px[k] = data
+    else:
+        reset = px[k]
+        if reset < 384 or data == 0:
+            v = 1023
+        else:
+            v = min(max(reset - data, 0), 1023)
+        px[k] = v
+    if typ:
+        state[_A_CY1] += 1
+    else:
+        state[_A_CY0] += 1
+
+
+@njit(cache=True)
+def davis_kernel(words: np.ndarray, start: int, state: np.ndarray, imu_cur: np.ndarray, t: np.ndarray,
+                 x: np.ndarray, y: np.ndarray, p: np.ndarray, imu_t: np.ndarray, imu_v: np.ndarray,
+                 aps_px: np.ndarray, fr_px: np.ndarray, fr_meta: np.ndarray) -> tuple[int, int, int, int]:
+    """Decode 16-bit DAVIS words from index ``start``; returns (events
+    written, IMU samples written, frames written, index where it stopped).
+    It stops early once ``fr_px`` (frames, 8-bit pixels flattened) is full.
 
     ``imu_v`` rows: accel x, y, z (m/s²), temperature (°C), gyro x, y, z (rad/s).
     """
     n = 0
     m = 0
-    for i in range(words.shape[0]):
+    f = 0
+    i = start
+    while i < words.shape[0]:
+        if f == fr_px.shape[0]:
+            break
         w = np.int64(words[i])
+        i += 1
         if w & 0x8000:  # timestamp: 15 bits on top of the wraps
             state[_CUR] = state[_WRAP] + (w & 0x7FFF)
             continue
@@ -117,8 +194,60 @@ def davis_kernel(words: np.ndarray, state: np.ndarray, imu_cur: np.ndarray, t: n
                         m += 1
                     else:
                         state[_IMU_BAD] += 1
-            elif data >= 8:
-                state[_APS] += 1
+            elif data == 8 or data == 9:  # APS frame start, global / rolling shutter
+                state[_A_ON] = 1
+                state[_A_SOF] = state[_BASE] + state[_CUR]
+                state[_A_SEXP] = -1
+                state[_A_EEXP] = -1
+                state[_A_TYPE] = 0
+                state[_A_CX0] = 0
+                state[_A_CX1] = 0
+                state[_A_CY0] = 0
+                state[_A_CY1] = 0
+                state[_A_ROIUPD] = 0
+                npx = state[_A_SIZEX] * state[_A_SIZEY]
+                aps_px[:npx] = 0
+            elif state[_A_ON] != 1:
+                if data >= 10 and data <= 15:
+                    state[_APS] += 1  # a frame's marks without its start
+                else:
+                    state[_SPECIAL] += 1
+            elif data == 10:  # APS frame end
+                state[_A_ON] = 0
+                if state[_A_CX0] != state[_A_EXPX] or state[_A_CX1] != state[_A_EXPX]:
+                    state[_A_BAD] += 1
+                    continue
+                npx = state[_A_SIZEX] * state[_A_SIZEY]
+                for k in range(npx):
+                    fr_px[f, k] = np.uint8(aps_px[k] >> 2)
+                fr_meta[f, 0] = state[_A_SOF]
+                fr_meta[f, 1] = state[_BASE] + state[_CUR]
+                fr_meta[f, 2] = state[_A_SEXP]
+                fr_meta[f, 3] = state[_A_EEXP]
+                fr_meta[f, 4] = state[_A_POSX]
+                fr_meta[f, 5] = state[_A_POSY]
+                fr_meta[f, 6] = state[_A_SIZEX]
+                fr_meta[f, 7] = state[_A_SIZEY]
+                f += 1
+                state[_A_FRAMES] += 1
+            elif data == 11 or data == 12:  # reset / signal column start
+                typ = data - 11
+                state[_A_TYPE] = typ
+                if typ:
+                    state[_A_CY1] = 0
+                else:
+                    state[_A_CY0] = 0
+            elif data == 13:  # column end
+                if state[_A_TYPE]:
+                    state[_A_CX1] += 1
+                else:
+                    state[_A_CX0] += 1
+            elif data == 14:
+                state[_A_SEXP] = state[_BASE] + state[_CUR]
+            elif data == 15:
+                state[_A_EEXP] = state[_BASE] + state[_CUR]
+            else:
+                state[_SPECIAL] += 1
         elif code == 1:  # row address
             if data >= (state[_SX] if state[_INV] else state[_SY]):
                 state[_BAD] += 1
@@ -137,8 +266,11 @@ def davis_kernel(words: np.ndarray, state: np.ndarray, imu_cur: np.ndarray, t: n
                 y[n] = state[_LASTY]
             p[n] = 1 if code == 3 else -1
             n += 1
-        elif code == 4:  # APS ADC sample: frames are not decoded (counted)
-            state[_APS] += 1
+        elif code == 4:  # APS ADC sample
+            if state[_A_ON] == 1:
+                _aps_sample(state, aps_px, data)
+            else:
+                state[_APS] += 1
         elif code == 5:
             mcode = (data >> 8) & 0xF
             mdata = data & 0xFF
@@ -175,21 +307,57 @@ def davis_kernel(words: np.ndarray, state: np.ndarray, imu_cur: np.ndarray, t: n
                     state[_IMU_N] = 8
                 else:
                     state[_IMU_N] = 14
+            elif mcode == 1:  # APS ROI value, high byte
+                state[_A_ROITMP] = mdata << 8
+            elif mcode == 2:  # low byte: start column, start row, end column, end row in turn
+                v = state[_A_ROITMP] | mdata
+                u = state[_A_ROIUPD] & 3
+                if u == 0:
+                    state[_A_POSX] = v
+                elif u == 1:
+                    state[_A_POSY] = v
+                elif u == 2:
+                    state[_A_ENDX] = v
+                else:
+                    state[_A_ENDY] = v
+                    _aps_roi_sizes(state)  # sent right after a frame's start, before its samples
+                state[_A_ROIUPD] += 1
             else:
-                state[_APS] += 1
-        elif code == 6:
-            state[_APS] += 1
+                state[_SPECIAL] += 1
+        elif code == 6:  # misc 10 bits: the frame's exposure (not needed: the marks give it)
+            pass
         else:  # code 7: timestamp wrap, data = how many 2^15 µs steps
             state[_WRAPS] += 1
             state[_WRAP] += 0x8000 * data
             state[_CUR] = state[_WRAP]
-    return n, m
+    return n, m, f, i
+
+
+@dataclass
+class Frame:
+    """One APS frame: 8-bit image (rows, columns) of the ROI at
+    ``position`` (x, y), its start/end of readout and exposure (µs; -1
+    when the camera sent no exposure mark) and ``t``, mid-exposure (µs)."""
+
+    image: np.ndarray
+    start: int
+    end: int
+    exposure_start: int
+    exposure_end: int
+    position: tuple[int, int]
+
+    @property
+    def t(self) -> int:
+        if 0 <= self.exposure_start <= self.exposure_end:
+            return (self.exposure_start + self.exposure_end) // 2
+        return self.start
 
 
 @dataclass
 class Decoded:
-    """One chunk's output: events (t µs, x, y, p ±1) and IMU samples
-    (``imu_t`` µs, ``imu`` rows of accel m/s², temperature °C, gyro rad/s)."""
+    """One chunk's output: events (t µs, x, y, p ±1), IMU samples
+    (``imu_t`` µs, ``imu`` rows of accel m/s², temperature °C, gyro rad/s)
+    and complete APS frames."""
 
     t: np.ndarray
     x: np.ndarray
@@ -197,6 +365,7 @@ class Decoded:
     p: np.ndarray
     imu_t: np.ndarray
     imu: np.ndarray
+    frames: list[Frame] = field(default_factory=list)
 
 
 _EMPTY_IMU = (np.empty(0, np.int64), np.empty((0, 7), np.float64))
@@ -273,14 +442,27 @@ class DavisDecoder(_Base):
 
     word = 2
 
-    def __init__(self, sensor: tuple[int, int], invert_xy: bool = False) -> None:
+    def __init__(self, sensor: tuple[int, int], invert_xy: bool = False, aps_size: tuple[int, int] | None = None,
+                 aps_orientation: int = 0, davis240: bool = False) -> None:
+        """``aps_size`` (columns, rows) of the frames (default: ``sensor``);
+        ``aps_orientation`` the device's APS orientation bits (4 invert x/y,
+        2 flip x, 1 flip y); ``davis240`` doubles ADC samples (its ADC
+        reference range, as libcaer)."""
         super().__init__()
         self.sensor = sensor
         w, h = sensor
+        s = self.state
         # the chip's own columns/rows (before a swap of x and y)
-        self.state[_SX], self.state[_SY] = (h, w) if invert_xy else (w, h)
-        self.state[_INV] = int(invert_xy)
+        s[_SX], s[_SY] = (h, w) if invert_xy else (w, h)
+        s[_INV] = int(invert_xy)
         self.imu_cur = np.zeros(7, np.float64)
+        aw, ah = aps_size or sensor
+        s[_A_W], s[_A_H], s[_A_ORIENT], s[_A_IS240] = aw, ah, aps_orientation & 7, int(davis240)
+        s[_A_POSX], s[_A_POSY], s[_A_ENDX], s[_A_ENDY] = 0, 0, aw - 1, ah - 1
+        _aps_roi_sizes(s)
+        self.aps_px = np.zeros(aw * ah, np.int64)
+        self._fr_px = np.empty((2, aw * ah), np.uint8)
+        self._fr_meta = np.empty((2, _NMETA), np.int64)
 
     def feed(self, data: bytes | bytearray | memoryview) -> Decoded:
         words = self._take(data).view("<u2")
@@ -292,12 +474,31 @@ class DavisDecoder(_Base):
         mi = k // 8 + 1
         it = np.empty(mi, np.int64)
         iv = np.empty((mi, 7), np.float64)
-        n, m = davis_kernel(words, self.state, self.imu_cur, t, x, y, p, it, iv)
-        return Decoded(t[:n], x[:n], y[:n], p[:n], it[:m], iv[:m])
+        frames: list[Frame] = []
+        n = m = i = 0
+        while True:  # the kernel stops each time its frame buffer is full
+            dn, dm, f, i = davis_kernel(words, i, self.state, self.imu_cur, t[n:], x[n:], y[n:], p[n:], it[m:],
+                                        iv[m:], self.aps_px, self._fr_px, self._fr_meta)
+            n, m = n + dn, m + dm
+            for meta, px in zip(self._fr_meta[:f].tolist(), self._fr_px[:f]):
+                sof, eof, sexp, eexp, posx, posy, sx, sy = meta
+                frames.append(Frame(px[: sx * sy].reshape(sy, sx).copy(), sof, eof, sexp, eexp, (posx, posy)))
+            if i >= k:
+                break
+        return Decoded(t[:n], x[:n], y[:n], p[:n], it[:m], iv[:m], frames)
+
+    @property
+    def frame_in_progress_since(self) -> int | None:
+        """Start time (µs) of the APS frame being read out, if any: no
+        later frame can have an earlier time."""
+        s = self.state
+        return int(s[_A_SOF]) if s[_A_ON] == 1 else None
 
     @property
     def counts(self) -> dict[str, int]:
         c = super().counts
         c["imu_incomplete"] = int(self.state[_IMU_BAD])
         c["aps_words_skipped"] = int(self.state[_APS])
+        c["aps_frames"] = int(self.state[_A_FRAMES])
+        c["aps_bad_frames"] = int(self.state[_A_BAD])
         return c

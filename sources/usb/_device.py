@@ -98,6 +98,9 @@ class Camera:
         self.sensor: tuple[int, int] = P.DVS128_SIZE
         self.invert_xy = False
         self.logic_version: int | None = None
+        self.aps_size: tuple[int, int] | None = None
+        self.aps_orientation = 0
+        self.adc_clock_mhz = 0
         self._claimed = False
 
     # -- set-up -------------------------------------------------------------
@@ -120,6 +123,12 @@ class Camera:
             if not (0 < cols <= 4096 and 0 < rows <= 4096):
                 raise TectumError(f"{self.model.name}: the device reports a sensor of {cols}x{rows}")
             self.sensor = (rows, cols) if self.invert_xy else (cols, rows)
+            acols = self.config_get(P.MOD_APS, P.APS_SIZE_COLUMNS)
+            arows = self.config_get(P.MOD_APS, P.APS_SIZE_ROWS)
+            self.aps_orientation = self.config_get(P.MOD_APS, P.APS_ORIENTATION) & 7
+            if 0 < acols <= 4096 and 0 < arows <= 4096:
+                self.aps_size = (arows, acols) if self.aps_orientation & 4 else (acols, arows)
+            self.adc_clock_mhz = self.config_get(P.MOD_SYSINFO, P.SYSINFO_ADC_CLOCK)
         else:
             self.chip = "DVS128"
 
@@ -130,7 +139,8 @@ class Camera:
     def decoder(self) -> Dvs128Decoder | DavisDecoder:
         if self.model.protocol == "dvs128":
             return Dvs128Decoder()
-        return DavisDecoder(self.sensor, self.invert_xy)
+        return DavisDecoder(self.sensor, self.invert_xy, aps_size=self.aps_size or self.sensor,
+                            aps_orientation=self.aps_orientation, davis240=self.chip.startswith("DAVIS240"))
 
     def config_set(self, module: int, param: int, value: int) -> None:
         """DAVIS: write one 32-bit configuration value (sent big-endian)."""
@@ -144,8 +154,11 @@ class Camera:
         return int(struct.unpack(">I", bytes(got))[0])
 
     def send_defaults(self) -> None:
-        """Default biases and data-path settings (a subset of libcaer's
-        defaults: the main DVS biases, drop-free USB transfers)."""
+        """Default biases and settings, as libcaer's defaults where they
+        matter here: the main DVS biases, drop-free USB transfers, the APS
+        (global shutter when the chip has one, full-array ROI, 4 ms exposure,
+        40 ms frame interval, both in ADC clock cycles) and the IMU (1 kHz,
+        ±4 g, ±500 °/s, low-pass filter 1)."""
         if self.model.protocol == "dvs128":
             payload = b"".join(v.to_bytes(3, "big") for v in P.DVS128_DEFAULT_BIASES)
             self.dev.ctrl_transfer(0x40, P.DVS128_REQ_BIASES, 0, 0, payload)
@@ -156,8 +169,31 @@ class Camera:
         self.config_set(P.MOD_MUX, P.MUX_DROP_DVS_STALL, 0)
         self.config_set(P.MOD_DVS, P.DVS_WAIT_ON_STALL, 1)
         self.config_set(P.MOD_USB, P.USB_EARLY_PACKET_DELAY, 8)  # x 125 µs: 1 ms
+        self._aps_defaults()
+        for param, value in ((P.IMU_SAMPLE_RATE_DIVIDER, 0), (P.IMU_ACCEL_DLPF, 1), (P.IMU_ACCEL_FULL_SCALE, 1),
+                             (P.IMU_GYRO_DLPF, 1), (P.IMU_GYRO_FULL_SCALE, 1)):
+            self.config_set(P.MOD_IMU, param, value)
 
-    def start(self) -> None:
+    def _aps_defaults(self) -> None:
+        if self.aps_size is None:
+            return
+        cols, rows = self.aps_size[::-1] if self.aps_orientation & 4 else self.aps_size
+        gs = self.config_get(P.MOD_APS, P.APS_HAS_GLOBAL_SHUTTER)
+        clock = self.adc_clock_mhz or 30  # cycles per µs
+        for param, value in ((P.APS_WAIT_ON_STALL, 1), (P.APS_GLOBAL_SHUTTER, 1 if gs else 0),
+                             (P.APS_START_COLUMN, 0), (P.APS_START_ROW, 0), (P.APS_END_COLUMN, cols - 1),
+                             (P.APS_END_ROW, rows - 1), (P.APS_EXPOSURE, P.APS_DEFAULT_EXPOSURE_US * clock),
+                             (P.APS_FRAME_INTERVAL, P.APS_DEFAULT_INTERVAL_US * clock)):
+            self.config_set(P.MOD_APS, param, value)
+
+    def set_frames(self, exposure_us: int, interval_us: int) -> None:
+        """DAVIS: APS exposure and frame interval (µs)."""
+        clock = self.adc_clock_mhz or 30
+        self.config_set(P.MOD_APS, P.APS_EXPOSURE, exposure_us * clock)
+        self.config_set(P.MOD_APS, P.APS_FRAME_INTERVAL, interval_us * clock)
+
+    def start(self, frames: bool = True) -> None:
+        """Start streaming (DAVIS: DVS, IMU and, if ``frames``, the APS)."""
         if self.model.protocol == "dvs128":
             self.dev.ctrl_transfer(0x40, P.DVS128_REQ_START, 0, 0, b"")
             return
@@ -168,12 +204,15 @@ class Camera:
         self.config_set(P.MOD_DVS, P.DVS_RUN, 1)
         for p in (P.IMU_RUN_ACCEL, P.IMU_RUN_GYRO, P.IMU_RUN_TEMP):
             self.config_set(P.MOD_IMU, p, 1)
+        if frames and self.aps_size is not None:
+            self.config_set(P.MOD_APS, P.APS_RUN, 1)
 
     def stop(self) -> None:
         if self.model.protocol == "dvs128":
             self.dev.ctrl_transfer(0x40, P.DVS128_REQ_STOP, 0, 0, b"")
             return
-        for mod, p in ((P.MOD_DVS, P.DVS_RUN), (P.MOD_MUX, P.MUX_RUN), (P.MOD_USB, P.USB_RUN)):
+        for mod, p in ((P.MOD_APS, P.APS_RUN), (P.MOD_DVS, P.DVS_RUN), (P.MOD_MUX, P.MUX_RUN),
+                       (P.MOD_USB, P.USB_RUN)):
             self.config_set(mod, p, 0)
 
     # -- data -----------------------------------------------------------------

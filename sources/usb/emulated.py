@@ -50,6 +50,10 @@ class Truth:
     imu_t: list[int] = field(default_factory=list)
     accel: list[tuple[float, float, float]] = field(default_factory=list)
     gyro: list[tuple[float, float, float]] = field(default_factory=list)
+    #: APS frames: (start of frame, exposure start, exposure end, end of
+    #: frame) µs and the 8-bit image a host must show (rows, columns)
+    frame_times: list[tuple[int, int, int, int]] = field(default_factory=list)
+    frames: list[np.ndarray] = field(default_factory=list)
 
     def events(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         cat = [np.concatenate(a) if a else np.empty(0, np.int64) for a in (self.t, self.x, self.y, self.p)]
@@ -76,7 +80,7 @@ class EmulatedCamera:
                  window_us: int = 5_000, reset_at_us: int | None = None, overrun_reads: tuple[int, ...] = (),
                  disconnect_after: int | None = None, replug_after_polls: int | None = None,
                  max_transfer: int = 4096, imu_period_us: int = 1000, realtime: bool = False,
-                 bus: int = 1, address: int = 5) -> None:
+                 bus: int = 1, address: int = 5, aps_orientation: int = 0, adc_clock_mhz: int = 30) -> None:
         if model not in _SENSORS:
             raise ValueError(f"unknown model {model!r}; known: {sorted(_SENSORS)}")
         self.model, self.serial, self.sensor = model, serial, _SENSORS[model]
@@ -89,6 +93,7 @@ class EmulatedCamera:
         self.disconnect_after, self.replug_after_polls = disconnect_after, replug_after_polls
         self.max_transfer, self.imu_period_us, self.realtime = max_transfer, imu_period_us, realtime
         self.bus, self.address = bus, address
+        self.aps_orientation, self.adc_clock_mhz = aps_orientation, adc_clock_mhz
         self.control_log: list[tuple[int, int, int, int, bytes]] = []
         self.config: dict[tuple[int, int], int] = {}
         self.biases = b""
@@ -114,6 +119,9 @@ class EmulatedCamera:
         self._last_y: int | None = None
         self._reset_sent = False
         self._next_imu = 0
+        self._next_frame: int | None = None
+        self._frame_ends: list[int] = []
+        self._pending_frame: tuple[int, int, np.ndarray, np.ndarray] | None = None
         self._wall0 = 0.0
         if self.model != "dvs128":
             w, h = self.sensor
@@ -123,7 +131,13 @@ class EmulatedCamera:
                                 (P.MOD_SYSINFO, P.SYSINFO_IS_MASTER): 1,
                                 (P.MOD_DVS, P.DVS_SIZE_COLUMNS): w, (P.MOD_DVS, P.DVS_SIZE_ROWS): h,
                                 (P.MOD_DVS, P.DVS_ORIENTATION): 0,
-                                (P.MOD_APS, 0): w, (P.MOD_APS, 1): h, (P.MOD_IMU, P.IMU_TYPE): 1})
+                                # the chip's columns and rows (swapped when its readout is x/y-swapped)
+                                (P.MOD_APS, P.APS_SIZE_COLUMNS): h if self.aps_orientation & 4 else w,
+                                (P.MOD_APS, P.APS_SIZE_ROWS): w if self.aps_orientation & 4 else h,
+                                (P.MOD_APS, P.APS_ORIENTATION): self.aps_orientation,
+                                (P.MOD_APS, P.APS_HAS_GLOBAL_SHUTTER): 1,
+                                (P.MOD_SYSINFO, P.SYSINFO_ADC_CLOCK): self.adc_clock_mhz,
+                                (P.MOD_IMU, P.IMU_TYPE): 1})
 
     def unplug(self) -> None:
         with self._lock:
@@ -294,9 +308,11 @@ class EmulatedCamera:
         imu_times = list(range(self._next_imu, t_end, self.imu_period_us)) if self.imu_period_us else []
         if imu_times:
             self._next_imu = imu_times[-1] + self.imu_period_us
+        marks = [(ti, 1, 0) for ti in imu_times] + self._frame_marks(t_end)
+        marks.sort()
         ts, j = t.tolist(), 0
-        for ti_imu in imu_times + [None]:
-            stop = len(ts) if ti_imu is None else int(np.searchsorted(t, ti_imu, side="left"))
+        for mark in marks + [None]:  # type: ignore[list-item]
+            stop = len(ts) if mark is None else int(np.searchsorted(t, mark[0], side="left"))
             for i in range(j, stop):
                 self._davis_time(out, ts[i] - self._dev_origin)
                 yi = int(y[i])
@@ -305,9 +321,83 @@ class EmulatedCamera:
                     self._last_y = yi
                 out.append((0x3000 if p[i] > 0 else 0x2000) | int(x[i]))
             j = stop
-            if ti_imu is not None:
-                self._imu_words(out, ti_imu)
+            if mark is None:
+                continue
+            if mark[1] == 1:
+                self._imu_words(out, mark[0])
+            else:
+                self._frame_words(out, mark[0], mark[2])
         self._buf += array.array("H", out).tobytes() if out else b""
+
+    # -- APS frames ---------------------------------------------------------
+    def _aps_timing(self) -> tuple[int, int] | None:
+        """(exposure, interval) µs from the host's configuration, when the
+        APS runs."""
+        c = self.config
+        if not c.get((P.MOD_APS, P.APS_RUN), 0):
+            return None
+        clock = max(1, self.adc_clock_mhz)
+        exp = c.get((P.MOD_APS, P.APS_EXPOSURE), P.APS_DEFAULT_EXPOSURE_US * clock) // clock
+        interval = c.get((P.MOD_APS, P.APS_FRAME_INTERVAL), P.APS_DEFAULT_INTERVAL_US * clock) // clock
+        return max(1, exp), max(exp + 1, interval)
+
+    def _frame_marks(self, t_end: int) -> list[tuple[int, int, int]]:
+        """(time, 2, 0) frame start+exposure start and (time, 2, 1)
+        exposure end + readout + frame end marks due before ``t_end``."""
+        timing = self._aps_timing()
+        if timing is None:
+            return []
+        exp, interval = timing
+        if self._next_frame is None:
+            self._next_frame = self._gen_t + 500
+        marks = []
+        while self._next_frame < t_end:
+            marks.append((self._next_frame, 2, 0))
+            self._frame_ends.append(self._next_frame + exp)
+            self._next_frame += interval
+        while self._frame_ends and self._frame_ends[0] < t_end:
+            marks.append((self._frame_ends.pop(0), 2, 1))
+        return marks
+
+    def _frame_words(self, out: list[int], t: int, end: int) -> None:
+        self._davis_time(out, t - self._dev_origin)
+        if not end:  # global shutter frame start, exposure start; the reset read comes first
+            out += [0x0008, 0x000E]
+            w, h = self.sensor
+            yy, xx = np.mgrid[0:h, 0:w]
+            img10 = ((xx * 3 + yy * 2 + t // 500) % 400) * 2  # the scene: even 10-bit CDS values
+            reset = (self._rng.integers(400, 500, (h, w)) * 2).astype(np.int64)
+            signal = reset - img10
+            signal[5, 7] = 0  # too much light: the signal read hits 0 (white)
+            reset[6, 9], signal[6, 9] = 300, 100  # reset read under 384 (white)
+            img10[5, 7] = img10[6, 9] = 1023
+            self._pending_frame = (t, 0, reset, signal)
+            self._aps_read(out, reset, 0xB)
+            self.truth.frames.append((img10 >> 2).astype(np.uint8))
+            return
+        assert self._pending_frame is not None
+        t0, _, reset, signal = self._pending_frame
+        self._pending_frame = None
+        out.append(0x000F)  # exposure end, then the signal read and the frame end
+        self._aps_read(out, signal, 0xC)
+        out.append(0x000A)
+        self.truth.frame_times.append((t0, t0, t, t))
+
+    def _aps_read(self, out: list[int], img: np.ndarray, column_start: int) -> None:
+        """One readout (reset or signal) of the image, column by column in
+        the device's orientation (bits: 4 x/y swapped, 2 x flipped, 1 y flipped)."""
+        o = self.aps_orientation
+        a = img.T if o & 4 else img  # a[row count, column count] once swapped
+        if o & 2:
+            a = a[:, ::-1]
+        if o & 1:
+            a = a[::-1, :]
+        vals = (a >> 1) if self.model == "davis240" else a  # its ADC range: the host doubles samples
+        cols = np.empty((a.shape[1], a.shape[0] + 2), np.int64)
+        cols[:, 0] = column_start
+        cols[:, 1:-1] = 0x4000 | vals.T
+        cols[:, -1] = 0x000D
+        out += cols.ravel().tolist()
 
     def _imu_words(self, out: list[int], t: int) -> None:
         """One IMU sample at pattern time ``t``: accel (±2 g, scale 0) and gyro
@@ -326,8 +416,8 @@ class EmulatedCamera:
         self.truth.imu_t.append(t)
         self.truth.accel.append(tuple(v * 4 / 65536 * 9.80665 for v in acc_raw))  # type: ignore[arg-type]
         self.truth.gyro.append(tuple(v * 500 / 65536 * np.pi / 180 for v in gyr_raw))  # type: ignore[arg-type]
-        if (t // self.imu_period_us) % 10 == 0:  # an APS frame fragment, which hosts skip
-            out += [0x0008, 0x4123, 0x4456, 0x000A]
+        if (t // self.imu_period_us) % 10 == 0 and self._aps_timing() is None:
+            out += [0x000B, 0x4123, 0x4456, 0x000D, 0x000A]  # stray APS words (no frame start): skipped
 
 
 # -- the pyusb backend ------------------------------------------------------

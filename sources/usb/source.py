@@ -17,10 +17,11 @@ import numpy as np
 import trio
 import usb.core
 
-from tectum import EventPacket, ImuPacket, Kind, Packet, Source
+from tectum import EventPacket, FramePacket, ImuPacket, Kind, Packet, Source
 from tectum.errors import TectumError
 
-from ._decode import Decoded
+from ._decode import Decoded, Frame
+from . import _protocol as P
 from ._device import Camera, DeviceDisconnected, UsbUnavailable, default_backend, find_cameras
 
 __all__ = ["UsbSource"]
@@ -43,24 +44,31 @@ class UsbSource(Source):
     time goes on from where it was); ``idle_s`` ends the stream after that
     many seconds without data (0: never); ``emulate`` a model name (``davis346``,
     ``dvs128``, ``davis346:realtime``) plays an emulated camera;
-    ``backend`` a pyusb backend object (Python API).
+    ``backend`` a pyusb backend object (Python API). DAVIS: ``frames`` runs
+    the APS (8-bit frames, ``t`` mid-exposure, with ``exposure_start`` /
+    ``exposure_end`` µs), ``exposure_us`` and ``frame_interval_us`` override
+    libcaer's defaults (4 ms, 40 ms) when > 0.
     """
 
     name = "usb"
     schemes = ("usb",)
-    produces = (Kind.EVENTS, Kind.IMU)
+    produces = (Kind.EVENTS, Kind.IMU, Kind.FRAMES)
 
     def __init__(self, url: str = "usb:", serial: str = "", read_size: int = 65536, timeout_ms: int = 50,
                  duration_us: int = 0, defaults: bool = True,
                  on_disconnect: Literal["error", "end", "reconnect"] = "error", reconnect_s: float = 5.0,
-                 idle_s: float = 0.0, emulate: str = "", backend: Any = None) -> None:
+                 idle_s: float = 0.0, emulate: str = "", backend: Any = None, frames: bool = True,
+                 exposure_us: int = 0, frame_interval_us: int = 0) -> None:
         kind = url.split(":", 1)[1].strip("/").lower() if ":" in url else ""
         if kind not in _MODEL_FILTER:
             raise ValueError(f"unknown camera kind {kind!r} in {url!r}; known: usb:, usb:davis, usb:dvs128")
         if not 512 <= read_size <= 1 << 22:
             raise ValueError("read_size must be within 512 B .. 4 MiB")
-        if timeout_ms <= 0 or duration_us < 0 or reconnect_s < 0 or idle_s < 0:
-            raise ValueError("timeout_ms must be > 0; duration_us, reconnect_s and idle_s >= 0")
+        if timeout_ms <= 0 or duration_us < 0 or reconnect_s < 0 or idle_s < 0 or exposure_us < 0 \
+                or frame_interval_us < 0:
+            raise ValueError("timeout_ms must be > 0; duration_us, reconnect_s, idle_s, exposure_us and "
+                             "frame_interval_us >= 0")
+        self.frames, self.exposure_us, self.frame_interval_us = frames, exposure_us, frame_interval_us
         self.protocol = _MODEL_FILTER[kind]
         self.serial, self.read_size, self.timeout_ms = serial, read_size, timeout_ms
         self.duration_us, self.defaults = duration_us, defaults
@@ -76,7 +84,8 @@ class UsbSource(Source):
         self.camera: Camera | None = None
         self.decoder: Any = None
         self._ev: list[Decoded] = []
-        self._end = {Kind.EVENTS: None, Kind.IMU: None}  # type: dict[Kind, int | None]
+        self._end = {Kind.EVENTS: None, Kind.IMU: None, Kind.FRAMES: None}  # type: dict[Kind, int | None]
+        self._frames: list[Frame] = []
         self._t0: int | None = None
 
     # -- opening --------------------------------------------------------------
@@ -107,7 +116,10 @@ class UsbSource(Source):
             raise UsbUnavailable(f"no {self.protocol or 'iniVation'} camera{what} is attached")
         if self.defaults:
             cam.send_defaults()
-        cam.start()
+        if self.exposure_us or self.frame_interval_us:
+            cam.set_frames(self.exposure_us or P.APS_DEFAULT_EXPOSURE_US,
+                           self.frame_interval_us or P.APS_DEFAULT_INTERVAL_US)
+        cam.start(frames=self.frames)
         self.serial = self.serial or cam.serial
         return cam
 
@@ -185,8 +197,11 @@ class UsbSource(Source):
         """Packets of everything decoded before the device's current time
         (everything, when ``final``)."""
         if not self._ev:
-            return []
+            return self._release_frames(self.decoder.device_now, final) if self._frames else []
         ev = self._ev
+        for d in ev:
+            self._frames += d.frames
+            d.frames = []
         t = np.concatenate([d.t for d in ev])
         it = np.concatenate([d.imu_t for d in ev])
         if final:
@@ -212,6 +227,41 @@ class UsbSource(Source):
             out.append(ImuPacket(it[:j], t_start=start, t_end=cut, accel=iv[:j, 0:3], gyro=iv[:j, 4:7],
                                  temperature=iv[:j, 3]))
             self._end[Kind.IMU] = cut
+        out += self._release_frames(cut, final)
+        return out
+
+    def _release_frames(self, cut: int, final: bool) -> list[Packet]:
+        """Complete frames before ``cut`` (and before the start of a frame
+        still being read out, whose time may come before ``cut``), one
+        FramePacket per run of equally sized frames."""
+        fs = self._frames
+        if not fs:
+            return []
+        if final:
+            cut = max(cut, fs[-1].t + 1)
+        else:
+            since = self.decoder.frame_in_progress_since if hasattr(self.decoder, "frame_in_progress_since") else None
+            if since is not None:
+                cut = min(cut, since)
+        ready = [f for f in fs if f.t < cut]
+        self._frames = fs[len(ready):]
+        out: list[Packet] = []
+        i = 0
+        while i < len(ready):
+            j = i + 1
+            while j < len(ready) and ready[j].image.shape == ready[i].image.shape:
+                j += 1
+            group = ready[i:j]
+            start = self._end[Kind.FRAMES]
+            start = group[0].t if start is None else start
+            end = max(cut if j == len(ready) else group[-1].t + 1, group[-1].t + 1)
+            out.append(FramePacket(np.array([f.t for f in group], np.int64), t_start=start, t_end=end,
+                                   images=np.stack([f.image for f in group]),
+                                   exposure_start=np.array([f.exposure_start for f in group], np.int64),
+                                   exposure_end=np.array([f.exposure_end for f in group], np.int64),
+                                   position=np.array([f.position for f in group], np.int16)))
+            self._end[Kind.FRAMES] = end
+            i = j
         return out
 
     def close(self) -> None:

@@ -106,5 +106,5 @@ def test_hostile_tcp_sender_is_counted_and_the_source_survives() -> None:
     th.join(10)
     got = sink.events()
     assert np.array_equal(got.t, pk.t) and np.array_equal(got.y, pk.y)
-    r = src.counts["rejected"]
-    assert r["magic"] >= 1 and r["length"] >= 2 and src.counts["dropped_connections"] == 1
+    r = src.counts
+    assert r["rejected_magic"] >= 1 and r["rejected_length"] >= 2 and src.counts["dropped_connections"] == 1
