@@ -157,9 +157,16 @@ class Packet:
             runs = (np.flatnonzero(t[1:] != t[:-1]) + 1).tolist()
             ts = t[runs].tolist()
             lo, start = self.t_start, 0
-            for stop, hi in zip(runs, ts):
-                yield take(start, stop, lo, hi)
-                start, lo = stop, hi
+            if type(self) is EventPacket and not self.columns:  # the hot case, inlined
+                x, y, p, sensor, trusted = self.x, self.y, self.p, self.sensor, EventPacket._trusted
+                for stop, hi in zip(runs, ts):
+                    yield trusted(t[start:stop], x[start:stop], y[start:stop], p[start:stop], sensor, lo, hi,
+                                  _NO_COLUMNS)
+                    start, lo = stop, hi
+            else:
+                for stop, hi in zip(runs, ts):
+                    yield take(start, stop, lo, hi)
+                    start, lo = stop, hi
             yield take(start, n, lo, self.t_end)
             return
         start, lo = 0, self.t_start

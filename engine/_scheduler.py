@@ -270,10 +270,11 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, edges: Mappi
                 # (Arrival is read once per slice: latency errs on the high side.)
                 arrival = trio.current_time()
                 st.events_out += pkt.t.shape[0]
+                push, add, clock = graph.push, out.add, time.perf_counter
                 for piece in pkt.batches(batch.max_events):
                     st.packets_out += 1
-                    out.add(graph.push(sid, piece), arrival)
-                    now = time.perf_counter()
+                    add(push(sid, piece), arrival)
+                    now = clock()
                     if now - last_yield > _SLICE_S:
                         await out.flush()
                         await trio.lowlevel.checkpoint()

@@ -6,7 +6,7 @@ import argparse
 import re
 import sys
 
-HELP = "simulate a scene (built-in name or TOML) to an event file, ground truth beside it"
+HELP = "simulate a scene (built-in name, TOML, video or image folder) to an event file, ground truth beside it"
 
 _UNITS = {"us": 1, "µs": 1, "ms": 1_000, "s": 1_000_000, "": 1_000_000}
 
@@ -20,7 +20,8 @@ def parse_duration(text: str) -> int:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scene", nargs="?", help="a built-in scene name (see --list) or a scene .toml file")
+    p.add_argument("scene", nargs="?", help="a built-in scene name (see --list), a scene .toml file, a video "
+                   "file, an image folder or an images.txt list")
     p.add_argument("--list", action="store_true", help="list the built-in scenes and exit")
     p.add_argument("--duration", type=parse_duration, help="simulated time, e.g. 2s, 150ms (default: the scene's or 1s)")
     p.add_argument("--out", help="event file; the writer is chosen by extension (.npz keeps per-event truth "
@@ -30,6 +31,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sensor", help="sensor size WxH (default: the scene's, built-ins 346x260)")
     p.add_argument("--truth-fps", type=float, default=10.0, help="rate of dense truth maps (intensity, depth, flow)")
     p.add_argument("--window-us", type=int, default=10_000, help="µs per packet")
+    p.add_argument("--fps", type=float, default=0.0, help="frame rate of a video / image folder (default: the "
+                   "container's; an images.txt gives its own timestamps)")
     p.add_argument("--set", action="append", default=[], metavar="K=V",
                    help="override a sensor-model parameter (e.g. shot_noise_hz=2), repeatable")
 
@@ -58,7 +61,7 @@ def main(args: argparse.Namespace) -> int:
     keep_cols = args.out is None or args.out.lower().endswith(".npz")
     src = SimulateSource(f"simulate:{args.scene}", duration_us=args.duration, seed=args.seed, preset=args.preset,
                          sensor=args.sensor, window_us=args.window_us, truth_columns=keep_cols,
-                         truth_fps=args.truth_fps, model=model)
+                         truth_fps=args.truth_fps, model=model, fps=args.fps)
     p = Pipeline()
     node = p.source(src, id="simulate")
     if args.out:
