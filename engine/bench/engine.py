@@ -47,21 +47,24 @@ def _chain(pk: EventPacket, n_ops: int, **batch: Any) -> Pipeline:
     return p
 
 
-def _run(p: Pipeline) -> tuple[float, tectum.Stats]:
-    t0 = time.perf_counter()
+def _run(p: Pipeline) -> tuple[float, float, tectum.Stats]:
+    t0, c0 = time.perf_counter(), time.process_time()
     stats = tectum.run(p)
-    return time.perf_counter() - t0, stats
+    return time.perf_counter() - t0, time.process_time() - c0, stats
 
 
 def chain_rate(pk: EventPacket, n_ops: int, max_events: int) -> dict[str, float]:
-    """Events/s through ``n_ops`` identity operators with ``max_events`` packets."""
+    """Events/s through ``n_ops`` identity operators with ``max_events``
+    packets: by wall time and by this process's CPU time (the latter is what
+    one free core would give on a machine shared with other work)."""
     _run(_chain(pk, n_ops, max_events=max_events))  # warm-up
-    best, packets = float("inf"), 0
+    best, best_cpu, packets = float("inf"), float("inf"), 0
     for _ in range(3):
-        dt, stats = _run(_chain(pk, n_ops, max_events=max_events))
-        best = min(best, dt)
+        dt, cpu, stats = _run(_chain(pk, n_ops, max_events=max_events))
+        best, best_cpu = min(best, dt), min(best_cpu, cpu)
         packets = stats.nodes["src"].packets_out
-    return {"events_s": len(pk) / best, "packets": packets, "us_per_packet": best / packets * 1e6}
+    return {"events_s": len(pk) / best, "events_s_cpu": len(pk) / best_cpu, "packets": packets,
+            "us_per_packet": best / packets * 1e6}
 
 
 def per_operator_overhead(pk: EventPacket, max_events: int) -> float:
@@ -98,6 +101,7 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
     }
     rows = [
         {"measure": "event by event, 3 ops", "value": ebe["events_s"], "unit": "events/s", "target": ">= 200k"},
+        {"measure": "  same, by CPU time", "value": ebe["events_s_cpu"], "unit": "events/s", "target": ">= 200k"},
         {"measure": "micro-batch 4096, 3 ops", "value": mb["events_s"], "unit": "events/s", "target": ""},
         {"measure": "per packet per op (ebe)", "value": res["overhead_us_per_packet_per_op_ebe"], "unit": "µs", "target": ""},
         {"measure": "per packet per op (batch)", "value": res["overhead_us_per_packet_per_op_batch"], "unit": "µs", "target": "<= 5"},
