@@ -15,16 +15,24 @@ Python API::
                              sensor="346x260")
     events["vx"], events["noise"], truth["pose_angular_velocity"]
 
-Sources: ``simulate:NAME`` (a built-in scene, ``tectum simulate --list``) or
-``simulate:path/to/scene.toml``, with parameters
+Sources: ``simulate:NAME`` (a built-in scene, ``tectum simulate --list``),
+``simulate:path/to/scene.toml``, or a video / image folder / ``images.txt``
+(``simulate:clip.mp4?fps=30``, see :mod:`.video`), with parameters
 ``?duration_us=..&seed=..&preset=..&sensor=WxH&window_us=..``.
+
+Speed: each step renders the frame once, at its end (a translating 2-D
+texture with separable texel taps, a panorama with incremental ray angles);
+one kernel then takes the log, refines alone the few pixels that changed
+(or turned) too much on a finer grid of the step, and runs the DVS model
+(see :mod:`.step`).
 
 Event columns (besides t, x, y, p): ``vx``, ``vy`` (float32 px/s, true image
 motion), ``lifetime`` (float32 µs: ``1e6 / normal speed``, the time the local
 edge takes to move one pixel along the log-intensity gradient; inf when it
 does not move), ``noise`` (uint8: 0 signal, 1 shot noise, 2 hot pixel,
 3 leak), ``object_id`` (int16: 0 background/world, objects 1.., -1 noise).
-Truth in time: see :class:`Truth`.
+Truth in time: see :class:`Truth` (kept on disk as it comes, memory stays
+bounded) and :mod:`.features` (image positions of known points and corners).
 
 Scene keys (a dict, or the same as TOML; lengths in pixels for image-plane
 things, metres for the world; times in µs unless the name says otherwise):
@@ -59,8 +67,11 @@ local x axis), ``position`` [x, y] px at t = 0, ``velocity`` [vx, vy] px/s,
 
 ``sensor_model``: overrides of the preset's parameters (:class:`SensorModel`).
 ``davis``: APS frames and IMU (:mod:`.davis`). ``sim``: step limits
-(``max_px_step``, ``max_dlog_frac``, ``dt_max_us``, ``dt_min_us``,
-``supersample``). ``duration_us``: the default duration.
+(``max_px_step``, ``max_dlog_frac``, ``max_bend_frac``, ``dt_max_us``,
+``dt_min_us``, ``supersample``). ``duration_us``: the default duration.
+``features``: world points [[x, y, z], ..] m whose image positions are
+recorded (:mod:`.features`). ``video``: a video or image sequence as the
+whole scene (``path``, ``fps``, ``gamma``, ``start_frame``: :mod:`.video`).
 """
 
 from __future__ import annotations
@@ -81,11 +92,12 @@ __all__ = ["simulate", "SimulateSource", "Simulator", "Truth", "SensorModel", "P
 
 def make_simulator(scene: str | Mapping[str, Any], duration_us: int | None = None, *, seed: int = 0,
                    preset: str = "ideal", sensor: Any = None, truth_fps: float = 0.0,
-                   pose_rate_hz: float = 1000.0, **model: Any) -> Simulator:
-    """A :class:`Simulator` for a scene (name, TOML path or dict); ``model``
-    keywords override the preset's parameters, on top of the scene's
-    ``sensor_model`` section."""
-    d = load_scene(scene, sensor)
+                   pose_rate_hz: float = 1000.0, fps: float = 0.0, **model: Any) -> Simulator:
+    """A :class:`Simulator` for a scene (name, TOML path, video / image
+    folder / image list path, or dict); ``fps`` Hz overrides a video's frame
+    rate; ``model`` keywords override the preset's parameters, on top of the
+    scene's ``sensor_model`` section."""
+    d = load_scene(scene, sensor, fps)
     m = sensor_model(preset, **{**d.get("sensor_model", {}), **model})
     dur = int(duration_us if duration_us is not None else d.get("duration_us", 1_000_000))
     return Simulator(d, m, dur, seed=seed, truth_fps=truth_fps, pose_rate_hz=pose_rate_hz)
@@ -93,7 +105,7 @@ def make_simulator(scene: str | Mapping[str, Any], duration_us: int | None = Non
 
 def simulate(scene: str | Mapping[str, Any], duration_us: int | None = None, *, seed: int = 0,
              preset: str = "ideal", sensor: Any = None, window_us: int = 10_000, truth_fps: float = 0.0,
-             pose_rate_hz: float = 1000.0, **model: Any) -> tuple[EventPacket, Truth]:
+             pose_rate_hz: float = 1000.0, fps: float = 0.0, **model: Any) -> tuple[EventPacket, Truth]:
     """Simulate a whole run in memory: ``(events with truth columns, Truth)``.
 
     ``duration_us`` µs (default: the scene's, else 1 s); ``truth_fps`` Hz of
@@ -101,7 +113,7 @@ def simulate(scene: str | Mapping[str, Any], duration_us: int | None = None, *, 
     :func:`make_simulator`. For long runs stream with :class:`SimulateSource`.
     """
     sim = make_simulator(scene, duration_us, seed=seed, preset=preset, sensor=sensor, truth_fps=truth_fps,
-                         pose_rate_hz=pose_rate_hz, **model)
+                         pose_rate_hz=pose_rate_hz, fps=fps, **model)
     pkts = [ev for ev, _side in sim.windows(window_us)]
     ev = concat(pkts)
     assert isinstance(ev, EventPacket)
@@ -125,7 +137,8 @@ class SimulateSource(Source):
     vx, vy, lifetime, noise, object_id (else they are kept in :attr:`truth`
     as ``event_*`` arrays); ``truth_fps`` Hz of dense truth maps kept in
     :attr:`truth`; ``model`` overrides of the sensor-model parameters; ``scene`` a scene dict
-    used instead of the URL's scene (Python use).
+    used instead of the URL's scene (Python use); ``fps`` Hz a video's frame
+    rate (``simulate:clip.mp4?fps=30``; default: the container's).
     """
 
     name = "simulate"
@@ -135,7 +148,7 @@ class SimulateSource(Source):
                  preset: str = "ideal", sensor: str | None = None, window_us: int = 10_000,
                  poses: bool = False, davis: bool = False, truth_columns: bool = True, truth_fps: float = 0.0,
                  pose_rate_hz: float = 1000.0, model: dict[str, float] | None = None,
-                 scene: Mapping[str, Any] | None = None) -> None:
+                 scene: Mapping[str, Any] | None = None, fps: float = 0.0) -> None:
         spec: str | Mapping[str, Any] = url.split(":", 1)[1] if ":" in url else url
         if scene is not None:
             spec = scene
@@ -144,7 +157,7 @@ class SimulateSource(Source):
         if window_us <= 0:
             raise ValueError("window_us must be > 0")
         self.sim = make_simulator(spec, duration_us, seed=seed, preset=preset, sensor=sensor, truth_fps=truth_fps,
-                                  pose_rate_hz=pose_rate_hz, **(model or {}))
+                                  pose_rate_hz=pose_rate_hz, fps=fps, **(model or {}))
         self.window_us = window_us
         self.truth_columns = truth_columns
         self.emit_poses, self.emit_davis = poses, davis

@@ -20,7 +20,91 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["dvs_step", "lowpass_step", "log_intensity"]
+__all__ = ["dvs_step", "fire", "need_events", "quiet", "lowpass1", "lowpass_step", "log_intensity"]
+
+
+@njit(cache=True)
+def need_events(i: int, a: float, b: float, ta: float, tb: float, l_ref: np.ndarray, t_release: np.ndarray,
+                c_on: np.ndarray, c_off: np.ndarray) -> int:
+    """An upper bound on the events :func:`fire` gives pixel ``i`` for the
+    segment ``(ta, tb]`` from level ``a`` to ``b`` (state unchanged)."""
+    tr = t_release[i]
+    if tr > tb:
+        return 0
+    ref = l_ref[i]
+    if tr > ta:
+        ref = a + (b - a) / (tb - ta) * (tr - ta)
+    d = b - ref
+    if d >= c_on[i]:
+        return int(d / c_on[i]) + 1
+    if -d >= c_off[i]:
+        return int(-d / c_off[i]) + 1
+    return 0
+
+
+@njit(cache=True)
+def fire(i: int, a: float, b: float, ta: float, tb: float, l_ref: np.ndarray, t_release: np.ndarray,
+         c_on: np.ndarray, c_off: np.ndarray, refractory_us: float, out_t: np.ndarray, out_i: np.ndarray,
+         out_p: np.ndarray, n: int) -> int:
+    """Events of pixel ``i`` while its log intensity goes linearly from
+    ``a`` at ``ta`` to ``b`` at ``tb`` (µs); appends them at ``n`` (room
+    must be there: see :func:`need_events`), updates ``l_ref`` and
+    ``t_release``; returns the new count."""
+    tr = t_release[i]
+    if tr > tb:
+        return n
+    slope = (b - a) / (tb - ta)
+    s = ta
+    if tr > ta:  # the hold ends inside this segment: memorise the level then
+        l_ref[i] = a + slope * (tr - ta)
+        s = tr
+    ref = l_ref[i]
+    while True:
+        d = b - ref
+        if d >= c_on[i]:
+            target = ref + c_on[i]
+            pol = 1
+        elif -d >= c_off[i]:
+            target = ref - c_off[i]
+            pol = -1
+        else:
+            break
+        if slope != 0.0:
+            tc = ta + (target - a) / slope
+        else:
+            tc = s
+        if tc < s:
+            tc = s
+        if tc > tb:
+            tc = tb
+        out_t[n] = tc
+        out_i[n] = i
+        out_p[n] = pol
+        n += 1
+        ref = target
+        if refractory_us > 0.0:
+            tr = tc + refractory_us
+            t_release[i] = tr
+            if tr > tb:
+                break
+            ref = a + slope * (tr - ta)
+            s = tr
+        else:
+            t_release[i] = tc
+    l_ref[i] = ref
+    return n
+
+
+@njit(cache=True, inline="always")
+def quiet(i: int, b: float, ta: float, tb: float, l_ref: np.ndarray, t_release: np.ndarray, c_on: np.ndarray,
+          c_off: np.ndarray) -> bool:
+    """True when pixel ``i`` surely fires nothing in ``(ta, tb]`` ending at
+    level ``b`` (the common case, decided without touching its state)."""
+    tr = t_release[i]
+    if tr <= ta:
+        d = b - l_ref[i]
+        return d < c_on[i] and -d < c_off[i]
+    return tr > tb
 
 
 @njit(cache=True)
@@ -38,67 +122,25 @@ def dvs_step(L0: np.ndarray, L1: np.ndarray, t0: float, t1: float, l_ref: np.nda
     """
     n = 0
     cap = out_t.shape[0]
-    dt = t1 - t0
     npx = L0.shape[0]
     for i in range(start, npx):
         b = L1[i]
-        tr = t_release[i]
-        if tr <= t0:
-            d = b - l_ref[i]
-            if d < c_on[i] and -d < c_off[i]:
-                continue  # the common case: no crossing, no hold
-        elif tr > t1:
+        if quiet(i, b, t0, t1, l_ref, t_release, c_on, c_off):
             continue
         a = L0[i]
-        slope = (b - a) / dt
-        s = t0
-        if tr > t0:  # the hold ends inside this step: memorise the level then
-            l_ref[i] = a + slope * (tr - t0)
-            s = tr
-        # worst case for this pixel: all its events must fit
-        ref = l_ref[i]
-        d = b - ref
-        need = 0
-        if d >= c_on[i]:
-            need = int(d / c_on[i]) + 1
-        elif -d >= c_off[i]:
-            need = int(-d / c_off[i]) + 1
-        if n + need > cap:
+        if n + need_events(i, a, b, t0, t1, l_ref, t_release, c_on, c_off) > cap:
             return n, i
-        while True:
-            d = b - ref
-            if d >= c_on[i]:
-                target = ref + c_on[i]
-                pol = 1
-            elif -d >= c_off[i]:
-                target = ref - c_off[i]
-                pol = -1
-            else:
-                break
-            if slope != 0.0:
-                tc = t0 + (target - a) / slope
-            else:
-                tc = s
-            if tc < s:
-                tc = s
-            if tc > t1:
-                tc = t1
-            out_t[n] = tc
-            out_i[n] = i
-            out_p[n] = pol
-            n += 1
-            ref = target
-            if refractory_us > 0.0:
-                tr = tc + refractory_us
-                t_release[i] = tr
-                if tr > t1:
-                    break
-                ref = a + slope * (tr - t0)
-                s = tr
-            else:
-                t_release[i] = tc
-        l_ref[i] = ref
+        n = fire(i, a, b, t0, t1, l_ref, t_release, c_on, c_off, refractory_us, out_t, out_i, out_p, n)
     return n, npx
+
+
+@njit(cache=True, inline="always")
+def lowpass1(state: float, target: float, dt_s: float, f3db_hz: float, f_min_hz: float) -> float:
+    """One exact step of the photoreceptor low-pass (see :func:`lowpass_step`)."""
+    fc = f3db_hz * max(target, 0.0)
+    if fc < f_min_hz:
+        fc = f_min_hz
+    return state + (1.0 - math.exp(-2.0 * math.pi * fc * dt_s)) * (target - state)
 
 
 @njit(cache=True)
@@ -110,11 +152,7 @@ def lowpass_step(state: np.ndarray, target: np.ndarray, dt_s: float, f3db_hz: fl
     units of full scale), at least ``f_min_hz``; the input is held constant
     over the step, so the update is exact and stable for any ``dt_s``."""
     for i in range(state.shape[0]):
-        fc = f3db_hz * max(target[i], 0.0)
-        if fc < f_min_hz:
-            fc = f_min_hz
-        k = 1.0 - math.exp(-2.0 * math.pi * fc * dt_s)
-        state[i] += k * (target[i] - state[i])
+        state[i] = lowpass1(state[i], target[i], dt_s, f3db_hz, f_min_hz)
 
 
 @njit(cache=True)

@@ -30,9 +30,9 @@ import math
 import numpy as np
 from numba import njit
 
-from .textures import sample_texture
+from .textures import bilinear, sample_texture, texel_taps
 
-__all__ = ["render", "probe", "gradient_at", "sprite_states"]
+__all__ = ["render", "pixel_value", "probe", "gradient_at", "lifetimes", "sprite_states", "frame_patches", "background"]
 
 DISK, RECT, EDGE = 0, 1, 2
 
@@ -43,11 +43,11 @@ def _clip01(v: float) -> float:
 
 
 @njit(cache=True)
-def sprite_states(sprites: np.ndarray, t: float) -> np.ndarray:
-    """Per sprite at time ``t`` (s): centre x, y, cos, sin of the angle,
-    blink weight in [0, 1] and a bounding radius (px, inf for edges)."""
+def sprite_states(sprites: np.ndarray, t: float, st: np.ndarray) -> np.ndarray:
+    """Per sprite at time ``t`` (s), written to ``st`` (m, 6) and returned:
+    centre x, y, cos, sin of the angle, blink weight in [0, 1] and a
+    bounding radius (px, inf for edges)."""
     m = sprites.shape[0]
-    st = np.empty((m, 6))
     for k in range(m):
         s = sprites[k]
         st[k, 0] = s[1] + s[3] * t
@@ -86,12 +86,12 @@ def _coverage(shape: int, lx: float, ly: float, a: float, b: float, dilate: floa
 
 
 @njit(cache=True)
-def _frame_patches(R: np.ndarray, p: np.ndarray, patches: np.ndarray) -> np.ndarray:
+def frame_patches(R: np.ndarray, p: np.ndarray, patches: np.ndarray, out: np.ndarray) -> np.ndarray:
     """Per patch, its plane in the camera frame of pose (R, p), so that a
     pixel's ray ``r = ((x - cx) / f, (y - cy) / f, 1)`` hits it at depth
     ``s = num / (n . r)`` with local coordinates ``o1 + s a1 . r``,
-    ``o2 + s a2 . r``. Rows: n (3), a1 (3), a2 (3), num, o1, o2."""
-    out = np.empty((patches.shape[0], 12))
+    ``o2 + s a2 . r``. Rows (written to ``out`` (n, 12), returned): n (3),
+    a1 (3), a2 (3), num, o1, o2."""
     for k in range(patches.shape[0]):
         q = patches[k]
         for j in range(3):  # R^T applied to the world axes
@@ -158,6 +158,120 @@ def _world_value(px: float, py: float, R: np.ndarray, f: float, cx: float, cy: f
     return sample_texture(data, table, tid, az / pano[1], el / pano[1])
 
 
+@njit(cache=True, inline="always")
+def _atan_small(s: float) -> float:
+    """atan(s) for |s| <= 0.02 (series to s^9: error below 1e-19)."""
+    s2 = s * s
+    return s * (1.0 - s2 * (1.0 / 3.0 - s2 * (0.2 - s2 * (1.0 / 7.0 - s2 / 9.0))))
+
+
+@njit(cache=True)
+def _panorama_rows(out: np.ndarray, R: np.ndarray, f: float, cx: float, cy: float, pano: np.ndarray,
+                   data: np.ndarray, table: np.ndarray, gain: float) -> None:
+    """The panorama alone, row by row. Along a row the ray direction is
+    linear in x, so azimuth and elevation advance by small angles, taken by
+    a short atan series of the cross/dot products of neighbouring rays;
+    exact atan2/asin every 16 pixels and wherever the step is not small
+    (near the poles). Agrees with :func:`_world_value` to ~1e-14 rad."""
+    H, W = out.shape
+    tid = int(pano[0])
+    off, th, tw = table[tid, 0], table[tid, 1], table[tid, 2]
+    inv = 1.0 / pano[1]
+    ex, ey, ez = R[0, 0] / f, R[1, 0] / f, R[2, 0] / f
+    ux0 = -cx / f
+    for y in range(H):
+        uy = (y - cy) / f
+        ox = R[0, 0] * ux0 + R[0, 1] * uy + R[0, 2]
+        oy = R[1, 0] * ux0 + R[1, 1] * uy + R[1, 2]
+        oz = R[2, 0] * ux0 + R[2, 1] * uy + R[2, 2]
+        az = 0.0
+        el = 0.0
+        pdx = 0.0
+        pdy = 0.0
+        pdz = 0.0
+        ph = 0.0
+        for x in range(W):
+            dx = ox + x * ex
+            dy = oy + x * ey
+            dz = oz + x * ez
+            h = math.sqrt(dx * dx + dz * dz)
+            exact = (x & 15) == 0
+            if not exact:
+                dot = pdz * dz + pdx * dx
+                crs = pdz * dx - pdx * dz
+                dot2 = ph * h + pdy * dy
+                crs2 = ph * dy - pdy * h
+                if dot > 0.0 and abs(crs) < 0.02 * dot and dot2 > 0.0 and abs(crs2) < 0.02 * dot2:
+                    az += _atan_small(crs / dot)
+                    el += _atan_small(crs2 / dot2)
+                else:
+                    exact = True
+            if exact:
+                az = math.atan2(dx, dz)
+                el = math.asin(dy / math.sqrt(dx * dx + dy * dy + dz * dz))
+            pdx = dx
+            pdy = dy
+            pdz = dz
+            ph = h
+            c0, c1, au = texel_taps(az * inv + (tw if az < 0.0 else 0.0), tw)  # one turn on: no wrap
+            r0, r1, av = texel_taps(el * inv, th)
+            out[y, x] = bilinear(data, off, tw, c0, c1, au, r0, r1, av) * gain
+
+
+@njit(cache=True)
+def _blend_sprite(val: float, x: float, y: float, k: int, st: np.ndarray, sprites: np.ndarray,
+                  data: np.ndarray, table: np.ndarray) -> float:
+    """``val`` with sprite ``k`` (state ``st[k]``) drawn over it at pixel (x, y)."""
+    ddx = x - st[k, 0]
+    ddy = y - st[k, 1]
+    r = st[k, 5]
+    out = val
+    if abs(ddx) <= r and abs(ddy) <= r:
+        lx = st[k, 2] * ddx + st[k, 3] * ddy
+        ly = -st[k, 3] * ddx + st[k, 2] * ddy
+        a = _coverage(int(sprites[k, 0]), lx, ly, sprites[k, 7], sprites[k, 8], 0.0)
+        if a > 0.0:
+            tid = int(sprites[k, 11])
+            off = sprites[k, 10]
+            on = sprites[k, 9]
+            if tid >= 0:
+                on = sample_texture(data, table, tid, lx / sprites[k, 12], ly / sprites[k, 12])
+            out = val * (1.0 - a) + (off + (on - off) * st[k, 4]) * a
+    return out
+
+
+@njit(cache=True, inline="always")
+def background(bg: np.ndarray, t: float) -> tuple[float, float, float]:
+    """Background gain and texture offset (px) at ``t`` (s)."""
+    return math.exp(bg[5] * t), bg[3] * t, bg[4] * t
+
+
+@njit(cache=True)
+def pixel_value(x: float, y: float, R: np.ndarray, pc: np.ndarray, st: np.ndarray, gain: float, bx: float,
+                by: float, f: float, cx: float, cy: float, patches: np.ndarray, pano: np.ndarray,
+                bg: np.ndarray, sprites: np.ndarray, data: np.ndarray, table: np.ndarray, ss: int) -> float:
+    """The true linear intensity of one pixel, given the frame's state
+    (``pc`` from :func:`frame_patches`, ``st`` from :func:`sprite_states`,
+    background gain and offset from :func:`background`): the same value
+    :func:`render` writes there."""
+    if patches.shape[0] > 0 or pano[0] >= 0:
+        acc = 0.0  # (ss = 1: offsets are exactly 0, the value the pixel centre's)
+        for sy in range(ss):
+            for sx in range(ss):
+                acc += _world_value(x + (sx + 0.5) / ss - 0.5, y + (sy + 0.5) / ss - 0.5,
+                                    R, f, cx, cy, pc, patches, pano, bg[0], data, table)
+        val = acc * (1.0 / (ss * ss))
+    elif bg[1] >= 0:
+        ibt = 1.0 / bg[2]
+        val = sample_texture(data, table, int(bg[1]), (x - bx) * ibt, (y - by) * ibt)
+    else:
+        val = bg[0]
+    val *= gain
+    for k in range(sprites.shape[0]):
+        val = _blend_sprite(val, x, y, k, st, sprites, data, table)
+    return val
+
+
 @njit(cache=True)
 def render(out: np.ndarray, t: float, R: np.ndarray, p: np.ndarray, f: float, cx: float, cy: float,
            patches: np.ndarray, pano: np.ndarray, bg: np.ndarray, sprites: np.ndarray,
@@ -165,52 +279,64 @@ def render(out: np.ndarray, t: float, R: np.ndarray, p: np.ndarray, f: float, cx
     """Write the true linear intensity at time ``t`` (s) into ``out`` (H, W).
 
     ``ss`` is the supersampling factor per axis for the world (occlusion
-    edges of patches are not otherwise anti-aliased)."""
+    edges of patches are not otherwise anti-aliased). Per pixel the value
+    is :func:`pixel_value`'s; the background is drawn first (a translating
+    2-D texture with its texel taps computed once per row and column, a
+    lone panorama incrementally along rows), then each sprite over its
+    bounding box, in order."""
     H, W = out.shape
-    world = patches.shape[0] > 0 or pano[0] >= 0
-    st = sprite_states(sprites, t)
-    m = sprites.shape[0]
-    gain = math.exp(bg[5] * t)
-    btid = int(bg[1])
-    bx = bg[3] * t
-    by = bg[4] * t
-    inv = 1.0 / (ss * ss)
-    pc = _frame_patches(R, p, patches)
-    ibt = 1.0 / bg[2]
-    for y in range(H):
+    st = sprite_states(sprites, t, np.empty((sprites.shape[0], 6)))
+    gain, bx, by = background(bg, t)
+    pc = frame_patches(R, p, patches, np.empty((patches.shape[0], 12)))
+    if patches.shape[0] == 0 and pano[0] >= 0 and ss == 1:
+        _panorama_rows(out, R, f, cx, cy, pano, data, table, gain)
+    elif patches.shape[0] > 0 or pano[0] >= 0:
+        inv = 1.0 / (ss * ss)
+        for y in range(H):
+            for x in range(W):
+                acc = 0.0
+                for sy in range(ss):
+                    for sx in range(ss):
+                        acc += _world_value(x + (sx + 0.5) / ss - 0.5, y + (sy + 0.5) / ss - 0.5,
+                                            R, f, cx, cy, pc, patches, pano, bg[0], data, table)
+                out[y, x] = acc * inv * gain
+    elif bg[1] >= 0:
+        tid = int(bg[1])
+        off, th, tw = table[tid, 0], table[tid, 1], table[tid, 2]
+        ibt = 1.0 / bg[2]
+        c0 = np.empty(W, np.int64)
+        c1 = np.empty(W, np.int64)
+        au = np.empty(W)
         for x in range(W):
-            if world:
-                if ss == 1:
-                    val = _world_value(x, y, R, f, cx, cy, pc, patches, pano, bg[0], data, table)
-                else:
-                    acc = 0.0
-                    for sy in range(ss):
-                        for sx in range(ss):
-                            acc += _world_value(x + (sx + 0.5) / ss - 0.5, y + (sy + 0.5) / ss - 0.5,
-                                                R, f, cx, cy, pc, patches, pano, bg[0], data, table)
-                    val = acc * inv
-            elif btid >= 0:
-                val = sample_texture(data, table, btid, (x - bx) * ibt, (y - by) * ibt)
-            else:
-                val = bg[0]
-            val *= gain
-            for k in range(m):
+            c0[x], c1[x], au[x] = texel_taps((x - bx) * ibt, tw)
+        for y in range(H):
+            r0, r1, av = texel_taps((y - by) * ibt, th)
+            for x in range(W):
+                out[y, x] = bilinear(data, off, tw, c0[x], c1[x], au[x], r0, r1, av) * gain
+    else:
+        out[:, :] = bg[0] * gain
+    for k in range(sprites.shape[0]):
+        r = st[k, 5]
+        x0, x1, y0, y1 = 0, W - 1, 0, H - 1
+        if r < np.inf:
+            x0 = max(x0, int(math.ceil(st[k, 0] - r)))
+            x1 = min(x1, int(math.floor(st[k, 0] + r)))
+            y0 = max(y0, int(math.ceil(st[k, 1] - r)))
+            y1 = min(y1, int(math.floor(st[k, 1] + r)))
+        # (the body of _blend_sprite, written out: numba compiles the call to slower code)
+        shape, a_, b_, tid = int(sprites[k, 0]), sprites[k, 7], sprites[k, 8], int(sprites[k, 11])
+        on, off, texel, wk = sprites[k, 9], sprites[k, 10], sprites[k, 12], st[k, 4]
+        for y in range(y0, y1 + 1):
+            for x in range(x0, x1 + 1):
                 ddx = x - st[k, 0]
                 ddy = y - st[k, 1]
-                r = st[k, 5]
-                if abs(ddx) > r or abs(ddy) > r:
-                    continue
-                s = sprites[k]
                 lx = st[k, 2] * ddx + st[k, 3] * ddy
                 ly = -st[k, 3] * ddx + st[k, 2] * ddy
-                a = _coverage(int(s[0]), lx, ly, s[7], s[8], 0.0)
+                a = _coverage(shape, lx, ly, a_, b_, 0.0)
                 if a <= 0.0:
                     continue
-                tid = int(s[11])
-                on = s[9] if tid < 0 else sample_texture(data, table, tid, lx / s[12], ly / s[12])
-                v = s[10] + (on - s[10]) * st[k, 4]
-                val = val * (1.0 - a) + v * a
-            out[y, x] = val
+                v = on if tid < 0 else sample_texture(data, table, tid, lx / texel, ly / texel)
+                out[y, x] = out[y, x] * (1.0 - a) + (off + (v - off) * wk) * a
 
 
 @njit(cache=True, inline="always")
@@ -241,9 +367,9 @@ def probe(xs: np.ndarray, ys: np.ndarray, t: float, R: np.ndarray, p: np.ndarray
     the world point seen there is projected with the poses at ``t - delta``
     (``Ra, pa``) and ``t + delta`` (``Rb, pb``): a symmetric difference of the
     exact projection."""
-    st = sprite_states(sprites, t)
+    st = sprite_states(sprites, t, np.empty((sprites.shape[0], 6)))
     world = patches.shape[0] > 0 or pano[0] >= 0
-    pc = _frame_patches(R, p, patches)
+    pc = frame_patches(R, p, patches, np.empty((patches.shape[0], 12)))
     for i in range(xs.shape[0]):
         x = float(xs[i])
         y = float(ys[i])
@@ -301,22 +427,41 @@ def probe(xs: np.ndarray, ys: np.ndarray, t: float, R: np.ndarray, p: np.ndarray
         vy[i] = (vb - va) / (2.0 * delta)
 
 
+@njit(cache=True, inline="always")
+def _sobel(L: np.ndarray, x: int, y: int) -> tuple[float, float]:
+    H, W = L.shape
+    sx = 0.0
+    sy = 0.0
+    for dy in range(-1, 2):
+        for dx in range(-1, 2):
+            wgt = 2.0 if dx == 0 or dy == 0 else 1.0
+            v = L[min(max(y + dy, 0), H - 1), min(max(x + dx, 0), W - 1)]
+            sx += dx * wgt * v
+            sy += dy * wgt * v
+    return sx / 8.0, sy / 8.0
+
+
 @njit(cache=True)
 def gradient_at(L: np.ndarray, xs: np.ndarray, ys: np.ndarray, gx: np.ndarray, gy: np.ndarray) -> None:
     """Spatial gradient of ``L`` (H, W) at the pixels: the Sobel operator
     (scaled to per-pixel units; edges replicated at the border), whose
     direction is accurate for oblique edges too."""
-    H, W = L.shape
     for i in range(xs.shape[0]):
-        x = int(xs[i])
-        y = int(ys[i])
-        sx = 0.0
-        sy = 0.0
-        for dy in range(-1, 2):
-            for dx in range(-1, 2):
-                wgt = 2.0 if dx == 0 or dy == 0 else 1.0
-                v = L[min(max(y + dy, 0), H - 1), min(max(x + dx, 0), W - 1)]
-                sx += dx * wgt * v
-                sy += dy * wgt * v
-        gx[i] = sx / 8.0
-        gy[i] = sy / 8.0
+        gx[i], gy[i] = _sobel(L, int(xs[i]), int(ys[i]))
+
+
+@njit(cache=True)
+def lifetimes(L: np.ndarray, xs: np.ndarray, ys: np.ndarray, vx: np.ndarray, vy: np.ndarray,
+              out: np.ndarray) -> None:
+    """Per pixel, the time (µs) the local edge takes to move one pixel:
+    ``1e6 / |v . g / |g||`` with ``g`` the :func:`gradient_at` of ``L``
+    (the speed itself where ``L`` is flat; inf when nothing moves, NaN
+    when the motion is unknown)."""
+    for i in range(xs.shape[0]):
+        gx, gy = _sobel(L, int(xs[i]), int(ys[i]))
+        g = math.sqrt(gx * gx + gy * gy)
+        if g > 1e-9:
+            vn = abs(vx[i] * gx + vy[i] * gy) / g
+        else:
+            vn = math.sqrt(vx[i] * vx[i] + vy[i] * vy[i])
+        out[i] = 1e6 / vn if vn > 0 else (np.inf if vn == 0 else np.nan)  # NaN: motion unknown

@@ -16,11 +16,14 @@ from scipy.spatial.transform import Rotation
 from .motion import Trajectory
 from .render import DISK, EDGE, RECT
 from .textures import TexturePool, make_texture
+from .video import FrameReader, is_video_spec, video_spec
 
 __all__ = ["BUILTIN", "load_scene", "compile_scene", "CompiledScene", "scene_names"]
 
 _TOP_KEYS = {"name", "description", "sensor", "fov_deg", "focal_px", "duration_us", "background", "panorama",
-             "planes", "boxes", "objects", "motion", "sensor_model", "davis", "truth", "sim"}
+             "planes", "boxes", "objects", "motion", "sensor_model", "davis", "truth", "sim", "video",
+             "features"}
+_NOT_WITH_VIDEO = ("background", "panorama", "planes", "boxes", "objects", "motion")
 _SHAPES = {"disk": DISK, "rect": RECT, "bar": RECT, "edge": EDGE}
 
 
@@ -148,13 +151,17 @@ def _parse_sensor(v: Any) -> tuple[int, int]:
     return int(w), int(h)
 
 
-def load_scene(scene: str | Mapping[str, Any], sensor: Any = None) -> dict[str, Any]:
-    """A scene dict from a built-in name, a TOML file path or a dict.
+def load_scene(scene: str | Mapping[str, Any], sensor: Any = None, fps: float = 0.0) -> dict[str, Any]:
+    """A scene dict from a built-in name, a TOML file path, a video / image
+    folder / image list path (see :mod:`.video`) or a dict.
 
     ``sensor`` ("WxH" or (w, h)) overrides the scene's sensor size; built-in
-    scenes are laid out for whatever size is asked (default 346x260)."""
+    scenes are laid out for whatever size is asked (default 346x260), videos
+    default to their frame size. ``fps`` > 0 overrides a video's frame rate."""
     if isinstance(scene, Mapping):
         d = dict(scene)
+    elif scene not in BUILTIN and is_video_spec(scene):
+        d = {"name": os.path.splitext(os.path.basename(os.path.normpath(scene)))[0], "video": {"path": scene}}
     elif scene in BUILTIN:
         size = _parse_sensor(sensor) if sensor is not None else (346, 260)
         d = BUILTIN[scene](*size)
@@ -171,8 +178,25 @@ def load_scene(scene: str | Mapping[str, Any], sensor: Any = None) -> dict[str, 
         raise ValueError(f"scene {d.get('name', '?')!r}: unknown keys {sorted(unknown)}; known: {sorted(_TOP_KEYS)}")
     if sensor is not None:
         d["sensor"] = list(_parse_sensor(sensor))
+    if "video" in d:
+        _load_video(d, fps)
     d["sensor"] = list(_parse_sensor(d.get("sensor", (346, 260))))
     return d
+
+
+def _load_video(d: dict[str, Any], fps: float) -> None:
+    """Validate a video scene; fill in its sensor size and duration."""
+    v = d["video"] = video_spec(d["video"])
+    if fps > 0:
+        v["fps"] = float(fps)
+    both = [k for k in _NOT_WITH_VIDEO if k in d]
+    if both:
+        raise ValueError(f"scene {d.get('name', '?')!r}: a video scene cannot also have {both}")
+    size = _parse_sensor(d["sensor"]) if "sensor" in d else None
+    reader = FrameReader(v["path"], float(v.get("fps", 0.0)), float(v.get("gamma", 1.0)),
+                         int(v.get("start_frame", 0)), size)
+    d["sensor"] = list(reader.size)
+    d.setdefault("duration_us", max(1, int(round(reader.duration_us))))
 
 
 @dataclass
@@ -195,6 +219,7 @@ class CompiledScene:
     has_world: bool
     max_blink_hz: float
     min_blink_duty: float
+    video: dict[str, Any] | None = None
 
 
 def _patch_row(center: Any, rot: np.ndarray, hw: float, hh: float, tid: int, texel: float, inten: float,
@@ -280,4 +305,5 @@ def compile_scene(d: Mapping[str, Any]) -> CompiledScene:
         name=str(d.get("name", "scene")), sensor=(w, h), f=f, cx=(w - 1) / 2, cy=(h - 1) / 2,
         patches=patches, pano=pano, bg=bg, sprites=sprites, tex_data=data, tex_table=table,
         trajectory=Trajectory(d.get("motion")), supersample=int(sim.get("supersample", 1)),
-        has_world=bool(patches.shape[0] or pano[0] >= 0), max_blink_hz=max_blink, min_blink_duty=min_duty)
+        has_world=bool(patches.shape[0] or pano[0] >= 0), max_blink_hz=max_blink, min_blink_duty=min_duty,
+        video=d.get("video"))

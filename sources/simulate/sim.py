@@ -3,8 +3,12 @@
 Time steps are chosen from the scene alone (never from the output windows),
 so the stream is the same however it is cut: a step ``(t0, t1]`` is at most
 ``max_px_step`` pixels of image motion (a bound from the scene's true flow)
-and at most ``max_dlog_frac * min(c_on, c_off)`` (nominal) of log-intensity change at any pixel
-(a step that changes more is retried shorter), and at most ``dt_max_us``.
+and at most ``dt_max_us``; every pixel is sampled so that its log intensity
+changes by at most ``max_dlog_frac * min(c_on, c_off)`` (nominal) between
+two samples: the frame is rendered at the step's end and the pixels that
+changed more, or bent away from their previous slope by more than
+``max_bend_frac`` of that, are refined alone on a finer grid of the step
+(down to ``dt_min_us``), see :mod:`.step`.
 A window ``[w0, w1)`` is released once the simulation has passed ``w1`` plus
 the jitter margin; its events are sorted by timestamp, ties in generation
 order.
@@ -20,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -28,14 +32,20 @@ import numpy as np
 from tectum import EventPacket, FramePacket, ImuPacket, Packet, PosePacket
 
 from .davis import DavisConfig, aps_frame, imu_samples
-from .dvs import dvs_step, log_intensity, lowpass_step
+from .features import Features
+from .dvs import log_intensity
 from .noise import SHOT, NoiseSource, SensorModel, thresholds
-from .render import gradient_at, probe, render
+from .order import time_order
+from .render import lifetimes, probe, render
 from .scenes import CompiledScene, compile_scene
+from .step import NodeCache, advance
+from .truth import Truth
+from .video import FrameReader, VideoLayer
 
 __all__ = ["Simulator", "Truth", "StepConfig"]
 
 _DELTA_S = 1e-5
+_MAX_LEV = 10  # at most 1024 sub-steps of a step for a pixel
 _COLS = ("t", "i", "p", "vx", "vy", "lifetime", "noise", "object_id")
 
 
@@ -43,8 +53,9 @@ _COLS = ("t", "i", "p", "vx", "vy", "lifetime", "noise", "object_id")
 class StepConfig:
     """Adaptive time-step limits (scene key ``sim``)."""
 
-    max_px_step: float = 0.5     #: image motion per step, pixels
-    max_dlog_frac: float = 0.5   #: log-intensity change per step, fraction of min threshold
+    max_px_step: float = 0.25    #: image motion per step, pixels
+    max_dlog_frac: float = 0.5   #: log-intensity change per sample, fraction of min threshold
+    max_bend_frac: float = 0.1   #: departure from the previous piece's line that refines a pixel, fraction of the above
     dt_max_us: float = 1000.0
     dt_min_us: float = 0.5
 
@@ -55,46 +66,6 @@ class StepConfig:
         if bad:
             raise ValueError(f"unknown sim keys {sorted(bad)}; known: supersample, {sorted(cls.__dataclass_fields__)}")
         return cls(**spec)
-
-
-@dataclass
-class Truth:
-    """Ground truth sampled in time, beside the events (arrays by name).
-
-    ``pose_*`` at ``pose_rate_hz``: ``pose_t`` µs, ``pose_position`` m,
-    ``pose_orientation`` xyzw (world-from-camera), ``pose_angular_velocity``
-    rad/s (camera frame), ``pose_velocity`` m/s (world). ``frame_*`` at
-    ``truth_fps``: ``frame_intensity`` (linear, 1 = full scale),
-    ``frame_depth`` (m; inf at infinity, NaN for image-plane objects),
-    ``frame_vx``/``frame_vy`` px/s, ``frame_object_id``. ``aps_*`` and
-    ``imu_*`` when the scene's ``davis`` section asks. ``camera`` is
-    ``(f, cx, cy)`` px, ``sensor`` ``(w, h)``.
-    """
-
-    meta: dict[str, Any] = field(default_factory=dict)
-    parts: dict[str, list[np.ndarray]] = field(default_factory=dict)
-
-    def add(self, **arrays: np.ndarray) -> None:
-        for k, v in arrays.items():
-            self.parts.setdefault(k, []).append(np.asarray(v))
-
-    def __getitem__(self, key: str) -> np.ndarray:
-        if key in self.meta:
-            return np.asarray(self.meta[key])
-        parts = self.parts.get(key)
-        if not parts:
-            raise KeyError(key)
-        return np.concatenate(parts) if len(parts) > 1 else parts[0]
-
-    def keys(self) -> list[str]:
-        return list(self.meta) + list(self.parts)
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        return {k: self[k] for k in self.keys()}
-
-    def save(self, path: str) -> None:
-        """Write every array to an ``.npz`` file."""
-        np.savez(path, **self.arrays())
 
 
 class Simulator:
@@ -124,20 +95,27 @@ class Simulator:
         self.dt_max = dt_max
         self.c_on, self.c_off = thresholds(model, self.npix, self.seed)
         self.max_dlog = self.cfg.max_dlog_frac * min(model.c_on, model.c_off)
+        self.max_bend = self.cfg.max_bend_frac * self.max_dlog
         self.noise = NoiseSource(model, (w, h), self.seed)
         self.rng_jitter = np.random.default_rng([self.seed, 104])
         self.rng_aps = np.random.default_rng([self.seed, 105])
         self.rng_imu = np.random.default_rng([self.seed, 106])
         self._img = np.empty((h, w))
+        self.video: VideoLayer | None = None
+        if self.cs.video is not None:
+            v = self.cs.video
+            self.video = VideoLayer(FrameReader(v["path"], float(v.get("fps", 0.0)), float(v.get("gamma", 1.0)),
+                                                int(v.get("start_frame", 0)), (w, h)), model.eps)
         self.lp = self.render(0.0).ravel().copy()
         self.L = np.empty(self.npix)
         log_intensity(self.lp, model.eps, self.L, self.lp)
         self.l_ref = self.L.copy()
+        self.slope = np.zeros(self.npix)  # log intensity per µs over each pixel's last sampled piece
         self.t_release = np.full(self.npix, -np.inf)
         self.t = 0.0
-        self.dt_hint = self.dt_max
         self.steps = 0
-        self.retries = 0
+        self.refined = 0  #: pixel-steps refined alone (see :mod:`.step`)
+        self._nodes = NodeCache(_MAX_LEV, self.cs.patches.shape[0], self.cs.sprites.shape[0])
         cap = 1 << 16
         self._ot, self._oi, self._op = np.empty(cap), np.empty(cap, np.int64), np.empty(cap, np.int8)
         self._pending: list[dict[str, np.ndarray]] = []
@@ -150,6 +128,10 @@ class Simulator:
         self.truth = Truth(meta={"camera": np.array([self.cs.f, self.cs.cx, self.cs.cy]),
                                  "sensor": np.array([w, h]), "duration_us": np.array(int(self.T)),
                                  "seed": np.array(self.seed)})
+        self.features = Features(self.cs, scene)
+        if self.features.count:
+            self.truth.meta.update(feature_object_id=self.features.object_id,
+                                   feature_world=self.features.world_points)
 
     # -- the scene ----------------------------------------------------------------
     def pose(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -159,6 +141,9 @@ class Simulator:
         """The true linear intensity image (H, W) at ``t_us`` (a view of a
         reused buffer: copy to keep)."""
         cs = self.cs
+        if self.video is not None:
+            self.video.render(t_us, self._img)
+            return self._img
         R, p = self.pose(t_us * 1e-6)
         render(self._img, t_us * 1e-6, R, p, cs.f, cs.cx, cs.cy, cs.patches, cs.pano, cs.bg, cs.sprites,
                cs.tex_data, cs.tex_table, cs.supersample)
@@ -168,6 +153,8 @@ class Simulator:
         """True ``(vx, vy, object_id, depth)`` at pixels at ``t_us``."""
         cs, t = self.cs, t_us * 1e-6
         n = xs.shape[0]
+        if self.video is not None:  # the motion in a video is not known
+            return np.full(n, np.nan), np.full(n, np.nan), np.zeros(n, np.int64), np.full(n, np.nan)
         vx, vy, depth = np.empty(n), np.empty(n), np.empty(n)
         oid = np.empty(n, np.int64)
         traj = cs.trajectory
@@ -185,6 +172,8 @@ class Simulator:
         """A bound on the image speed (px/s) at ``t_us``."""
         cs = self.cs
         best = 0.0
+        if self.video is not None:
+            return 0.0
         if cs.has_world or cs.bg[3] or cs.bg[4]:
             vx, vy, _, _ = self.probe(self._cx, self._cy, t_us)
             best = 1.5 * float(np.sqrt(vx * vx + vy * vy).max())
@@ -196,57 +185,48 @@ class Simulator:
         return best
 
     # -- stepping -----------------------------------------------------------------
-    def _observe(self, dt_us: float, out_lp: np.ndarray, out_L: np.ndarray) -> float:
-        """Photoreceptor output after ``dt_us`` with the current true image;
-        returns the largest log-intensity change."""
-        img = self._img.ravel()
-        m = self.model
-        if m.lowpass_hz > 0:
-            out_lp[:] = self.lp
-            lowpass_step(out_lp, img, dt_us * 1e-6, m.lowpass_hz, m.lowpass_min_hz)
-            return log_intensity(out_lp, m.eps, out_L, self.L)
-        return log_intensity(img, m.eps, out_L, self.L)
-
     def step(self) -> None:
-        """Advance one adaptive step and queue its events."""
-        t0, cfg = self.t, self.cfg
-        dt = min(self.dt_hint, self.T - t0)
+        """Advance one step and queue its events: the frame is rendered once
+        at the step's end, pixels that change too fast are refined alone
+        (see :mod:`.step`)."""
+        t0, cfg, cs, m = self.t, self.cfg, self.cs, self.model
+        dt = min(self.dt_max, self.T - t0)
         mf = self.max_flow(t0)
         if mf > 0:
             dt = min(dt, cfg.max_px_step / mf * 1e6)
         dt = max(dt, min(cfg.dt_min_us, self.T - t0))
-        lp1, L1 = np.empty(self.npix), np.empty(self.npix)
+        t1 = t0 + dt if self.T - (t0 + dt) > 1e-6 else self.T
+        nlev = int(min(_MAX_LEV, max(0, math.floor(math.log2(max((t1 - t0) / cfg.dt_min_us, 1.0))))))
+        if self.video is not None:  # never across a frame time: L is linear in t between frames
+            t1 = min(t1, self.video.next_frame_after(t0))
+            nlev = 0
+        img = self.render(t1).ravel()
+        nc = self._nodes
+        nc.reset()
+        start, parts = 0, []
         while True:
-            t1 = t0 + dt if self.T - (t0 + dt) > 1e-6 else self.T
-            self.render(t1)
-            change = self._observe(t1 - t0, lp1, L1)
-            if change > self.max_dlog and dt > cfg.dt_min_us:
-                dt = max(cfg.dt_min_us, dt * 0.7 * self.max_dlog / change)
-                self.retries += 1
-                continue
-            break
-        grow = 2.0 if change <= 1e-12 else min(2.0, 0.8 * self.max_dlog / change)
-        self.dt_hint = min(self.dt_max, max(dt * grow, cfg.dt_min_us))
-        chunk = self._events(t0, t1, L1)
-        if self.model.lowpass_hz > 0:
-            self.lp = lp1
-        self.L = L1
+            n, start, refined = advance(
+                img, self.W, self.L, self.lp, self.slope, t0, t1, m.eps, m.lowpass_hz, m.lowpass_min_hz, self.max_dlog,
+                self.max_bend, nlev,
+                self.l_ref, self.t_release, self.c_on, self.c_off, m.refractory_us,
+                cs.trajectory.params, cs.f, cs.cx, cs.cy, cs.patches, cs.pano, cs.bg, cs.sprites, cs.tex_data,
+                cs.tex_table, cs.supersample, nc.t, nc.R, nc.p, nc.pc, nc.st, nc.g, nc.done, nc.seg_t, nc.seg_L,
+                start, self._ot, self._oi, self._op)
+            self.refined += refined
+            parts.append((self._ot[:n].copy(), self._oi[:n].copy(), self._op[:n].copy()))
+            if start >= self.npix:
+                break
+            cap = 2 * self._ot.shape[0]
+            self._ot, self._oi, self._op = np.empty(cap), np.empty(cap, np.int64), np.empty(cap, np.int8)
+        chunk = self._events(t0, t1, parts)
         self.t = t1
         self.steps += 1
         if chunk is not None:
             self._pending.append(chunk)
 
-    def _events(self, t0: float, t1: float, L1: np.ndarray) -> dict[str, np.ndarray] | None:
+    def _events(self, t0: float, t1: float, parts: list[tuple[np.ndarray, ...]]) -> dict[str, np.ndarray] | None:
         m = self.model
-        start, parts = 0, []
-        while start < self.npix:
-            n, start = dvs_step(self.L, L1, t0, t1, self.l_ref, self.t_release, self.c_on, self.c_off,
-                                m.refractory_us, start, self._ot, self._oi, self._op)
-            parts.append((self._ot[:n].copy(), self._oi[:n].copy(), self._op[:n].copy()))
-            if start < self.npix:
-                cap = 2 * self._ot.shape[0]
-                self._ot, self._oi, self._op = np.empty(cap), np.empty(cap, np.int64), np.empty(cap, np.int8)
-        ts, idx, pol = (np.concatenate([p[k] for p in parts]) for k in range(3))
+        ts, idx, pol = ((np.concatenate([p[k] for p in parts]) if len(parts) > 1 else parts[0][k]) for k in range(3))
         nt, ni, npol, u, lab = self.noise.take(t0, t1)
         if lab.size:
             img = self._img.ravel()
@@ -256,12 +236,8 @@ class Simulator:
             return None
         xs, ys = idx % self.W, idx // self.W
         vx, vy, oid, _ = self.probe(xs, ys, t1)
-        gx, gy = np.empty(idx.size), np.empty(idx.size)
-        gradient_at(L1.reshape(self.H, self.W), xs, ys, gx, gy)
-        g = np.hypot(gx, gy)
-        vn = np.where(g > 1e-9, np.abs(vx * gx + vy * gy) / np.maximum(g, 1e-300), np.hypot(vx, vy))
-        with np.errstate(divide="ignore"):
-            life = np.where(vn > 0, 1e6 / vn, np.inf)
+        life = np.empty(idx.size)
+        lifetimes(self.L.reshape(self.H, self.W), xs, ys, vx, vy, life)
         k = nt.size
         t = np.concatenate([ts, nt])
         if m.jitter_us > 0:
@@ -279,7 +255,7 @@ class Simulator:
     def _release(self, w0: int, w1: int) -> EventPacket:
         if self._pending:
             cat = {c: np.concatenate([ch[c] for ch in self._pending]) for c in _COLS}
-            order = np.argsort(cat["t"], kind="stable")
+            order = time_order(cat["t"])
             cat = {c: a[order] for c, a in cat.items()}
             j = int(np.searchsorted(cat["t"], w1, side="left"))
             rest = {c: a[j:] for c, a in cat.items()}
@@ -320,6 +296,8 @@ class Simulator:
                                   t_start=w0, t_end=w1))
             self.truth.add(pose_t=tp, pose_position=pos, pose_orientation=quat, pose_angular_velocity=om,
                            pose_velocity=vel)
+            if self.features.count:
+                self.truth.add(feature_t=tp, feature_xy=self.features.positions(traj, tp))
         for tf in self._ticks(self.truth_fps, w0, w1):
             img = self.render(float(tf)).copy()
             vx, vy, oid, depth = self.probe(self._gx, self._gy, float(tf))
@@ -361,3 +339,5 @@ class Simulator:
             while self.t < goal:
                 self.step()
             yield self._release(w0, w1), self._side(w0, w1)
+            if self.video is not None:
+                self.video.forget_before(w1 - self.davis.exposure_us)

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-__all__ = ["make_texture", "TexturePool", "sample_texture"]
+__all__ = ["make_texture", "TexturePool", "sample_texture", "texel_taps", "bilinear"]
 
 
 def _wrap_blur(a: np.ndarray, sigma: float) -> np.ndarray:
@@ -106,31 +106,29 @@ class TexturePool:
 
 
 @njit(cache=True, inline="always")
-def sample_texture(data: np.ndarray, table: np.ndarray, tid: int, u: float, v: float) -> float:
-    """Bilinear, wrapping sample of texture ``tid`` at texel coordinates
-    ``u`` (column) and ``v`` (row); texel centres at integers."""
-    off, h, w = table[tid, 0], table[tid, 1], table[tid, 2]
+def texel_taps(u: float, n: int) -> tuple[int, int, float]:
+    """The two wrapped texel indices around coordinate ``u`` on an axis of
+    ``n`` texels (centres at integers) and the weight of the second."""
     fu = math.floor(u)
-    fv = math.floor(v)
-    au = u - fu
-    av = v - fv
-    # wrap without integer division (slow): float quotient, then fix rounding
-    c0 = int(fu - w * math.floor(fu / w))
-    r0 = int(fv - h * math.floor(fv / h))
-    if c0 >= w:
-        c0 -= w
-    elif c0 < 0:
-        c0 += w
-    if r0 >= h:
-        r0 -= h
-    elif r0 < 0:
-        r0 += h
-    c1 = c0 + 1
-    if c1 == w:
-        c1 = 0
-    r1 = r0 + 1
-    if r1 == h:
-        r1 = 0
+    a = u - fu
+    i0 = int(fu)
+    if i0 < 0 or i0 >= n:
+        # wrap without integer division (slow): float quotient, then fix rounding
+        i0 = int(fu - n * math.floor(fu / n))
+        if i0 >= n:
+            i0 -= n
+        elif i0 < 0:
+            i0 += n
+    i1 = i0 + 1
+    if i1 == n:
+        i1 = 0
+    return i0, i1, a
+
+
+@njit(cache=True, inline="always")
+def bilinear(data: np.ndarray, off: int, w: int, c0: int, c1: int, au: float, r0: int, r1: int,
+             av: float) -> float:
+    """Bilinear blend of the four texels (rows r0, r1; columns c0, c1)."""
     row0 = off + r0 * w
     row1 = off + r1 * w
     a = data[row0 + c0]
@@ -138,3 +136,13 @@ def sample_texture(data: np.ndarray, table: np.ndarray, tid: int, u: float, v: f
     c = data[row1 + c0]
     d = data[row1 + c1]
     return (a * (1.0 - au) + b * au) * (1.0 - av) + (c * (1.0 - au) + d * au) * av
+
+
+@njit(cache=True, inline="always")
+def sample_texture(data: np.ndarray, table: np.ndarray, tid: int, u: float, v: float) -> float:
+    """Bilinear, wrapping sample of texture ``tid`` at texel coordinates
+    ``u`` (column) and ``v`` (row); texel centres at integers."""
+    off, h, w = table[tid, 0], table[tid, 1], table[tid, 2]
+    c0, c1, au = texel_taps(u, w)
+    r0, r1, av = texel_taps(v, h)
+    return bilinear(data, off, w, c0, c1, au, r0, r1, av)

@@ -147,3 +147,27 @@ def test_aps_motion_blur_spreads_an_edge():
     row = truth["aps_images"][1, 16].astype(float)
     mid = np.sum((row > 0.2 * 255 + 3) & (row < 0.8 * 255 - 3))
     assert mid >= 8  # 2000 px/s x 5 ms = 10 px of blur (a sharp edge spans one pixel)
+
+
+def test_feature_positions_follow_points_and_corners():
+    X = [0.1, -0.05, 2.0]
+    scene = {"sensor": [40, 30], "fov_deg": 60, "features": [X],
+             "planes": [{"center": [0, 0, 3.0], "size": [1.0, 0.5], "intensity": 0.6}],
+             "motion": {"velocity": [0.5, 0.0, 0.0]},
+             "objects": [{"shape": "rect", "position": [10.0, 12.0], "size": [6.0, 4.0], "angle_deg": 90,
+                          "velocity": [100.0, 0.0], "intensity": 0.9, "id": 4}]}
+    _, truth = simulate(scene, 20_000, pose_rate_hz=1000)
+    f, cx, cy = truth["camera"]
+    t = truth["feature_t"] * 1e-6
+    xy = truth["feature_xy"]
+    assert xy.shape == (20, 1 + 4 + 4, 2)
+    np.testing.assert_array_equal(truth["feature_object_id"], [0, 0, 0, 0, 0, 4, 4, 4, 4])
+    # the user's point: camera translating along x at 0.5 m/s, no rotation
+    np.testing.assert_allclose(xy[:, 0, 0], f * (X[0] - 0.5 * t) / X[2] + cx, atol=1e-9)
+    np.testing.assert_allclose(xy[:, 0, 1], f * X[1] / X[2] + cy, atol=1e-9)
+    # the plane's corners, e.g. (-0.5, -0.25, 3)
+    np.testing.assert_allclose(xy[:, 1, 0], f * (-0.5 - 0.5 * t) / 3 + cx, atol=1e-9)
+    np.testing.assert_allclose(xy[:, 1, 1], f * -0.25 / 3 + cy, atol=1e-9)
+    # the rect turned by 90 degrees: its local (-3, -2) corner is at (+2, -3) from its centre
+    np.testing.assert_allclose(xy[:, 5, 0], 10.0 + 100.0 * t + 2.0, atol=1e-9)
+    np.testing.assert_allclose(xy[:, 5, 1], 12.0 - 3.0, atol=1e-9)

@@ -103,3 +103,26 @@ def test_cli_list_and_run(tmp_path, capsys):
     assert {"vx", "vy", "lifetime", "noise", "object_id"} <= set(ev.files)
     truth = np.load(str(out) + ".truth.npz")
     assert truth["frame_intensity"].shape == (3, 24, 32) and truth["pose_t"].shape == (30,)
+
+
+def test_truth_maps_stream_to_disk(tmp_path):
+    import os
+
+    sim = make_simulator("shapes", 30_000, sensor="32x24", truth_fps=200, preset="ideal")
+    for _ in sim.windows(10_000):
+        pass
+    tr = sim.truth
+    assert not tr.parts  # nothing held in memory: every series went to disk
+    maps = tr["frame_intensity"]
+    assert isinstance(maps, np.memmap) and maps.shape == (6, 24, 32)
+    np.testing.assert_array_equal(tr["frame_t"], np.arange(6) * 5_000)
+    for t, img in zip(tr["frame_t"], maps):  # the true images at their times
+        np.testing.assert_array_equal(img, sim.render(float(t)).astype(np.float32))
+    tr.save(str(tmp_path / "truth.npz"))
+    z = np.load(tmp_path / "truth.npz")
+    assert set(z.files) == set(tr.keys())
+    for k in tr.keys():
+        np.testing.assert_array_equal(z[k], tr[k])
+    folder = tr._dir
+    tr.close()
+    assert folder is not None and not os.path.exists(folder)
