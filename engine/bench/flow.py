@@ -40,6 +40,8 @@ METHODS: dict[str, tuple[Callable[[], Any], str]] = {
     "plane_fit benosman 5x5": (PlaneFit, "normal"),
     "plane_fit robust 5x5": (lambda: PlaneFit(radius=2, robust=True), "normal"),
     "plane_fit robust 7x7": (lambda: PlaneFit(radius=3, robust=True), "normal"),
+    "plane_fit benosman 5x5 burst 10ms": (lambda: PlaneFit(burst_us=10_000), "normal"),
+    "plane_fit robust 7x7 burst 10ms": (lambda: PlaneFit(radius=3, robust=True, burst_us=10_000), "normal"),
     "lucas_kanade normal": (lambda: LucasKanade(radius=3, dt_us=2000, min_explained=0.0), "normal"),
     "lucas_kanade full": (lambda: LucasKanade(radius=3, dt_us=2000, mode="full", min_explained=0.0), "full"),
     "contrast_max 32px/10ms": (ContrastMax, "full"),
@@ -169,18 +171,10 @@ def _imu_rotation(quick: bool) -> list[dict[str, Any]]:
     path = data / "aedat" / "davis240_imu_rotdisk.aedat" if data else None
     if path is None or not path.exists():
         return []
-    from tectum import ImuPacket
     from tectum.plugins.flow.imu_truth import (full_flow_vs_rotation, gyro_flow, imu_full_scale_factor,
-                                               normal_flow_vs_rotation)
-    from tectum.sources.files import open_file
+                                               normal_flow_vs_rotation, read_events_and_imu)
 
-    src = open_file(str(path))
-    try:
-        pk = list(src.packets())
-    finally:
-        src.close()
-    ev = concat([p for p in pk if isinstance(p, EventPacket)])
-    imu = concat([p for p in pk if isinstance(p, ImuPacket)])
+    ev, imu = read_events_and_imu(str(path))
     if quick:
         ev = ev.slice_time(int(ev.t[0]), int(ev.t[0]) + 1_000_000)
     tx, ty = gyro_flow(ev, imu, 200.0, 119.5, 89.5, axes=np.diag([1.0, 1.0, -1.0]),

@@ -17,19 +17,29 @@ __all__ = ["PlaneFit", "plane_flow_kernel"]
 
 
 @njit(cache=True, nogil=True)
-def plane_flow_kernel(t, x, y, p, sae, radius, window_us, n_iter, reject_us, robust, robust_k, floor_us,
-                      min_points, max_rms, min_speed, max_speed, vx, vy, valid):  # type: ignore[no-untyped-def]
+def plane_flow_kernel(t, x, y, p, sae, last, burst_us, radius, window_us, n_iter, reject_us, robust, robust_k,
+                      floor_us, min_points, max_rms, min_speed, max_speed, vx, vy, valid):  # type: ignore[no-untyped-def]
     """Per event: update ``sae`` then fit; normal flow (px/s) or NaN + invalid.
 
     ``max_rms`` bounds the inliers' residual RMS as a fraction of the time
-    the edge takes to cross one pixel (a noisy fit is not reported)."""
-    px, py, pt, use, scratch, acc = plane_scratch(radius)
+    the edge takes to cross one pixel (a noisy fit is not reported).
+    With ``burst_us > 0``, ``last`` (H, W) int64 holds each pixel's last event
+    time, signed by its polarity (0 = none); see :class:`PlaneFit`."""
+    scr = plane_scratch(radius)
     for i in range(t.shape[0]):
         k = 1 if p[i] > 0 else 0
         xi, yi, ti = np.int64(x[i]), np.int64(y[i]), t[i]
-        sae[k, yi, xi] = ti
-        a, b, _, rms, ok = plane_fit_at(sae, k, xi, yi, ti, radius, window_us, n_iter, reject_us, robust,
-                                        robust_k, floor_us, min_points, px, py, pt, use, scratch, acc)
+        tref = ti
+        if burst_us > 0:
+            prev = last[yi, xi]
+            # same polarity as the pixel's previous event and soon after it: same crossing
+            same = prev != 0 and (prev > 0) == (k == 1) and ti - abs(prev) <= burst_us
+            last[yi, xi] = ti + 1 if k == 1 else -(ti + 1)
+            if same and ti - sae[k, yi, xi] <= window_us:
+                tref = sae[k, yi, xi]
+        sae[k, yi, xi] = tref
+        a, b, _, rms, ok = plane_fit_at(sae, k, xi, yi, tref, radius, window_us, n_iter, reject_us, robust,
+                                        robust_k, floor_us, min_points, scr)
         # the residual RMS must stay under max_rms times the time per pixel
         ok = ok and rms <= max_rms * np.sqrt(a * a + b * b)
         store_gradient_flow(i, ok, a, b, min_speed, max_speed, vx, vy, valid)
@@ -48,7 +58,14 @@ class PlaneFit(FlowOperator):
     data-driven threshold instead (``robust_k`` MADs, at least ``floor_us``
     µs), ``min_points`` inliers needed, ``max_rms`` the largest inlier RMS
     residual as a fraction of the time per pixel, ``min_speed``/``max_speed``
-    (px/s). State: 2 x H x W int64 timestamps.
+    (px/s). ``burst_us`` (µs, 0 = off): a pixel often fires several events
+    of the same polarity as one edge crosses it (a blurred edge, several
+    contrast thresholds); the surface of *last* events then lags behind the
+    edge and the speed comes out too high. With ``burst_us > 0`` an event
+    that follows the pixel's previous event (same polarity) within
+    ``burst_us`` belongs to the same crossing: the surface keeps the
+    crossing's first time and the event gets the flow fitted at it. State:
+    2 x H x W int64 timestamps (and H x W of last events with ``burst_us``).
     """
 
     name = "flow.plane_fit"
@@ -56,7 +73,7 @@ class PlaneFit(FlowOperator):
 
     def __init__(self, radius: int = 2, window_us: int = 30_000, n_iter: int = 3, reject_us: float = 1500.0,
                  robust: bool = False, robust_k: float = 3.0, floor_us: float = 300.0, min_points: int = 6,
-                 max_rms: float = 1.0, min_speed: float = 1.0, max_speed: float = 20_000.0,
+                 max_rms: float = 1.0, min_speed: float = 1.0, max_speed: float = 20_000.0, burst_us: int = 0,
                  out_vx: str = "vx", out_vy: str = "vy", out_valid: str = "valid") -> None:
         if radius < 1 or window_us <= 0 or n_iter < 0 or min_points < 3:
             raise ValueError("need radius >= 1, window_us > 0, n_iter >= 0, min_points >= 3")
@@ -66,14 +83,19 @@ class PlaneFit(FlowOperator):
         self.reject_us, self.robust = float(reject_us), bool(robust)
         self.robust_k, self.floor_us, self.min_points = float(robust_k), float(floor_us), int(min_points)
         self.max_rms, self.min_speed, self.max_speed = float(max_rms), float(min_speed), float(max_speed)
+        if burst_us < 0:
+            raise ValueError("need burst_us >= 0")
+        self.burst_us = int(burst_us)
         self._set_outputs(out_vx, out_vy, out_valid)
         self.sae: np.ndarray | None = None
 
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self.sae is None:
             self.sae = new_sae(packet.sensor)
+            w, h = packet.sensor
+            self.last = np.zeros((h, w) if self.burst_us else (1, 1), np.int64)
         vx, vy, valid = self._alloc(len(packet))
-        plane_flow_kernel(packet.t, packet.x, packet.y, packet.p, self.sae, self.radius, self.window_us,
+        plane_flow_kernel(packet.t, packet.x, packet.y, packet.p, self.sae, self.last, self.burst_us, self.radius, self.window_us,
                           self.n_iter, self.reject_us, self.robust, self.robust_k, self.floor_us,
                           self.min_points, self.max_rms, self.min_speed, self.max_speed, vx, vy, valid)
         return [self._emit(packet, vx, vy, valid)]

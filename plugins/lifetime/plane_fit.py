@@ -35,7 +35,7 @@ def lifetime_kernel(t, x, y, p, sae, life, radius, window_us, robust_k, floor_us
     float64 stores each pixel's last lifetime. With ``frame_us > 0`` also
     renders frames at ``frame_t[0], frame_t[0] + frame_us, ...`` before the
     first event at or after each; returns how many were written to ``frames``."""
-    px, py, pt, use, scratch, acc = plane_scratch(radius)
+    scr = plane_scratch(radius)
     _, h, w = sae.shape
     nf = 0
     for i in range(t.shape[0]):
@@ -47,7 +47,7 @@ def lifetime_kernel(t, x, y, p, sae, life, radius, window_us, robust_k, floor_us
             frame_t[0] += frame_us
         sae[k, yi, xi] = ti
         a, b, _, rms, ok = plane_fit_at(sae, k, xi, yi, ti, radius, window_us, 3, 0.0, True, robust_k, floor_us,
-                                        min_points, px, py, pt, use, scratch, acc)
+                                        min_points, scr)
         tau = np.sqrt(a * a + b * b)
         if ok:
             ok = tau > 0.0 and rms <= max_rms * tau

@@ -89,7 +89,8 @@ def test_degrades_gracefully_when_speed_is_out_of_reach():
     assert not e["n_scored"] or e["median_rel_pct"] < 60
 
 
-@pytest.mark.parametrize("make", [lambda: PlaneFit(radius=3, robust=True), lambda: LucasKanade(mode="full"),
+@pytest.mark.parametrize("make", [lambda: PlaneFit(radius=3, robust=True), lambda: PlaneFit(burst_us=3000),
+                                  lambda: LucasKanade(mode="full"),
                                   lambda: ContrastMax(window_us=5000, patch_px=16, min_events=10)])
 def test_batch_invariance_of_other_settings(make):
     v = (600.0, 300.0)
