@@ -19,14 +19,16 @@ from __future__ import annotations
 
 import os
 import re
-from collections.abc import Iterator
+import sys
+import threading
+from collections.abc import Callable, Iterator
 from typing import Any, ClassVar
 
 import numpy as np
 
 from tectum import EventPacket, FormatError, Kind, Packet, SamplePacket, Source
 
-__all__ = ["FileSource", "EventAssembler", "SampleTiler", "parse_size", "read_prefixed_header",
+__all__ = ["FileSource", "EventAssembler", "SampleTiler", "ColumnPool", "parse_size", "read_prefixed_header",
            "sensor_from_header", "DEFAULT_CHUNK_BYTES"]
 
 DEFAULT_CHUNK_BYTES = 1 << 22
@@ -123,6 +125,57 @@ def t0_from_header(h: dict[str, str], path: str) -> int:
     return 0
 
 
+class ColumnPool:
+    """Reusable ``(t, x, y, p)`` output columns for decoders.
+
+    Fresh memory costs page faults (here ~2 GB/s, slower than decoding), so
+    decoders write into column sets taken from this pool. A set is handed
+    out again only when nothing else refers to it: packets hold views of a
+    set, and a view keeps its base array alive, so a set whose arrays are
+    referenced by the pool alone belongs to no live packet (or view, or
+    copy of a view) and can be overwritten. At most ``max_sets`` free sets
+    of at most ``max_bytes`` each are kept; the others are left to the
+    garbage collector.
+    """
+
+    def __init__(self, max_sets: int = 4, max_bytes: int = 1 << 25,
+                 dtypes: tuple[Any, ...] = (np.int64, np.uint16, np.uint16, np.int8)) -> None:
+        self.max_sets = max_sets
+        self.max_bytes = max_bytes
+        self.dtypes = tuple(np.dtype(d) for d in dtypes)
+        self._sets: list[tuple[np.ndarray, ...]] = []
+        self._lock = threading.Lock()
+
+    def _is_free(self, k: int) -> bool:
+        # 2 references each when only the pool holds them: the container and getrefcount's argument
+        if sys.getrefcount(self._sets[k]) != 2:
+            return False
+        cols = self._sets[k]
+        return all(sys.getrefcount(cols[j]) == 2 for j in range(len(cols)))
+
+    def take(self, n: int) -> tuple[np.ndarray, ...]:
+        """Columns (of ``dtypes``, by default int64, uint16, uint16, int8: t, x,
+        y, p) holding at least ``n`` events,
+        owned by the caller until it drops every reference to them and to
+        views of them."""
+        with self._lock:
+            best = -1
+            for k in range(len(self._sets)):
+                if self._sets[k][0].shape[0] >= n and self._is_free(k) and (
+                        best < 0 or self._sets[k][0].shape[0] < self._sets[best][0].shape[0]):
+                    best = k
+            if best >= 0:
+                return self._sets[best]  # referenced by the caller before the lock is released
+            cols = tuple(np.empty(max(n, 1), d) for d in self.dtypes)
+            if n * sum(d.itemsize for d in self.dtypes) <= self.max_bytes:
+                self._sets = (self._sets + [cols])[-self.max_sets:]
+            return cols
+
+
+#: The process's column pool (shared by every file source).
+POOL = ColumnPool()
+
+
 class EventAssembler:
     """Turn decoded chunks (arrays) into contract-abiding packets.
 
@@ -142,6 +195,65 @@ class EventAssembler:
         self.next_start: int | None = src.t_start_us
         self.carry: tuple[np.ndarray, ...] | None = None
         self.count = 0
+        self._cols: tuple[np.ndarray, ...] | None = None
+        self._k = 0
+
+    def past_end(self) -> bool:
+        """True once events reached the source's ``t_end_us`` (stop decoding)."""
+        end = self.src.t_end_us
+        return end is not None and self.last_t is not None and self.last_t >= end
+
+    # -- zero-copy path: decode straight into pooled columns -------------------
+    def reserve(self, n: int) -> tuple[np.ndarray, ...]:
+        """Columns ``(t, x, y, p)`` with room for ``n`` new events, for a
+        decoder to fill from index 0 before calling :meth:`commit`. They are
+        views into a pooled set that starts with the held-back run, so the
+        packet is built without copying the chunk."""
+        ct = self.carry
+        k = 0 if ct is None else ct[0].shape[0]
+        cols = POOL.take(k + n)
+        if ct is not None:
+            for a, c in zip(cols, ct):
+                a[:k] = c
+            self.carry = None
+        self._cols, self._k = cols, k
+        return tuple(a[k:k + n] for a in cols)
+
+    def commit(self, n: int, byte_offset: int = 0,
+               where: Callable[[], np.ndarray] | None = None) -> list[EventPacket]:
+        """The decoder wrote ``n`` events (``t`` before the offset) into the
+        columns of :meth:`reserve`: the packets they complete. Checks, errors
+        and ``skip_bad`` behave as in :meth:`push`."""
+        from . import _kernels as K
+
+        cols, k = self._cols, self._k
+        assert cols is not None, "commit() without reserve()"
+        self._cols = None
+        t, x, y, p = cols
+        if n == 0:
+            if k:
+                self.carry = tuple(a[:k].copy() for a in cols)
+            return []
+        w, h = self.sensor if self.check_geometry else (1 << 30, 1 << 30)
+        prev = self.last_t if self.last_t is not None else -(1 << 62)
+        if K.check_events(t, x, y, k, k + n, self.offset, prev, w, h) >= 0:
+            # something is wrong: the general path reports or drops it
+            self.carry = tuple(a[:k].copy() for a in cols) if k else None
+            return self.push(*(a[k:k + n].copy() for a in cols), byte_offset, where)
+        self.last_t = int(t[k + n - 1])
+        a, m = 0, k + n
+        lo, hi = self.src.t_start_us, self.src.t_end_us
+        if lo is not None and k == 0:
+            a = int(np.searchsorted(t[:m], lo, side="left"))
+        if hi is not None:
+            m = k + int(np.searchsorted(t[k:m], hi, side="left"))
+        if m <= a:
+            return []
+        i = a + int(np.searchsorted(t[a:m], t[m - 1], side="left"))
+        self.carry = (t[i:m].copy(), x[i:m].copy(), y[i:m].copy(), p[i:m].copy())
+        if i == a:
+            return []
+        return [self._packet(t[a:i], x[a:i], y[a:i], p[a:i], int(t[i]))]
 
     def push(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray,
              byte_offset: int = 0, where: Any = None) -> list[EventPacket]:

@@ -3,14 +3,18 @@
 Each kernel is a pure function on arrays: it decodes a chunk of raw words
 into preallocated output arrays, keeps the decoder state (time base, wrap
 count, vector base...) in a small int64 ``state`` array so a chunk boundary
-can fall anywhere, and never raises. It returns ``(n_events, n_triggers,
-bad, n_bad)``: ``bad`` is the index of the first invalid word (-1 when none)
-and, when ``strict`` is true, decoding stops there.
+can fall anywhere, and never raises. The RAW kernels return ``(n_events,
+n_triggers, bad, n_bad, n_used)``: ``bad`` is the index of the first invalid
+word (-1 when none) and, when ``strict`` is true, decoding stops there;
+decoding also stops before a word whose events might not fit in the output
+columns, and ``n_used`` says how many words were decoded (call again with
+the rest).
 
 ``where`` receives, for each event, the index of the word it came from (for
-error messages with a byte offset); ``trig`` (int64, shape (n_words, 3))
-receives the external triggers as rows ``(t µs, channel id, value 1 rising /
-0 falling)``.
+error messages with a byte offset); an empty ``where`` records nothing (the
+fast path: offsets are rebuilt by decoding again, only when something is
+wrong). ``trig`` (int64, shape (n_words, 3)) receives the external triggers
+as rows ``(t µs, channel id, value 1 rising / 0 falling)``.
 """
 
 from __future__ import annotations
@@ -34,26 +38,34 @@ def decode_evt2(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
     have = state[1]
     last_raw = state[2]
     wraps = state[3]
-    for i in range(words.shape[0]):
+    track = where.shape[0] > 0
+    cap = t.shape[0]
+    m = min(words.shape[0], cap)  # one event per word at most
+    base = th << 6
+    i = 0
+    while i < m:
         w = np.int64(words[i])
+        i += 1
         typ = w >> 28
-        if typ == 8:
+        if typ <= 1:  # CD events first: nearly every word
+            if have == 0:
+                state[4] += 1
+                continue
+            t[n] = base | ((w >> 22) & 0x3F)
+            x[n] = (w >> 11) & 0x7FF
+            y[n] = w & 0x7FF
+            p[n] = typ * 2 - 1
+            if track:
+                where[n] = i - 1
+            n += 1
+        elif typ == 8:
             raw = w & 0x0FFFFFFF
             if have == 1 and raw < last_raw and last_raw - raw > (1 << 27):
                 wraps += 1
             last_raw = raw
             th = (wraps << 28) + raw
+            base = th << 6
             have = 1
-        elif typ <= 1:
-            if have == 0:
-                state[4] += 1
-                continue
-            t[n] = (th << 6) | ((w >> 22) & 0x3F)
-            x[n] = (w >> 11) & 0x7FF
-            y[n] = w & 0x7FF
-            p[n] = 1 if typ == 1 else -1
-            where[n] = i
-            n += 1
         elif typ == 0xA:
             if have == 1:
                 trig[nt, 0] = (th << 6) | ((w >> 22) & 0x3F)
@@ -64,15 +76,16 @@ def decode_evt2(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
             pass
         else:
             if bad < 0:
-                bad = i
+                bad = i - 1
             nbad += 1
             if strict:
+                i -= 1
                 break
     state[0] = th
     state[1] = have
     state[2] = last_raw
     state[3] = wraps
-    return n, nt, bad, nbad
+    return n, nt, bad, nbad, i
 
 
 # --- Prophesee EVT 3.0 ------------------------------------------------------------
@@ -95,8 +108,14 @@ def decode_evt3(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
     bx = state[5]
     vp = state[6] if state[6] != 0 else -1  # no VECT_BASE_X seen yet: OFF, as a zeroed register would say
     tb = (wraps << 24) | (high << 12) | low
-    for i in range(words.shape[0]):
+    track = where.shape[0] > 0
+    cap = t.shape[0] - 12  # room for a vector word's events
+    i = 0
+    while i < words.shape[0]:
+        if n > cap:
+            break
         w = np.int64(words[i])
+        i += 1
         typ = w >> 12
         if typ == 0x0:
             cy = w & 0x7FF
@@ -108,7 +127,8 @@ def decode_evt3(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
             x[n] = w & 0x7FF
             y[n] = cy
             p[n] = 1 if (w >> 11) & 1 else -1
-            where[n] = i
+            if track:
+                where[n] = i - 1
             n += 1
         elif typ == 0x3:
             bx = w & 0x7FF
@@ -126,7 +146,8 @@ def decode_evt3(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
                     x[n] = bx + b
                     y[n] = cy
                     p[n] = vp
-                    where[n] = i
+                    if track:
+                        where[n] = i - 1
                     n += 1
             bx += nb
         elif typ == 0x6:
@@ -149,9 +170,10 @@ def decode_evt3(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
             pass
         else:
             if bad < 0:
-                bad = i
+                bad = i - 1
             nbad += 1
             if strict:
+                i -= 1
                 break
     state[0] = high
     state[1] = low
@@ -160,7 +182,26 @@ def decode_evt3(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
     state[4] = cy
     state[5] = bx
     state[6] = vp
-    return n, nt, bad, nbad
+    return n, nt, bad, nbad, i
+
+
+# --- checks shared by the decoders ------------------------------------------------
+@njit(cache=True, nogil=True)
+def check_events(t, x, y, lo, hi, offset, prev, w, h):  # pragma: no cover - numba
+    """Index of the first event in ``[lo, hi)`` whose time (plus ``offset``)
+    is below the running maximum (starting at ``prev``) or whose ``x >= w``
+    or ``y >= h``; -1 when all are good, and then ``offset`` is added to
+    ``t[lo:hi]`` in place (on failure nothing is changed)."""
+    run = prev
+    for i in range(lo, hi):
+        v = t[i] + offset
+        if v < run or x[i] >= w or y[i] >= h:
+            return i
+        run = v
+    if offset != 0:
+        for i in range(lo, hi):
+            t[i] += offset
+    return -1
 
 
 # --- Prophesee DAT (EventCD / Event2d: 32-bit time, 14-bit x, 14-bit y, 4-bit p) -----

@@ -239,11 +239,33 @@ class Aedat4Source(FileSource):
             return
         pos = start
         f.seek(pos)
-        buf, base = b"", pos  # file offset of buf[0]
+        buf = bytearray(max(self.chunk_bytes, 64))  # reused: a payload is consumed before the next refill
+        base = have = 0  # buf[:have] holds the file from offset base
+
+        def refill(need: int) -> None:
+            """Make buf hold [pos, pos + need) when the file has it."""
+            nonlocal buf, base, have
+            keep = max(0, have - (pos - base))
+            if need > len(buf):
+                grown = bytearray(need)
+                grown[:keep] = buf[have - keep:have]
+                buf = grown
+            elif keep:
+                buf[:keep] = buf[have - keep:have]
+            base, have = pos, keep
+            if keep == 0:
+                f.seek(pos)
+            view = memoryview(buf)
+            while have < len(buf):
+                got = f.readinto(view[have:])
+                if not got:
+                    break
+                have += got
+
         while pos < limit:
-            if pos + 8 - base > len(buf):
-                buf, base = buf[pos - base:] + f.read(max(self.chunk_bytes, 8)), pos
-            if len(buf) - (pos - base) < 8:
+            if pos + 8 > base + have:
+                refill(8)
+            if base + have - pos < 8:
                 if not self.skip_bad:
                     self._fail("file ends inside a packet header (truncated)", pos)
                 self._note_skip(pos, limit - 1, 1)
@@ -257,14 +279,11 @@ class Aedat4Source(FileSource):
                 return
             end = pos + 8 + size
             if want is not None and sid not in want:  # skipped unread
-                if end - base > len(buf):
-                    buf, base = b"", end
-                    f.seek(end)
                 pos = end
                 continue
-            if end - base > len(buf):
-                buf, base = buf[pos - base:] + f.read(max(self.chunk_bytes, end - pos)), pos
-                if end - base > len(buf):
+            if end > base + have:
+                refill(end - pos)
+                if end > base + have:
                     self._fail("file ends inside a packet (truncated)", pos)
             yield pos, sid, memoryview(buf)[pos - base + 8:end - base]
             pos = end

@@ -75,7 +75,8 @@ def decompress(payload: bytes | memoryview, compression: int | str) -> bytes:
         if c in (1, 2):
             import lz4.frame
 
-            return lz4.frame.decompress(payload)
+            out = _lz4_simple_frame(payload)
+            return out if out is not None else lz4.frame.decompress(payload)
         import zstandard
 
         return zstandard.ZstdDecompressor().decompress(payload, max_output_size=1 << 30)
@@ -83,6 +84,40 @@ def decompress(payload: bytes | memoryview, compression: int | str) -> bytes:
         raise ImportError(f"AEDAT4 compression needs {e.name}: pip install 'tectum[aedat4]'") from None
     except Exception as e:  # lz4/zstd raise their own types
         raise ValueError(f"corrupt compressed packet: {e}") from None
+
+
+#: LZ4 frame block maximum sizes by the BD byte's bits 4-6.
+_LZ4_BLOCK_MAX = {4: 1 << 16, 5: 1 << 18, 6: 1 << 20, 7: 1 << 22}
+
+
+def _lz4_simple_frame(payload: bytes | memoryview) -> bytes | None:
+    """Decompress an LZ4 frame holding one block, without checksums or
+    dictionary (what DV writes), with ``lz4.block``: the frame decoder, not
+    knowing the output size, grows its buffer and runs at half the speed.
+    None for any other frame (the caller uses ``lz4.frame``, which also
+    reports errors)."""
+    import lz4.block
+
+    if len(payload) < 11 or bytes(payload[:4]) != b"\x04\x22\x4d\x18":
+        return None
+    flg, bd = payload[4], payload[5]
+    if flg & 0xC0 != 0x40 or flg & 0x17 or bd & 0x8F or (bd >> 4) & 7 not in _LZ4_BLOCK_MAX:
+        return None  # other version, block/content checksums, dictionary id or reserved bits
+    i = 7 + (8 if flg & 0x08 else 0)
+    if i + 8 > len(payload):
+        return None
+    size = int.from_bytes(payload[i:i + 4], "little")
+    raw, size = size >> 31, size & 0x7FFFFFFF
+    j = i + 4 + size
+    if size == 0 or j + 4 != len(payload) or bytes(payload[j:j + 4]) != b"\0\0\0\0":
+        return None  # not exactly one block then the end mark
+    block = payload[i + 4:j]
+    if raw:
+        return bytes(block)
+    try:
+        return lz4.block.decompress(block, uncompressed_size=_LZ4_BLOCK_MAX[(bd >> 4) & 7])
+    except Exception:  # corrupt: let the frame decoder say why
+        return None
 
 
 def compress(buf: bytes, compression: int | str) -> bytes:

@@ -77,7 +77,11 @@ class RawSource(FileSource):
         self.header = h
         return h, start, sensor_from_header(h)
 
+    def _kernel(self) -> Any:
+        return K.decode_evt2 if self.evt == "evt2" else K.decode_evt3
+
     def _decode(self, words: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, ...]:
+        """All events of ``words`` in fresh arrays (slow path: extent scans)."""
         n = words.shape[0] * self.fanout
         t = np.empty(n, np.int64)
         x = np.empty(n, np.uint16)
@@ -85,25 +89,29 @@ class RawSource(FileSource):
         p = np.empty(n, np.int8)
         where = np.empty(n, np.int64)
         trig = np.empty((words.shape[0], 3), np.int64)
-        kernel = K.decode_evt2 if self.evt == "evt2" else K.decode_evt3
-        ne, nt, bad, nbad = kernel(words, state, not self.skip_bad, t, x, y, p, where, trig)
+        ne, nt, bad, nbad, _ = self._kernel()(words, state, not self.skip_bad, t, x, y, p, where, trig)
         return t[:ne], x[:ne], y[:ne], p[:ne], where[:ne], int(bad), int(nbad), trig[:nt]
 
     def _words(self, f: Any, start: int) -> Iterator[tuple[int, np.ndarray]]:
+        """(file offset, words) per chunk; the words live in one buffer,
+        overwritten by the next chunk."""
         size = np.dtype(self.word).itemsize
         step = max(size, self.chunk_bytes - self.chunk_bytes % size)
+        buf = bytearray(step)
+        view = memoryview(buf)
+        dtype = np.dtype(self.word).newbyteorder("<")
         pos = start
         while True:
-            buf = f.read(step)
-            if not buf:
+            got = f.readinto(view)
+            if not got:
                 return
-            k = len(buf) - len(buf) % size
-            if k < len(buf):
+            k = got - got % size
+            if k < got:
                 if not self.skip_bad:
                     self._fail(f"file ends inside a {size}-byte word (truncated)", pos + k)
-                self._note_skip(pos + k, pos + len(buf) - 1, 1)
-            yield pos, np.frombuffer(buf, dtype="<" + np.dtype(self.word).str[1:], count=k // size)
-            pos += len(buf)
+                self._note_skip(pos + k, pos + got - 1, 1)
+            yield pos, np.frombuffer(buf, dtype=dtype, count=k // size)
+            pos += got
 
     def _packets(self) -> Iterator[Packet]:
         f = self._open()
@@ -127,29 +135,51 @@ class RawSource(FileSource):
 
     def _events(self, f: Any, start: int, sensor: tuple[int, int]) -> Iterator[Packet]:
         state = np.zeros(self.state_size, np.int64)
-        asm = EventAssembler(self, sensor, offset=self.t0_offset if self.apply_t0 else 0)
+        off = self.t0_offset if self.apply_t0 else 0
+        asm = EventAssembler(self, sensor, offset=off)
         size = np.dtype(self.word).itemsize
         self.triggers = 0
         tiler = SampleTiler(self)
-        off = self.t0_offset if self.apply_t0 else 0
+        kernel = self._kernel()
+        strict = not self.skip_bad
+        no_where = np.empty(0, np.int64)
+        trig = np.empty((0, 3), np.int64)
+        cap = max(1 << 12, self.chunk_bytes // size)  # events decoded per call
         for pos, words in self._words(f, start):
-            t, x, y, p, where, bad, nbad, trig = self._decode(words, state)
-            self.triggers += trig.shape[0]
-            if bad >= 0:
-                if not self.skip_bad:
-                    self._fail(f"invalid {self.evt.upper()} word 0x{int(words[bad]):0{2 * size}x}",
-                               pos + bad * size)
-                self._note_skip(pos + bad * size, pos + bad * size + size - 1, nbad)
-            yield from asm.push(t, x, y, p, pos, pos + where * size)
-            if trig.shape[0]:
-                tp = tiler.push(TriggerPacket, "triggers", trig[:, 0] + off, pos, channel=trig[:, 1].astype(np.int16),
-                                value=trig[:, 2].astype(np.int8))
-                if tp is not None:
-                    yield tp
-            if self.t_end_us is not None and asm.last_t is not None and asm.last_t >= self.t_end_us:
+            if trig.shape[0] < words.shape[0]:
+                trig = np.empty((words.shape[0], 3), np.int64)  # untouched rows cost nothing
+            i = 0
+            while i < words.shape[0] and not asm.past_end():
+                before = state.copy()
+                t, x, y, p = asm.reserve(cap)
+                ne, nt, bad, nbad, used = kernel(words[i:], state, strict, t, x, y, p, no_where, trig)
+                self.triggers += nt
+                if bad >= 0:
+                    at = pos + (i + bad) * size
+                    if strict:
+                        self._fail(f"invalid {self.evt.upper()} word 0x{int(words[i + bad]):0{2 * size}x}", at)
+                    self._note_skip(at, at + size - 1, nbad)
+                yield from asm.commit(ne, pos, self._where_of(kernel, words[i:i + used], before, pos + i * size))
+                if nt:
+                    tp = tiler.push(TriggerPacket, "triggers", trig[:nt, 0] + off, pos,
+                                    channel=trig[:nt, 1].astype(np.int16), value=trig[:nt, 2].astype(np.int8))
+                    if tp is not None:
+                        yield tp
+                i += used
+            if asm.past_end():
                 break
         self.untimed_events = int(state[4] if self.evt == "evt2" else state[7])
         yield from asm.finish()
+
+    def _where_of(self, kernel: Any, words: np.ndarray, state: np.ndarray, at: int) -> Any:
+        """A function giving each event's byte offset, by decoding ``words``
+        again from ``state`` (called only when an event is bad)."""
+        def where() -> np.ndarray:
+            n = words.shape[0] * self.fanout
+            out = [np.empty(n, d) for d in (np.int64, np.uint16, np.uint16, np.int8, np.int64)]
+            ne, *_ = kernel(words, state.copy(), not self.skip_bad, *out, np.empty((words.shape[0], 3), np.int64))
+            return at + out[4][:ne] * np.dtype(self.word).itemsize
+        return where
 
 
 class Evt2Source(RawSource):
@@ -240,14 +270,18 @@ class DatSource(FileSource):
         return start + lo * 8
 
     def _chunks(self, f: Any, pos: int, end: int) -> Iterator[tuple[int, np.ndarray]]:
+        """(file offset, uint32 words) per chunk of whole records; the words
+        live in one buffer, overwritten by the next chunk."""
         step = max(8, self.chunk_bytes // 8 * 8)
+        buf = bytearray(step)
+        view = memoryview(buf)
         f.seek(pos)
         while pos < end:
-            buf = f.read(min(step, end - pos))
-            if not buf:
+            got = f.readinto(view[:min(step, end - pos)])
+            if not got:
                 return
-            yield pos, np.frombuffer(buf, "<u4")
-            pos += len(buf)
+            yield pos, np.frombuffer(buf, "<u4", count=got // 4)
+            pos += got
 
     def _decode(self, words: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, ...]:
         m = words.shape[0] // 2
@@ -269,19 +303,13 @@ class DatSource(FileSource):
         state = np.zeros(K.DAT_STATE, np.int64)
         asm = EventAssembler(self, sensor, offset=self.t0_offset if self.apply_t0 else 0)
         for at, words in self._chunks(f, pos, end):
-            t, x, y, p = self._decode(words, state)
-            yield from asm.push(t, x, y, p, at, at + 8 * np.arange(t.shape[0], dtype=np.int64)
-                                if self._needs_where(t, x, y, sensor) else None)
-            if self.t_end_us is not None and asm.last_t is not None and asm.last_t >= self.t_end_us:
+            m = words.shape[0] // 2
+            t, x, y, p = asm.reserve(m)
+            K.decode_dat(words, state, t, x, y, p)
+            yield from asm.commit(m, at, lambda at=at, m=m: at + 8 * np.arange(m, dtype=np.int64))
+            if asm.past_end():
                 break
         yield from asm.finish()
-
-    @staticmethod
-    def _needs_where(t: np.ndarray, x: np.ndarray, y: np.ndarray, sensor: tuple[int, int]) -> bool:
-        """Byte offsets per event are only built when something is wrong."""
-        if t.shape[0] == 0:
-            return False
-        return bool(np.any(t[1:] < t[:-1]) or x.max() >= sensor[0] or y.max() >= sensor[1])
 
 
 def check_raw_header(path: str) -> str:

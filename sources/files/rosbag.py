@@ -291,7 +291,7 @@ class _Decoder:
             t, x, y = np.empty(n, np.int64), np.empty(n, np.uint16), np.empty(n, np.uint16)
             p, where = np.empty(n, np.int8), np.empty(n, np.int64)
             trig = np.empty((words.shape[0], 3), np.int64)
-            ne, nt, bad, nbad = K.decode_evt3(words, self.evt3_state, not self.src.skip_bad, t, x, y, p, where, trig)
+            ne, nt, bad, nbad, _ = K.decode_evt3(words, self.evt3_state, not self.src.skip_bad, t, x, y, p, where, trig)
             if bad >= 0:
                 if not self.src.skip_bad:
                     raise ValueError(f"invalid EVT3 word 0x{int(words[bad]):04x} at byte {2 * bad}")

@@ -26,12 +26,13 @@ from numba import njit
 
 from tectum import ImuPacket, Kind, Packet, PosePacket, FramePacket
 
-from ._common import EventAssembler, FileSource
+from ._common import ColumnPool, EventAssembler, FileSource
 
 __all__ = ["TextSource", "parse_lines"]
 
 _UNIT_DIGITS = {"s": 6, "ms": 3, "us": 0, "ns": -3}
 _HOLD = 1 << 21  # events held in memory while inferring the sensor size
+_POOL = ColumnPool(max_sets=3, dtypes=(np.int64,) * 5)  # parser outputs: t, x, y, p, line offsets
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -210,7 +211,6 @@ class TextSource(FileSource):
         rest = b""
         first = True
         eof = False
-        scratch = [np.empty(0, np.int64)] * 4
         while True:
             data = b"" if eof else f.read(self.chunk_bytes)
             eof = eof or not data
@@ -228,10 +228,8 @@ class TextSource(FileSource):
                     buf = buf[nl + 1:]
             arr = np.frombuffer(buf, np.uint8)
             cap = len(buf) // 8 + 2  # a line has at least 8 bytes ("0 0 0 0\n"); untouched pages cost nothing
-            if scratch[0].shape[0] < cap:
-                scratch = [np.empty(cap, np.int64) for _ in range(4)]
-            x, y, p, where = (a[:cap] for a in scratch)  # reused: the caller copies what it keeps
-            t = np.empty(cap, np.int64)
+            # pooled: t may end in packets (the pool sees them), x, y, p and where are copied by the caller
+            t, x, y, p, where = (a[:cap] for a in _POOL.take(cap))
             n, used, bad = parse_lines(arr, order, digits, t, x, y, p, where)
             if bad >= 0:
                 end = buf.find(b"\n", bad)

@@ -46,7 +46,7 @@ def run(kernel, words, state_size, fan):
     n = len(words) * fan
     t, x, y = np.empty(n, np.int64), np.empty(n, np.uint16), np.empty(n, np.uint16)
     p, where, trig = np.empty(n, np.int8), np.empty(n, np.int64), np.empty((len(words), 3), np.int64)
-    k, _, _, _ = kernel(words, np.zeros(state_size, np.int64), False, t, x, y, p, where, trig)
+    k, _, _, _, _ = kernel(words, np.zeros(state_size, np.int64), False, t, x, y, p, where, trig)
     return list(zip(t[:k].tolist(), x[:k].tolist(), y[:k].tolist(), p[:k].tolist()))
 
 
@@ -107,9 +107,9 @@ def test_trigger_words_give_channel_and_value():
     w3 = np.array([(8 << 12) | 1, (6 << 12) | 3, (0xA << 12) | (5 << 8) | 1, (0xA << 12) | (2 << 8)], np.uint16)
     tr = np.empty((4, 3), np.int64)
     out = [np.empty(48, d) for d in (np.int64, np.uint16, np.uint16, np.int8, np.int64)]
-    _, nt, _, _ = K.decode_evt3(w3, np.zeros(K.EVT3_STATE, np.int64), True, *out, tr)
+    _, nt, _, _, _ = K.decode_evt3(w3, np.zeros(K.EVT3_STATE, np.int64), True, *out, tr)
     assert tr[:nt].tolist() == [[4099, 5, 1], [4099, 2, 0]]
     # EVT 2.0: TIME_HIGH 2, EXT_TRIGGER with 6-bit time 7, id 17, rising
     w2 = np.array([(8 << 28) | 2, (0xA << 28) | (7 << 22) | (17 << 8) | 1], np.uint32)
-    _, nt, _, _ = K.decode_evt2(w2, np.zeros(K.EVT2_STATE, np.int64), True, *out, tr)
+    _, nt, _, _, _ = K.decode_evt2(w2, np.zeros(K.EVT2_STATE, np.int64), True, *out, tr)
     assert tr[:nt].tolist() == [[(2 << 6) | 7, 17, 1]]

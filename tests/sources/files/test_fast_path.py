@@ -1,0 +1,159 @@
+"""The zero-copy decode path: pooled output columns are never overwritten
+while a packet (or view) still uses them, kernels resume where a full output
+stopped them, the event check matches a plain reference, and the LZ4 fast
+path gives what ``lz4.frame`` gives."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from tectum import EventPacket, FormatError, concat
+from tectum.sinks.files import SINKS
+from tectum.sinks.files._common import write_all
+from tectum.sources.files import _kernels as K
+from tectum.sources.files import open_file
+from tectum.sources.files._common import ColumnPool
+
+EXT = {"text": ".txt", "aedat4": ".aedat4", "evt2": ".raw", "evt3": ".evt3.raw", "dat": ".dat"}
+
+
+def _events(n: int = 3000, seed: int = 1) -> EventPacket:
+    rng = np.random.default_rng(seed)
+    t = 1000 + np.cumsum(rng.integers(0, 40, n))
+    t[100:112] = t[100]  # a run of equal times (one EVT3 vector)
+    return EventPacket.from_arrays(t, rng.integers(0, 64, n), rng.integers(0, 48, n), rng.choice([-1, 1], n),
+                                   sensor=(64, 48))
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory) -> dict[str, Path]:
+    d = tmp_path_factory.mktemp("fast")
+    out = {}
+    pkt = _events()
+    for cls in SINKS:
+        if cls.name in EXT:
+            out[cls.name] = d / ("f" + EXT[cls.name])
+            write_all(cls(str(out[cls.name])), list(pkt.batches(700)))
+    return out
+
+
+def test_pool_never_hands_out_columns_in_use() -> None:
+    pool = ColumnPool(max_sets=2)
+    a = pool.take(100)
+    view = a[0][10:20]  # what a packet holds
+    del a
+    b = pool.take(50)
+    assert b[0].base is None and b[0] is not view.base  # the view keeps its set busy
+    del b
+    c = pool.take(100)
+    c_id = id(c[0])  # an id, not a reference: a reference would keep the set busy
+    assert c[0] is not view.base and c[0].shape[0] == 100
+    assert id(pool.take(100)[0]) != c_id  # the caller still holds c
+    del c, view
+    again = pool.take(80)
+    assert id(again[0]) == c_id  # a freed set comes back
+    assert all(len(s) == 4 for s in pool._sets) and len(pool._sets) <= 2
+
+
+@pytest.mark.parametrize("fmt", list(EXT))
+def test_kept_packets_stay_intact_while_decoding_goes_on(fmt: str, files) -> None:
+    kw = {"sensor": "64x48"} if fmt == "text" else {}
+    ref = _events()
+    kept = [q for q in open_file(str(files[fmt]), chunk_bytes=256, **kw).packets() if isinstance(q, EventPacket)]
+    assert len(kept) > 5
+    ev = concat(kept)
+    for c in "txyp":
+        assert np.array_equal(getattr(ev, c), getattr(ref, c)), c
+    # dropping packets as they come lets the pool reuse columns: the copies agree too
+    copies = [(q.t.copy(), q.x.copy(), q.y.copy(), q.p.copy())
+              for q in open_file(str(files[fmt]), chunk_bytes=256, **kw).packets() if isinstance(q, EventPacket)]
+    assert np.array_equal(np.concatenate([c[0] for c in copies]), ref.t)
+    assert np.array_equal(np.concatenate([c[1] for c in copies]), ref.x)
+
+
+@pytest.mark.parametrize("fmt", ["evt2", "evt3", "dat"])
+def test_time_range_on_the_fast_path(fmt: str, files) -> None:
+    ref = _events()
+    lo, hi = int(ref.t[500]), int(ref.t[2500])
+    got = concat([q for q in open_file(str(files[fmt]), chunk_bytes=512, t_start_us=lo, t_end_us=hi).packets()
+                  if isinstance(q, EventPacket)])
+    want = ref.slice_time(lo, hi)
+    assert np.array_equal(got.t, want.t) and np.array_equal(got.x, want.x)
+
+
+def test_error_offset_from_a_later_chunk(tmp_path: Path, files) -> None:
+    data = bytearray(files["dat"].read_bytes())
+    rec = len(data) - 1000 * 8
+    data[rec + 4:rec + 8] = (63 | (47 << 14) | (1 << 28)).to_bytes(4, "little")  # in geometry
+    data[rec:rec + 4] = (0).to_bytes(4, "little")  # time goes back
+    f = tmp_path / "late.dat"
+    f.write_bytes(bytes(data))
+    with pytest.raises(FormatError, match="decreases") as e:
+        list(open_file(str(f), chunk_bytes=1024).packets())
+    assert e.value.offset == rec
+    src = open_file(str(f), chunk_bytes=1024, skip_bad=True)
+    assert len(concat([q for q in src.packets() if isinstance(q, EventPacket)])) == 2999
+    assert src.skipped_events == 1
+
+
+def test_evt3_kernel_resumes_when_the_output_is_full() -> None:
+    rng = np.random.default_rng(3)
+    words = [(8 << 12) | 1, (6 << 12) | 2]
+    for _ in range(300):
+        words += [int(rng.integers(0, 480)), (3 << 12) | int(rng.integers(0, 600)),
+                  (4 << 12) | int(rng.integers(0, 4096)), (5 << 12) | int(rng.integers(0, 256)),
+                  (2 << 12) | int(rng.integers(0, 4096)), (6 << 12) | int(rng.integers(0, 4096))]
+    w = np.array(words, np.uint16)
+
+    def decode(cap: int) -> list:
+        st_, out, i = np.zeros(K.EVT3_STATE, np.int64), [], 0
+        cols = [np.empty(cap, d) for d in (np.int64, np.uint16, np.uint16, np.int8, np.int64)]
+        while i < w.shape[0]:
+            n, _, bad, _, used = K.decode_evt3(w[i:], st_, True, *cols, np.empty((w.shape[0], 3), np.int64))
+            assert bad < 0 and (used > 0 or cap < 13)
+            out += list(zip(*(c[:n].tolist() for c in cols[:4]), (cols[4][:n] + i).tolist()))
+            i += used
+        return out
+
+    whole = decode(12 * w.shape[0])
+    assert len(whole) > 3000 and decode(13) == decode(40) == whole
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 50), st.integers(0, 70), st.integers(0, 50)), max_size=40),
+       st.integers(-5, 5), st.integers(-3, 30))
+def test_check_events_matches_reference(ev, offset, prev) -> None:
+    t = np.array([e[0] for e in ev], np.int64)
+    x = np.array([e[1] for e in ev], np.uint16)
+    y = np.array([e[2] for e in ev], np.uint16)
+    want, run = -1, prev
+    for i in range(len(ev)):
+        v = int(t[i]) + offset
+        if v < run or x[i] >= 64 or y[i] >= 48:
+            want = i
+            break
+        run = v
+    before = t.copy()
+    got = K.check_events(t, x, y, 0, len(ev), offset, prev, 64, 48)
+    assert got == want
+    assert np.array_equal(t, before + offset if want < 0 else before)
+
+
+def test_lz4_fast_path_equals_the_frame_decoder() -> None:
+    lz4f = pytest.importorskip("lz4.frame")
+    from tectum.sources.files import aedat4_codec as codec
+
+    data = np.random.default_rng(0).integers(0, 8, 50_000).astype(np.uint8).tobytes()
+    simple = lz4f.compress(data, content_checksum=False, block_size=lz4f.BLOCKSIZE_MAX64KB)
+    assert codec._lz4_simple_frame(simple) == data == codec.decompress(simple, "lz4")
+    checked = lz4f.compress(data, content_checksum=True)
+    assert codec._lz4_simple_frame(checked) is None and codec.decompress(checked, "lz4") == data
+    bad = bytearray(simple)
+    bad[-10] ^= 0xFF
+    bad[20] ^= 0xFF
+    with pytest.raises(ValueError):
+        codec.decompress(bytes(bad), "lz4")
