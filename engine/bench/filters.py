@@ -36,8 +36,9 @@ from tectum.plugins.filter.background_activity import background_activity_kernel
 from tectum.plugins.filter.stcf import stcf_kernel
 from tectum.plugins.repr import EventFrame, TimeSurface, color
 from tectum.sources.pattern import PatternSource
+from tectum.sources.simulate import load_scene, simulate
 
-__all__ = ["run", "labelled_stream", "roc_sweep"]
+__all__ = ["run", "labelled_stream", "sim_stream", "roc_sweep", "at_defaults", "dt_for_signal"]
 
 SENSOR = (346, 260)
 CHUNK_US = 10_000
@@ -46,6 +47,19 @@ BA_DTS = (100, 300, 1000, 2000, 4000, 6000, 10_000, 20_000, 50_000, 100_000)
 STCF_KS = (1, 2, 3, 4)
 NOISE_HZ = (0.1, 1.0, 2.0, 10.0)
 SPEEDS = (100.0, 400.0)
+# simulator accuracy: 346x260, preset ideal plus labelled shot noise at these rates (Hz/px)
+SIM_SENSOR = (346, 260)
+SIM_NOISE_HZ = (0.1, 0.5, 2.0, 10.0)
+SIM_WARMUP_US = 50_000  # events before this feed the filters but are not scored
+#: bench scene -> (built-in scene, background velocity px/s override, duration µs quick, full)
+SIM_SCENES: dict[str, tuple[str, tuple[float, float] | None, int, int]] = {
+    "shapes": ("shapes", None, 250_000, 500_000),
+    "translation_edges": ("translation_edges", None, 250_000, 500_000),
+    "texture_fast": ("moving_texture", None, 100_000, 200_000),
+    "texture_slow": ("moving_texture", (30.0, 12.0), 250_000, 500_000),
+    "low_texture": ("low_texture", None, 400_000, 800_000),
+}
+SIM_REFERENCE = ("shapes", 2.0)  # the condition of the speed-vs-AUC chart and the peers' ROC
 
 
 # -- inputs ----------------------------------------------------------------------
@@ -215,27 +229,77 @@ def speed(ev: EventPacket, quick: bool) -> list[dict[str, Any]]:
 
 
 # -- accuracy --------------------------------------------------------------------
-def roc_sweep(ev: EventPacket) -> dict[str, list[dict[str, float]]]:
-    """Signal kept / noise passed of BA (per dt) and STCF (per dt and k) on
-    a labelled packet (``noise`` column)."""
-    keep = np.empty(len(ev), np.bool_)
-    out: dict[str, list[dict[str, float]]] = {"background_activity": []}
-    for dt in BA_DTS:
-        background_activity_kernel(ev.t, ev.x, ev.y, padded_timestamps(ev.sensor), dt, keep)
-        tpr, fpr = denoise_rates(ev, keep)
-        out["background_activity"].append({"dt_us": dt, "signal_kept": tpr, "noise_passed": fpr})
-    for k in STCF_KS:
-        for pol in (False, True) if k == 2 else (False,):
-            name = f"stcf_k{k}" + ("_polarity" if pol else "")
-            out[name] = []
-            for dt in BA_DTS:
-                stcf_kernel(ev.t, ev.x, ev.y, ev.p, padded_timestamps(ev.sensor, 2 if pol else 1), dt, k, pol, keep)
-                tpr, fpr = denoise_rates(ev, keep)
-                out[name].append({"dt_us": dt, "k": k, "signal_kept": tpr, "noise_passed": fpr})
+def _sweep_names() -> list[tuple[str, int, bool]]:
+    """(curve name, k, polarity match) of every swept filter; BA is k = 1."""
+    out = [("background_activity", 1, False)]
+    for pol in (False, True):
+        out += [(f"stcf_k{k}" + ("_polarity" if pol else ""), k, pol) for k in STCF_KS]
     return out
 
 
-def peer_roc(ev: EventPacket, quick: bool) -> dict[str, list[dict[str, float]]]:
+def _keep(ev: EventPacket, name: str, k: int, pol: bool, dt: int, keep: np.ndarray) -> np.ndarray:
+    if name == "background_activity":
+        background_activity_kernel(ev.t, ev.x, ev.y, padded_timestamps(ev.sensor), dt, keep)
+    else:
+        stcf_kernel(ev.t, ev.x, ev.y, ev.p, padded_timestamps(ev.sensor, 2 if pol else 1), dt, k, pol, keep)
+    return keep
+
+
+def roc_sweep(ev: EventPacket, t_from: int | None = None) -> dict[str, list[dict[str, float]]]:
+    """Signal kept / noise passed of BA (per dt) and STCF (per dt, k = 1..4,
+    with and without polarity match) on a labelled packet (``noise``
+    column); events before ``t_from`` µs feed the filters but are not scored."""
+    keep = np.empty(len(ev), np.bool_)
+    out: dict[str, list[dict[str, float]]] = {}
+    for name, k, pol in _sweep_names():
+        out[name] = []
+        for dt in BA_DTS:
+            tpr, fpr = denoise_rates(ev, _keep(ev, name, k, pol, dt, keep), t_from=t_from)
+            out[name].append({"dt_us": dt, "k": k, "signal_kept": tpr, "noise_passed": fpr})
+    return out
+
+
+def at_defaults(ev: EventPacket, t_from: int | None = None) -> dict[str, dict[str, Any]]:
+    """Signal kept / noise passed of the BA and STCF operators as built with
+    their default parameters (run through ``process``, whatever the
+    defaults are today)."""
+    idx = ev.with_columns(index=np.arange(len(ev), dtype=np.int64))
+    out: dict[str, dict[str, Any]] = {}
+    for name, op in (("background_activity", BackgroundActivity()), ("stcf", SpatioTemporalCorrelation())):
+        keep = np.zeros(len(ev), np.bool_)
+        for q in [*op.process(idx), *op.finish()]:
+            keep[q.columns["index"]] = True
+        tpr, fpr = denoise_rates(ev, keep, t_from=t_from)
+        params = {"dt_us": op.dt_us, **({"k": op.k, "polarity": op.polarity} if name == "stcf" else {})}
+        out[name] = {**params, "signal_kept": tpr, "noise_passed": fpr}
+    return out
+
+
+def dt_for_signal(ev: EventPacket, target: float = 0.9, *, k: int = 1, polarity: bool = False,
+                  t_from: int | None = None, dt_max: int = 1_000_000) -> dict[str, float]:
+    """The shortest dt (µs, to 2 %) at which a k-neighbour filter (k = 1 is
+    BA) keeps ``target`` of the signal, and the noise it then passes
+    (signal kept grows with dt). NaN when even ``dt_max`` falls short."""
+    name = "background_activity" if k == 1 and not polarity else "stcf"
+    keep = np.empty(len(ev), np.bool_)
+
+    def rates(dt: int) -> tuple[float, float]:
+        return denoise_rates(ev, _keep(ev, name, k, polarity, dt, keep), t_from=t_from)
+
+    if not rates(dt_max)[0] >= target:
+        return {"dt_us": float("nan"), "signal_kept": float("nan"), "noise_passed": float("nan")}
+    lo, hi = 10, dt_max
+    while hi > lo * 1.02 + 1:
+        mid = int((lo * hi) ** 0.5)
+        if rates(mid)[0] >= target:
+            hi = mid
+        else:
+            lo = mid
+    tpr, fpr = rates(hi)
+    return {"dt_us": float(hi), "signal_kept": tpr, "noise_passed": fpr}
+
+
+def peer_roc(ev: EventPacket, quick: bool, t_from: int | None = None) -> dict[str, list[dict[str, float]]]:
     """The same sweep for the peers' BA filters (decisions matched on t, x, y)."""
     out: dict[str, list[dict[str, float]]] = {}
     dv = peer("dv_processing")
@@ -246,16 +310,17 @@ def peer_roc(ev: EventPacket, quick: bool) -> dict[str, list[dict[str, float]]]:
             f = dv.noise.BackgroundActivityNoiseFilter(ev.sensor, backgroundActivityDuration=datetime.timedelta(microseconds=dt))
             f.accept(store)
             a = f.generateEvents().numpy()
-            tpr, fpr = denoise_rates(ev, _kept_mask(ev, a["timestamp"], a["x"], a["y"]))
+            tpr, fpr = denoise_rates(ev, _kept_mask(ev, a["timestamp"], a["x"], a["y"]), t_from=t_from)
             out["dv-processing BA"].append({"dt_us": dt, "signal_kept": tpr, "noise_passed": fpr})
     tonic = peer("tonic.functional")
-    if tonic is not None:
-        small = ev.slice_time(None, ev.t_start + (50_000 if quick else 100_000))
+    if tonic is not None:  # pure Python: a prefix only
+        t0 = ev.t_start if t_from is None else t_from
+        small = ev.slice_time(None, t0 + (50_000 if quick else 100_000))
         arr = _structured(small, np.dtype([("x", "<i2"), ("y", "<i2"), ("t", "<i8"), ("p", "<i1")]))
         out["tonic denoise"] = []
         for dt in BA_DTS[::2]:
             a = tonic.denoise_numpy(arr, filter_time=dt)
-            tpr, fpr = denoise_rates(small, _kept_mask(small, a["t"], a["x"], a["y"]))  # type: ignore[arg-type]
+            tpr, fpr = denoise_rates(small, _kept_mask(small, a["t"], a["x"], a["y"]), t_from=t_from)  # type: ignore[arg-type]
             out["tonic denoise"].append({"dt_us": dt, "signal_kept": tpr, "noise_passed": fpr})
     return out
 
@@ -264,39 +329,114 @@ def _auc(points: list[dict[str, float]]) -> float:
     return roc_auc([(p["signal_kept"], p["noise_passed"]) for p in points])
 
 
-def accuracy(quick: bool) -> dict[str, Any]:
-    """ROC sweeps and AUCs over noise rates and scene speeds (128x96 sensor)."""
+def sim_scene(name: str, sensor: tuple[int, int] = SIM_SENSOR) -> dict[str, Any]:
+    """The scene dict of a bench scene (``SIM_SCENES``)."""
+    base, velocity, _, _ = SIM_SCENES[name]
+    d = load_scene(base, sensor)
+    if velocity is not None:
+        d["background"] = {**d["background"], "velocity": list(velocity)}
+    d["name"] = name
+    return d
+
+
+def sim_stream(name: str, noise_hz: float, duration_us: int, *, sensor: tuple[int, int] = SIM_SENSOR,
+               seed: int = 1) -> tuple[EventPacket, float]:
+    """A bench scene simulated (preset ``ideal``: perfect pixels) with
+    ``noise_hz`` Hz/px labelled shot noise; returns the events (columns
+    ``noise``) and the median true speed (px/s) of their signal events."""
+    ev, _ = simulate(sim_scene(name, sensor), duration_us, seed=seed, shot_noise_hz=noise_hz)
+    sig = ev.columns["noise"] == 0
+    spd = float(np.median(np.hypot(ev.columns["vx"][sig], ev.columns["vy"][sig]))) if sig.any() else float("nan")
+    return ev.without_columns(*[c for c in ev.columns if c != "noise"]), spd
+
+
+def sim_accuracy(quick: bool) -> dict[str, Any]:
+    """ROC sweeps, AUCs, the defaults' operating points and the BA dt that
+    keeps 90 % of signal, over simulator scenes x shot-noise rates."""
+    res: dict[str, Any] = {"sensor": SIM_SENSOR, "warmup_us": SIM_WARMUP_US, "preset": "ideal + shot noise",
+                           "conditions": []}
+    for name, (_, _, d_quick, d_full) in SIM_SCENES.items():
+        dur = d_quick if quick else d_full
+        for noise in SIM_NOISE_HZ:
+            ev, spd = sim_stream(name, noise, dur, seed=1 + int(noise * 10))
+            t_from = ev.t_start + SIM_WARMUP_US
+            scored = ev.t >= t_from
+            sweeps = roc_sweep(ev, t_from)
+            if name == SIM_REFERENCE[0] and noise == SIM_REFERENCE[1]:
+                sweeps.update(peer_roc(ev, quick, t_from))
+            res["conditions"].append({
+                "scene": name, "noise_hz": noise, "duration_us": dur, "signal_speed_px_s": spd,
+                "events": int(scored.sum()), "noise_fraction": float(ev.columns["noise"][scored].astype(bool).mean()),
+                "sweeps": sweeps, "auc": {k: _auc(v) for k, v in sweeps.items()},
+                "defaults": at_defaults(ev, t_from),
+                "ba_dt_for_90pct_signal": dt_for_signal(ev, 0.9, t_from=t_from),
+                "stcf_k2_dt_for_90pct_signal": dt_for_signal(ev, 0.9, k=2, t_from=t_from),
+            })
+            c = res["conditions"][-1]
+            print(f"  sim {name:18s} {noise:5.1f} Hz/px  {c['events']:9d} ev  noise {c['noise_fraction']:.1%}  "
+                  f"AUC BA {c['auc']['background_activity']:.3f}", flush=True)
+    return res
+
+
+def pattern_accuracy(quick: bool) -> dict[str, Any]:
+    """ROC sweeps and AUCs on the ``pattern:`` bars (128x96 sensor) over
+    noise rates and bar speeds: the earlier, simpler labelled input."""
     sensor, dur = (128, 96), 150_000 if quick else 300_000
     res: dict[str, Any] = {"sensor": sensor, "duration_us": dur, "conditions": []}
     for noise in NOISE_HZ:
         for spd in SPEEDS:
             ev = labelled_stream(sensor=sensor, duration_us=dur, noise_hz=noise, speed=spd, seed=int(noise * 10))
             sweeps = roc_sweep(ev)
-            if noise == 2.0:
-                sweeps.update(peer_roc(ev, quick))
             res["conditions"].append({
                 "noise_hz": noise, "speed_px_s": spd, "events": len(ev),
                 "noise_fraction": float(ev.columns["noise"].mean()),
                 "sweeps": sweeps, "auc": {k: _auc(v) for k, v in sweeps.items()},
+                "defaults": at_defaults(ev),
             })
     return res
 
 
+def auc_rows(acc: dict[str, Any], keys: tuple[str, ...]) -> list[dict[str, Any]]:
+    """One row per condition: its keys, then the AUC of every curve."""
+    return [{**{k: c[k] for k in keys}, **{n.replace("_polarity", "p").replace("background_activity", "BA"): a
+                                            for n, a in c["auc"].items()}} for c in acc["conditions"]]
+
+
+def default_rows(acc: dict[str, Any], keys: tuple[str, ...]) -> list[dict[str, Any]]:
+    """One row per condition: signal kept / noise passed at the defaults,
+    and (simulator) the BA and STCF dt that keep 90 % of the signal."""
+    rows = []
+    for c in acc["conditions"]:
+        ba, st = c["defaults"]["background_activity"], c["defaults"]["stcf"]
+        r = {**{k: c[k] for k in keys}, "BA_sig": ba["signal_kept"], "BA_noise": ba["noise_passed"],
+             "BA_ok": bool(ba["signal_kept"] > 0.9), "STCF_sig": st["signal_kept"], "STCF_noise": st["noise_passed"]}
+        if "ba_dt_for_90pct_signal" in c:
+            b, s2 = c["ba_dt_for_90pct_signal"], c["stcf_k2_dt_for_90pct_signal"]
+            r.update({"BA_dt90": b["dt_us"], "BA_noise@dt90": b["noise_passed"],
+                      "STCF_dt90": s2["dt_us"], "STCF_noise@dt90": s2["noise_passed"]})
+        rows.append(r)
+    return rows
+
+
 def setting_speeds(ev: EventPacket, quick: bool) -> list[dict[str, Any]]:
-    """Mev/s of every swept setting (BA dt, STCF dt and k), and dv's BA."""
+    """Mev/s of every swept setting (BA dt; STCF dt, k, polarity), and dv's BA."""
     pieces = chunks(ev)
     rows = []
-    for dt in BA_DTS:
-        r = throughput(_feed_all(lambda: BackgroundActivity(dt_us=dt), pieces), len(ev), repeat=3)
-        rows.append({"filter": "background_activity", "dt_us": dt, "mev_s": r["mev_s"]})
-        for k in STCF_KS:
-            r = throughput(_feed_all(lambda: SpatioTemporalCorrelation(dt_us=dt, k=k), pieces), len(ev), repeat=3)
-            rows.append({"filter": f"stcf_k{k}", "dt_us": dt, "mev_s": r["mev_s"]})
+    for name, k, pol in _sweep_names():
+        for dt in BA_DTS:
+            if name == "background_activity":
+                def make(dt: int = dt) -> Any:
+                    return BackgroundActivity(dt_us=dt)
+            else:
+                def make(dt: int = dt, k: int = k, pol: bool = pol) -> Any:
+                    return SpatioTemporalCorrelation(dt_us=dt, k=k, polarity=pol)
+            r = throughput(_feed_all(make, pieces), len(ev), repeat=2 if quick else 3)
+            rows.append({"filter": name, "dt_us": dt, "mev_s": r["mev_s"]})
     dv = peer("dv_processing")
     if dv is not None:
         stores = _dv_stores(dv, pieces)
         for dt in BA_DTS:
-            def fn() -> None:
+            def fn(dt: int = dt) -> None:
                 f = dv.noise.BackgroundActivityNoiseFilter(ev.sensor, backgroundActivityDuration=datetime.timedelta(microseconds=dt))
                 for s in stores:
                     f.accept(s)
@@ -351,7 +491,20 @@ def _before_after(before: EventPacket, after: EventPacket, path: Path) -> Path:
 
 
 # -- charts ----------------------------------------------------------------------
+_STYLE = {"background_activity": ("k", "o"), "stcf_k1": ("C0", "v"), "stcf_k2": ("C1", "s"), "stcf_k3": ("C2", "^"),
+          "stcf_k4": ("C3", "D")}
+
+
+def _style(name: str) -> tuple[str, str, str]:
+    """(colour, marker, line style) of a curve: STCF with polarity dashed."""
+    colour, marker = _STYLE.get(name.replace("_polarity", ""), ("0.5", "x"))
+    return colour, marker, "--" if name.endswith("_polarity") else "-"
+
+
 def charts(out: Path, acc: dict[str, Any], settings: list[dict[str, Any]]) -> list[str]:
+    """``filters-speed-auc.png`` (each setting's speed and single-point AUC
+    on the reference simulator condition, peers marked) and
+    ``filters-roc.png`` (ROC curves, simulator scenes x noise rates)."""
     try:
         import matplotlib
 
@@ -360,49 +513,79 @@ def charts(out: Path, acc: dict[str, Any], settings: list[dict[str, Any]]) -> li
     except ImportError:
         return []
     files = []
-    cond = next(c for c in acc["conditions"] if c["noise_hz"] == 2.0 and c["speed_px_s"] == SPEEDS[0])
-    fig, ax = plt.subplots(figsize=(7, 5))
-    for name, marker in (("background_activity", "o"), ("stcf_k1", "v"), ("stcf_k2", "s"), ("stcf_k3", "^"),
-                         ("stcf_k4", "D"), ("dv-processing BA", "x")):
-        pts = {p["dt_us"]: p for p in cond["sweeps"].get(name, [])}
+    ref = next(c for c in acc["conditions"] if (c["scene"], c["noise_hz"]) == SIM_REFERENCE)
+    fig, ax = plt.subplots(figsize=(8, 5.5))
+    for name in [*(n for n, _, _ in _sweep_names()), "dv-processing BA"]:
+        pts = {p["dt_us"]: p for p in ref["sweeps"].get(name, [])}
         xs, ys = [], []
         for s in settings:
             if s["filter"] == name and s["dt_us"] in pts:
                 p = pts[s["dt_us"]]
                 xs.append(s["mev_s"])
                 ys.append(roc_auc([(p["signal_kept"], p["noise_passed"])]))
-        if xs:
-            ax.scatter(xs, ys, marker=marker, label=name + (" (peer)" if "dv" in name else ""), s=40 if "dv" in name else 25)
+        if not xs:
+            continue
+        if name.startswith("dv"):
+            ax.scatter(xs, ys, marker="x", c="m", s=60, label=name + " (peer, C++)")
+        else:
+            colour, marker, ls = _style(name)
+            ax.scatter(xs, ys, marker=marker, s=25, label=name, edgecolors=colour,
+                       facecolors="none" if ls == "--" else colour)
     ax.set_xscale("log")
     ax.set_xlabel("throughput (Mev/s, one core, 10 ms packets)")
-    ax.set_ylabel("AUC of the setting's ROC point")
-    ax.set_title(f"speed vs accuracy, one point per dt setting\n(noise 2 Hz/px, bars at {SPEEDS[0]:.0f} px/s)")
-    ax.legend(fontsize=8)
+    ax.set_ylabel("AUC of the setting's ROC point ((1 + kept - passed) / 2)")
+    ax.set_title(f"speed vs accuracy, one point per setting (dt {BA_DTS[0]}..{BA_DTS[-1]} µs)\n"
+                 f"simulator '{SIM_REFERENCE[0]}' {SIM_SENSOR[0]}x{SIM_SENSOR[1]}, {SIM_REFERENCE[1]} Hz/px shot noise"
+                 f" (hollow: polarity match)")
+    ax.legend(fontsize=7, ncol=2)
     fig.tight_layout()
     p = out / "filters-speed-auc.png"
     fig.savefig(p, dpi=110)
     plt.close(fig)
     files.append(str(p))
-    fig, axes = plt.subplots(1, len(NOISE_HZ), figsize=(4 * len(NOISE_HZ), 4), sharey=True)
-    for ax, noise in zip(axes, NOISE_HZ):
-        c = next(c for c in acc["conditions"] if c["noise_hz"] == noise and c["speed_px_s"] == SPEEDS[0])
-        for name, sw in c["sweeps"].items():
-            if name.endswith("_polarity"):
-                continue
-            f = [q["noise_passed"] for q in sw]
-            t = [q["signal_kept"] for q in sw]
-            style = "x--" if ("dv" in name or "tonic" in name) else ".-"
-            ax.plot(f, t, style, label=f"{name} (AUC {c['auc'][name]:.3f})")
-        ax.set_xscale("symlog", linthresh=1e-3)
-        ax.set_xlim(0, 1)
-        ax.set_title(f"noise {noise} Hz/px")
-        ax.set_xlabel("noise passed")
-        ax.legend(fontsize=6)
-    axes[0].set_ylabel("signal kept")
-    fig.suptitle(f"ROC over dt, bars at {SPEEDS[0]:.0f} px/s (pattern source, labelled noise)")
-    fig.tight_layout()
+
+    scenes = list(dict.fromkeys(c["scene"] for c in acc["conditions"]))
+    noises = list(dict.fromkeys(c["noise_hz"] for c in acc["conditions"]))
+    fig, axes = plt.subplots(len(scenes), len(noises), figsize=(3.6 * len(noises), 3.2 * len(scenes)),
+                             sharex=True, sharey=True, squeeze=False)
+    for i, scene in enumerate(scenes):
+        for j, noise in enumerate(noises):
+            ax = axes[i, j]
+            c = next(c for c in acc["conditions"] if c["scene"] == scene and c["noise_hz"] == noise)
+            for name, sw in c["sweeps"].items():
+                f = [q["noise_passed"] for q in sw]
+                t = [q["signal_kept"] for q in sw]
+                if name.startswith(("dv", "tonic")):
+                    ax.plot(f, t, "x:", c="m" if name.startswith("dv") else "c", ms=5, label=name + " (peer)")
+                else:
+                    colour, marker, ls = _style(name)
+                    ax.plot(f, t, ls, c=colour, marker=marker, ms=3, lw=1, label=name)
+            for key, m in (("background_activity", "*"), ("stcf", "P")):
+                d = c["defaults"][key]
+                ax.plot(d["noise_passed"], d["signal_kept"], m, c="r", ms=10, mfc="none",
+                        label=f"{key} default" if (i, j) == (0, 0) else None)
+            ax.axhline(0.9, c="0.8", lw=0.5)
+            ax.set_xscale("symlog", linthresh=1e-3)
+            ax.set_xlim(0, 1)
+            ax.set_ylim(0, 1.02)
+            ax.set_title(f"{scene} ({c['signal_speed_px_s']:.0f} px/s), {noise} Hz/px\n"
+                         f"AUC BA {c['auc']['background_activity']:.3f}, STCF k2 {c['auc']['stcf_k2']:.3f}", fontsize=8)
+            if i == len(scenes) - 1:
+                ax.set_xlabel("noise passed")
+            if j == 0:
+                ax.set_ylabel("signal kept")
+    handles, labels = [], []
+    for ax in axes.flat:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            if lab not in labels:
+                handles.append(h)
+                labels.append(lab)
+    fig.legend(handles, labels, loc="lower center", ncol=6, fontsize=8)
+    fig.suptitle(f"ROC over dt (simulator {SIM_SENSOR[0]}x{SIM_SENSOR[1]}, labelled shot noise; "
+                 f"dashed: polarity match; red: defaults; median signal speed in brackets)")
+    fig.tight_layout(rect=(0, 0.04, 1, 0.98))
     p = out / "filters-roc.png"
-    fig.savefig(p, dpi=110)
+    fig.savefig(p, dpi=90)
     plt.close(fig)
     files.append(str(p))
     return files
@@ -419,14 +602,37 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
     ev_plain = ev.without_columns("noise", "vx", "vy")
     rows = speed(ev_plain, quick)
     print(table(rows, ["operation", "impl", "mev_s", "mev_s_median", "events", "tectum_ratio", "error"]))
-    acc = accuracy(quick)
-    auc_rows = [{"noise_hz": c["noise_hz"], "speed": c["speed_px_s"], **c["auc"]} for c in acc["conditions"]]
-    print(table(auc_rows, list(auc_rows[0])))
-    settings = setting_speeds(ev_plain.slice_time(None, int(ev.t[min(len(ev) - 1, 1_000_000)])), quick)  # type: ignore[arg-type]
+
+    print(f"accuracy on the simulator ({SIM_SENSOR[0]}x{SIM_SENSOR[1]}, shot noise {SIM_NOISE_HZ} Hz/px, "
+          f"first {SIM_WARMUP_US // 1000} ms not scored):")
+    acc = sim_accuracy(quick)
+    sim_keys = ("scene", "signal_speed_px_s", "noise_hz")
+    sim_auc = auc_rows(acc, sim_keys)
+    print("AUC per filter (BA; STCF k = 1..4, 'p' = polarity match), simulator:")
+    print(table(sim_auc, list(sim_auc[0])))
+    sim_def = default_rows(acc, sim_keys)
+    d = acc["conditions"][0]["defaults"]
+    print(f"at the defaults (BA dt {d['background_activity']['dt_us']} µs; STCF dt {d['stcf']['dt_us']} µs, "
+          f"k {d['stcf']['k']}): signal kept / noise passed; dt90 = shortest dt keeping 90 % of signal:")
+    print(table(sim_def, list(sim_def[0])))
+
+    pat = pattern_accuracy(quick)
+    pat_keys = ("noise_hz", "speed_px_s")
+    pat_auc, pat_def = auc_rows(pat, pat_keys), default_rows(pat, pat_keys)
+    print("AUC per filter, pattern: source (bars, 128x96):")
+    print(table(pat_auc, list(pat_auc[0])))
+    print(table(pat_def, list(pat_def[0])))
+
+    ref_ev, _ = sim_stream(SIM_REFERENCE[0], SIM_REFERENCE[1], SIM_SCENES[SIM_REFERENCE[0]][2 if quick else 3],
+                           seed=1 + int(SIM_REFERENCE[1] * 10))
+    settings = setting_speeds(ref_ev.without_columns("noise"), quick)
     real = real_recordings(out)
     print("real recordings, fraction kept:", {k: v for k, v in real.items() if k != "picture"})
     files = charts(out, acc, settings)
     for f in files:
         print("wrote", f)
-    return {"speed": rows, "accuracy": acc, "setting_speeds": settings, "real": real, "charts": files,
+    return {"speed": rows, "accuracy": acc, "auc_table": sim_auc, "defaults_table": sim_def,
+            "accuracy_pattern": pat, "auc_table_pattern": pat_auc, "defaults_table_pattern": pat_def,
+            "setting_speeds": settings, "setting_speeds_stream": {"scene": SIM_REFERENCE[0], "events": len(ref_ev)},
+            "real": real, "charts": files,
             "stream": {"events": len(ev), "sensor": list(ev.sensor), "noise_hz": 2.0, "speed_px_s": 200.0}}
