@@ -16,9 +16,10 @@ jAER chip class named by the ``# AEChip:`` header line:
   jAER reads ``x = w - 1 - raw_x`` and a bottom-left ``y = raw_y``; tectum
   outputs ``x = w - 1 - raw_x``, ``y = h - 1 - raw_y`` (top-left origin). APS samples are
   skipped; IMU samples (7 words: accel x, y, z, temperature, gyro x, y, z;
-  16-bit signed values in bits 12-27) become an IMU stream, scaled as jAER
-  does (accel 1/8192 g per LSB, gyro 1/65.5 °/s per LSB, temperature
-  1/340 °C per LSB + 35 °C) and converted to m/s² and rad/s.
+  16-bit signed values in bits 12-27) become an IMU stream, scaled by the
+  full ranges the header's ``ImuGyroScale``/``ImuAccelScale`` entries state
+  (jAER's defaults ±500 °/s and ±4 g where absent: LSB = range / 32768;
+  temperature 1/340 °C per LSB + 35 °C) and converted to m/s² and rad/s.
 """
 
 from __future__ import annotations
@@ -64,6 +65,9 @@ class Aedat2Source(FileSource):
     def __init__(self, path: str, chip: str | None = None, **kw: Any) -> None:
         super().__init__(path, **kw)
         self.chip = chip.lower() if chip else None
+        # IMU full ranges: jAER's defaults, replaced by what the header states
+        self.gyro_full_scale_dps = 500
+        self.accel_full_scale_g = 4
 
     @classmethod
     def sniff(cls, head: bytes) -> bool:
@@ -87,6 +91,12 @@ class Aedat2Source(FileSource):
             m = re.match(rb"\s*AEChip:\s*(\S+)", line)
             if m and chip is None:
                 chip = m.group(1).decode("latin1").lower()
+            m = re.search(rb'ImuGyroScale" value="GyroFullScaleDegPerSec(\d+)"', line)
+            if m:
+                self.gyro_full_scale_dps = int(m.group(1))
+            m = re.search(rb'ImuAccelScale" value="ImuAccelScaleG(\d+)"', line)
+            if m:
+                self.accel_full_scale_g = int(m.group(1))
             pos += 1 + len(line)
         if first:
             self._fail("not an AEDAT 2.0 file (no #!AER-DAT2.0 line)", 0)
@@ -114,7 +124,7 @@ class Aedat2Source(FileSource):
         f.seek(start)
         state = np.zeros(K.AEDAT2_STATE, np.int64)
         asm = EventAssembler(self, sensor)
-        imu = _ImuAssembler()
+        imu = _ImuAssembler(self.gyro_full_scale_dps, self.accel_full_scale_g)
         step = max(8, self.chunk_bytes // 8 * 8)
         pos = start
         while pos < end:
@@ -135,9 +145,13 @@ class Aedat2Source(FileSource):
 
 
 class _ImuAssembler:
-    """Group DAVIS IMU words (7 per sample) into ImuPackets, across chunks."""
+    """Group DAVIS IMU words (7 per sample) into ImuPackets, across chunks.
+    Raw 16-bit values scale by the full ranges the header states (jAER's
+    ``ImuGyroScale``/``ImuAccelScale``): LSB = full scale / 32768."""
 
-    def __init__(self) -> None:
+    def __init__(self, gyro_full_scale_dps: int, accel_full_scale_g: int) -> None:
+        self.gyro_lsb = 32768.0 / gyro_full_scale_dps  # LSB per °/s
+        self.accel_lsb = 32768.0 / accel_full_scale_g  # LSB per g
         self.pending_t = np.empty(0, np.int64)
         self.pending_v = np.empty((0, 2), np.int64)
         self.next_start: int | None = None
@@ -159,8 +173,8 @@ class _ImuAssembler:
             return []
         val = v[: n * 7, 1].reshape(n, 7)[ok].astype(np.uint16).view(np.int16).astype(np.float64)
         ts = t[: n * 7].reshape(n, 7)[ok, 0]
-        accel = val[:, 0:3] / 8192.0 * _G
-        gyro = np.deg2rad(val[:, 4:7] / 65.5)
+        accel = val[:, 0:3] / self.accel_lsb * _G
+        gyro = np.deg2rad(val[:, 4:7] / self.gyro_lsb)
         temp = val[:, 3] / 340.0 + 35.0
         start = self.next_start if self.next_start is not None else int(ts[0])
         end = int(ts[-1]) + 1

@@ -134,3 +134,15 @@ def test_aedat4_triggers_are_trigger_packets(shared: Path) -> None:
     t = concat(trig)
     assert len(t) == 236 and set(np.unique(t.value)) <= {0, 1}
     assert np.all(np.diff(t.t) >= 0)
+
+
+def test_aedat2_imu_uses_the_full_scale_in_the_header(shared):
+    """The rotdisk header sets ±1000 °/s and ±8 g (not jAER's ±500/±4 defaults):
+    at rest along gravity the accelerometer must read about 1 g."""
+    from tectum.sources.files import open_file
+
+    src = open_file(str(shared / "aedat" / "davis240_imu_rotdisk.aedat"))
+    imu = [p for p in src.packets() if p.kind == "imu"]
+    assert (src.gyro_full_scale_dps, src.accel_full_scale_g) == (1000, 8)
+    accel = np.concatenate([p.accel for p in imu])
+    assert abs(np.median(np.linalg.norm(accel, axis=1)) - 9.81) < 0.5
