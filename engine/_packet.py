@@ -474,9 +474,16 @@ class SamplePacket(Packet):
             raise AttributeError(name) from None
 
     @classmethod
-    def empty(cls, t_start: int, t_end: int | None = None, **shapes: tuple[int, ...]) -> "SamplePacket":
-        """An empty packet (a tick) of this kind."""
-        data = {f: np.empty((0, *shapes.get(f, ())), dtype=np.float64) for f in cls.fields}
+    def empty(cls, t_start: int, t_end: int | None = None, *, like: "SamplePacket | None" = None,
+              **shapes: tuple[int, ...]) -> "SamplePacket":
+        """An empty packet (a tick) of this kind covering ``[t_start, t_end)``
+        µs. Its fields have no rows and the trailing shape and dtype of
+        ``like`` (another packet of the stream), else float64 with the shapes
+        given by name (``images=(260, 346)``)."""
+        if like is not None:
+            data = {f: a[:0] for f, a in like.data.items()}
+        else:
+            data = {f: np.empty((0, *shapes.get(f, ())), dtype=np.float64) for f in cls.fields}
         return cls(np.empty(0, np.int64), t_start=t_start, t_end=t_start if t_end is None else t_end, **data)
 
     def _take_slice(self, i: int, j: int, t_start: int, t_end: int) -> "SamplePacket":

@@ -116,6 +116,8 @@ def test_sample_packets():
         ImuPacket([1], accel=np.zeros((1, 3)))
     with pytest.raises(PacketError, match="timestamps decrease"):
         ImuPacket([2, 1], accel=np.zeros((2, 3)), gyro=np.zeros((2, 3)))
+    tick = ImuPacket.empty(5, 9, like=imu)
+    assert len(tick) == 0 and tick.gyro.shape == (0, 3) and tick.gyro.dtype == imu.gyro.dtype
     r = concat([ResultPacket([1], [{"a": 1}], t_end=5), ResultPacket([7], [[1, 2]], t_start=5, t_end=9)])
     assert r.items.tolist() == [{"a": 1}, [1, 2]]
 
