@@ -254,7 +254,7 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, edges: Mappi
         source = node.instantiate()
         pacer = _Pacer(batch) if batch.pace is not None and not source.live else None
         last_yield = time.perf_counter()
-        async for raw in _read(source, out):
+        async for raw in _read(source, out, st):
             for pkt in repair(raw) if repair is not None else (raw,):
                 pkt = guard(pkt)
                 if pacer is not None:
@@ -297,14 +297,23 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, edges: Mappi
                 st.counters.update({k: v for k, v in counts.items() if isinstance(v, int)})
 
 
-async def _read(source: Source, out: _Outbox) -> AsyncIterator[Packet]:
-    """The source's packets; what was delivered is flushed before each wait."""
+async def _read(source: Source, out: _Outbox, st: Any) -> AsyncIterator[Packet]:
+    """The source's packets; what was delivered is flushed before each wait.
+    Time spent inside a file source (decoding) counts as its busy time."""
     if source.is_async:
         async for pkt in source.apackets():
             yield pkt
             await out.flush()
         return
-    for pkt in source.packets():
+    it = iter(source.packets())
+    while True:
+        t0 = time.perf_counter_ns()
+        try:
+            pkt = next(it)
+        except StopIteration:
+            return
+        finally:
+            st.busy_ns += time.perf_counter_ns() - t0
         yield pkt
         await out.flush()
         await trio.lowlevel.checkpoint()

@@ -101,10 +101,11 @@ class Stats:
 
     def report(self) -> str:
         """A human-readable table."""
-        lines = [f"{'node':<24}{'pk in':>9}{'ev in':>12}{'ev out':>12}{'ms busy':>10}{'drops':>8}"]
+        w = max([24, *(len(n) + 2 for n in self.nodes)])
+        lines = [f"{'node':<{w}}{'pk in':>9}{'ev in':>12}{'ev out':>12}{'ms busy':>10}{'drops':>8}"]
         for nid, s in self.nodes.items():
             lines.append(
-                f"{nid:<24}{s.packets_in:>9}{s.events_in:>12}{s.events_out:>12}"
+                f"{nid:<{w}}{s.packets_in:>9}{s.events_in:>12}{s.events_out:>12}"
                 f"{s.busy_ns / 1e6:>10.1f}{s.drops:>8}"
             )
             for k, v in s.repairs.items():

@@ -5,13 +5,13 @@ from __future__ import annotations
 import argparse
 import json
 
-HELP = "list attached USB event cameras (DVS128, DAVIS240/346); --emulate to try an emulated one"
+HELP = "list attached USB event cameras (DVS128, DAVIS240/346, DVXplorer); --emulate to try an emulated one"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print the list as JSON")
     p.add_argument("--emulate", metavar="MODEL", action="append", default=[],
-                   help="add an emulated camera (dvs128, davis240, davis346) instead of using libusb")
+                   help="add an emulated camera (dvs128, davis240, davis346, dvxplorer, dvxplorer_lite) instead of using libusb")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -33,7 +33,7 @@ def main(args: argparse.Namespace) -> int:
             reason = f"cannot enumerate USB devices: {e}"
         else:
             if not found:
-                reason = "no iniVation camera (vendor 152a, products 8400/841a/841b) is attached"
+                reason = "no iniVation camera (vendor 152a, products 8400/841a/841b/8419) is attached"
     if args.json:
         print(json.dumps({"devices": [d.as_dict() for d in found], "reason": reason}, indent=1))
         return 0
