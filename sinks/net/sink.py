@@ -13,15 +13,18 @@ datagrams so a late receiver can join, and can pace itself to
 from __future__ import annotations
 
 import random
+from zlib import crc32
 import socket
 import time
 
 import numpy as np
 import trio
 
-from tectum import EventPacket, Packet, Sink
+from tectum import EventPacket, Kind, Packet, SamplePacket, Sink
 from tectum.sources.net._addr import parse
-from tectum.sources.net._wire import HEADER, chunks, encode_end, encode_events, encode_hello, row_bytes
+from tectum.sources.net._samples import FRAG, SAMPLES, fragments, sample_pieces, schema_of
+from tectum.sources.net._samples import encode_samples, row_bytes as sample_row_bytes
+from tectum.sources.net._wire import HEADER, _header, chunks, encode_end, encode_events, encode_hello, row_bytes
 
 __all__ = ["NetSink"]
 
@@ -37,6 +40,7 @@ class NetSink(Sink):
 
     name = "net"
     schemes = ("tcp", "udp")
+    consumes = (Kind.EVENTS, Kind.IMU, Kind.FRAMES, Kind.POSES, Kind.TRIGGERS)
 
     def __init__(self, url: str, connect_s: float = 5.0, datagram: int = 1400, frame_events: int = 65536,
                  rate_mev_s: float = 0.0, hello_every: int = 64) -> None:
@@ -47,7 +51,8 @@ class NetSink(Sink):
         self.rate, self.hello_every = rate_mev_s * 1e6, hello_every
         self.session = random.getrandbits(32)
         self.seq = 0
-        self.sent_events = self.sent_messages = self.reconnects = self.refused = 0
+        self.sent_events = self.sent_messages = self.reconnects = self.refused = self.sent_samples = 0
+        self.max_sample_bytes = 1 << 22  # TCP: samples per message up to 4 MiB
         self._sock: socket.socket | None = None
         self._stream: trio.SocketStream | None = None
         self._tsock: trio.socket.SocketType | None = None
@@ -124,7 +129,10 @@ class NetSink(Sink):
         self.sent_messages += 1
 
     def _hello_again(self) -> bytes:
-        return encode_hello(self.session, self._next_seq(), self._sensor, self._cols)
+        """A repeated HELLO for late joiners. It takes no sequence number of
+        its own (that would reorder it before the message about to go, whose
+        number is already taken): it carries the number before that one."""
+        return encode_hello(self.session, (self.seq - 2) & 0xFFFFFFFF, self._sensor, self._cols)
 
     async def _udp(self, msg: bytes) -> None:
         try:
@@ -133,6 +141,9 @@ class NetSink(Sink):
             self.refused += 1
 
     async def awrite(self, packet: Packet) -> None:
+        if isinstance(packet, SamplePacket):
+            await self._write_samples(packet)
+            return
         assert isinstance(packet, EventPacket)
         if self._hello is None:
             self._sensor = packet.sensor
@@ -143,8 +154,6 @@ class NetSink(Sink):
                 if a.ndim != 1 or a.dtype.kind not in "biuf" or a.dtype.itemsize > 8:
                     raise ValueError(f"column {k!r} ({a.dtype}, {a.ndim}-D) cannot go over the network")
             self._hello = encode_hello(self.session, self._next_seq(), self._sensor, self._cols)
-            from zlib import crc32
-
             self._schema = crc32(self._hello[HEADER:])
             await self._send(self._hello)
         if self.scheme == "udp":
@@ -161,11 +170,35 @@ class NetSink(Sink):
                     await trio.sleep(ahead)
         self._last_end = packet.t_end
 
+    async def _write_samples(self, packet: SamplePacket) -> None:
+        """IMU, frames, poses, triggers: self-describing SAMPLES messages;
+        over UDP as many samples as fit a datagram, and a message still too
+        big (a frame) in FRAG pieces."""
+        if not len(packet) and self.scheme == "udp":
+            return  # ticks do not travel over UDP
+        schema = schema_of(packet)
+        desc = len(packet.data) * 48 + 2  # upper bound of the description's size
+        budget = self.datagram if self.scheme == "udp" else self.max_sample_bytes
+        per = max(1, (budget - HEADER - desc) // sample_row_bytes(packet))
+        for piece, t0, t1 in sample_pieces(packet, per):
+            seq = self._next_seq()
+            t_base = int(piece.t[0]) if len(piece) else t0
+            msg = encode_samples(_header(SAMPLES, self.session, seq, schema, t0, t1, t_base, len(piece)), piece,
+                                 t_base)
+            if self.scheme == "udp" and len(msg) > self.datagram:
+                for i, count, part in fragments(msg, self.datagram - HEADER):
+                    await self._udp(_header(FRAG, self.session, seq, crc32(part), i, count, len(msg), len(part))
+                                    + part)
+                    self.sent_messages += 1
+            else:
+                await self._send(msg)
+            self.sent_samples += len(piece)
+
     def close(self) -> None:
         if self._sock is None:
             return
         try:
-            if self._hello is not None:
+            if self._hello is not None or self.sent_samples:
                 end = encode_end(self.session, self._next_seq(), self._schema, self._last_end or 0)
                 self._sock.settimeout(5.0)
                 if self.scheme == "tcp":

@@ -5,7 +5,9 @@ Every message starts with a 44-byte little-endian header::
     magic "TQ" | version u8 (1) | type u8 | session u32 | seq u32 | schema u32 |
     t_start i64 | t_end i64 | t_base i64 | n u32
 
-``type`` is HELLO (0), EVENTS (1) or END (2). ``session`` is random per
+``type`` is HELLO (0), EVENTS (1), END (2), SAMPLES (3: IMU, frames,
+poses, triggers) or FRAG (4: a piece of a longer message), the last two
+described in :mod:`._samples`. ``session`` is random per
 sender run, ``seq`` counts the sender's messages (so the receiver counts
 what was lost), ``schema`` is the CRC-32 of the HELLO body that describes
 the columns. EVENTS carries ``n`` events: ``t - t_base`` as u32, then x u16,
@@ -31,7 +33,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tectum import EventPacket
+from tectum import EventPacket, Packet
+
+from ._samples import FRAG, SAMPLES, Reassembly, decode_samples
 
 __all__ = ["HEADER", "HELLO", "EVENTS", "END", "Header", "encode_hello", "encode_events", "encode_end",
            "chunks", "Receiver", "MAX_COLUMNS", "row_bytes"]
@@ -144,11 +148,16 @@ class Receiver:
     late: int = 0
     sessions: int = 0
     rejected: dict[str, int] = field(default_factory=dict)
+    max_message: int = 1 << 23
     _held: EventPacket | None = None
     _prev_end: int | None = None
+    _kind_end: dict[type, int] = field(default_factory=dict)
+    _frag: Reassembly | None = None
+    samples: int = 0
 
     def counts(self) -> dict[str, object]:
-        return {"accepted": self.accepted, "events": self.events, "lost": self.lost, "late": self.late,
+        return {"accepted": self.accepted, "events": self.events, "samples": self.samples, "lost": self.lost,
+                "late": self.late, "fragments_incomplete": self._frag.incomplete if self._frag else 0,
                 "sessions": self.sessions, "rejected": dict(self.rejected),
                 "rejected_total": sum(self.rejected.values())}
 
@@ -156,7 +165,7 @@ class Receiver:
         self.rejected[why] = self.rejected.get(why, 0) + 1
         return []
 
-    def feed(self, msg: bytes | memoryview) -> list[EventPacket]:
+    def feed(self, msg: bytes | memoryview, inner: bool = False) -> list[Packet]:  # type: ignore[override]
         """One message (a datagram, or a TCP frame without its length)."""
         if len(msg) < HEADER:
             return self._reject("short")
@@ -165,10 +174,20 @@ class Receiver:
             return self._reject("magic")
         if ver != VERSION:
             return self._reject("version")
-        if typ not in (HELLO, EVENTS, END):
+        if typ not in (HELLO, EVENTS, END, SAMPLES, FRAG) or (inner and typ == FRAG):
             return self._reject("type")
         if typ == HELLO:
             return self._hello(msg, session, seq, schema)
+        if typ == FRAG:
+            return self._fragment(msg, session, seq, schema, t0, t1, tb, n)
+        if typ == SAMPLES:
+            return self._samples(msg, session, seq, schema, t0, t1, tb, n)
+        if typ == END and self.schema is None and schema == 0:  # a stream without events
+            if len(msg) != HEADER or not self._sequence(session, seq):
+                return self._reject("length") if len(msg) != HEADER else []
+            self.accepted += 1
+            self.ended, self.end_t = True, t1
+            return []
         if self.schema is None:
             return self._reject("no_hello")
         if schema != self.schema:
@@ -187,6 +206,39 @@ class Receiver:
         self.accepted += 1
         self.events += len(pkt)
         return self._release(pkt, t1)
+
+    def _fragment(self, msg: bytes | memoryview, session: int, seq: int, crc: int, index: int, count: int,
+                  total: int, n: int) -> list[Packet]:
+        piece = bytes(msg[HEADER:])
+        if len(piece) != n or zlib.crc32(piece) != crc:
+            return self._reject("fragment")
+        if self._frag is None:
+            self._frag = Reassembly(self.max_message)
+        got = self._frag.add(session, seq, index, count, total, piece)
+        if isinstance(got, str):
+            return self._reject(got)
+        return [] if got is None else self.feed(got, inner=True)
+
+    def _samples(self, msg: bytes | memoryview, session: int, seq: int, schema: int, t0: int, t1: int, tb: int,
+                 n: int) -> list[Packet]:
+        got = decode_samples(msg, schema, n, tb, self.max_events)
+        if isinstance(got, str):
+            return self._reject(got)
+        cls, t, data = got
+        prev = self._kind_end.get(cls)
+        if t1 < t0 or (prev is not None and t0 < prev) or (n and (tb < t0 or tb > (1 << 62) or int(t[-1]) >= t1
+                                                               or np.any(t[1:] < t[:-1]))):
+            return self._reject("time")
+        try:
+            pkt = cls(t, t_start=t0 if prev is None else prev, t_end=t1, **data)
+        except Exception:  # a required field missing, shapes that do not agree
+            return self._reject("bad_sample")
+        if not self._sequence(session, seq):
+            return []
+        self.accepted += 1
+        self.samples += n
+        self._kind_end[cls] = t1
+        return [pkt]
 
     def _sequence(self, session: int, seq: int) -> bool:
         if session != self.session:
@@ -211,8 +263,9 @@ class Receiver:
         if self.schema is not None:
             if schema != self.schema:
                 return self._reject("schema")
-            self._sequence(session, seq)
-            return []
+            if session != self.session:  # a new sender run: its numbering starts here
+                self._sequence(session, seq)
+            return []  # a repeat for late joiners: its number is not in the sequence
         try:
             w, h, k = struct.unpack_from("<HHB", body, 0)
             pos, cols = 5, []

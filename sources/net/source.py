@@ -1,5 +1,5 @@
 """``tcp://HOST:PORT`` and ``udp://HOST:PORT`` sources: receive the event
-stream a tectum network sink sends (framing in :mod:`._wire`).
+(and IMU, frame, pose, trigger) stream a tectum network sink sends (framing in :mod:`._wire`).
 
 TCP: listens, accepts the sender, and ends when the sender closes after its
 END message. If a connection drops without END the source waits up to
@@ -18,7 +18,7 @@ from collections.abc import AsyncIterator
 
 import trio
 
-from tectum import EventPacket, Source
+from tectum import Kind, Packet, Source
 
 from ._addr import parse
 from ._wire import Receiver
@@ -37,6 +37,7 @@ class NetSource(Source):
 
     name = "net"
     schemes = ("tcp", "udp")
+    produces = (Kind.EVENTS, Kind.IMU, Kind.FRAMES, Kind.POSES, Kind.TRIGGERS)
 
     def __init__(self, url: str, idle_s: float = 0.0, reconnect_s: float = 2.0, max_message: int = 1 << 23,
                  rcvbuf: int = 1 << 22) -> None:
@@ -44,7 +45,7 @@ class NetSource(Source):
         if idle_s < 0 or reconnect_s < 0 or not 1024 <= max_message <= 1 << 30:
             raise ValueError("idle_s, reconnect_s must be >= 0; max_message within 1 KiB .. 1 GiB")
         self.idle_s, self.reconnect_s, self.max_message, self.rcvbuf = idle_s, reconnect_s, max_message, rcvbuf
-        self.receiver = Receiver(max_events=max_message // 9 + 1)
+        self.receiver = Receiver(max_events=max_message // 9 + 1, max_message=max_message)
         self.ready = threading.Event()
         self.dropped_connections = 0
 
@@ -59,7 +60,7 @@ class NetSource(Source):
         out["dropped_connections"] = self.dropped_connections
         return out
 
-    async def apackets(self) -> AsyncIterator[EventPacket]:
+    async def apackets(self) -> AsyncIterator[Packet]:
         gen = self._tcp() if self.scheme == "tcp" else self._udp()
         async for pkt in gen:
             yield pkt
@@ -70,7 +71,7 @@ class NetSource(Source):
         return self.idle_s if self.idle_s > 0 else math.inf
 
     # -- UDP ----------------------------------------------------------------
-    async def _udp(self) -> AsyncIterator[EventPacket]:
+    async def _udp(self) -> AsyncIterator[Packet]:
         sock = trio.socket.socket(trio.socket.AF_INET, trio.socket.SOCK_DGRAM)
         try:
             sock.setsockopt(trio.socket.SOL_SOCKET, trio.socket.SO_RCVBUF, self.rcvbuf)
@@ -88,7 +89,7 @@ class NetSource(Source):
             sock.close()
 
     # -- TCP ----------------------------------------------------------------
-    async def _tcp(self) -> AsyncIterator[EventPacket]:
+    async def _tcp(self) -> AsyncIterator[Packet]:
         listeners = await trio.open_tcp_listeners(self.port, host=self.host)
         lst = listeners[0]
         self.port = lst.socket.getsockname()[1]
@@ -112,7 +113,7 @@ class NetSource(Source):
             for item in listeners:
                 await item.aclose()
 
-    async def _frames(self, stream: trio.SocketStream) -> AsyncIterator[EventPacket]:
+    async def _frames(self, stream: trio.SocketStream) -> AsyncIterator[Packet]:
         buf = bytearray()
         need = 4
         while True:

@@ -67,6 +67,31 @@ def _reset(state: np.ndarray) -> None:
 
 
 @njit(cache=True)
+def _imu_skip(state: np.ndarray, c: np.int64) -> None:
+    """After IMU byte ``c``: skip the counts of sensors not sent (type bits
+    4 accel, 1 temperature, 2 gyro)."""
+    typ = state[_IMU_TYPE]
+    if c == 5 and not (typ & 0x01):
+        state[_IMU_N] += 2 if (typ & 0x02) else 8
+    elif c == 7 and not (typ & 0x02):
+        state[_IMU_N] += 6
+
+
+@njit(cache=True)
+def _imu_type(state: np.ndarray, typ: np.int64) -> None:
+    """An IMU configuration word: which sensors follow, hence the first count."""
+    state[_IMU_TYPE] = typ
+    if typ & 0x04:
+        state[_IMU_N] = 0
+    elif typ & 0x01:
+        state[_IMU_N] = 6
+    elif typ & 0x02:
+        state[_IMU_N] = 8
+    else:
+        state[_IMU_N] = 14
+
+
+@njit(cache=True)
 def dvs128_kernel(buf: np.ndarray, state: np.ndarray, t: np.ndarray, x: np.ndarray, y: np.ndarray,
                   p: np.ndarray) -> int:
     """Decode whole 4-byte words of ``buf``; returns the number of events written."""
@@ -286,27 +311,14 @@ def davis_kernel(words: np.ndarray, start: int, state: np.ndarray, imu_cur: np.n
                         raw -= 0x10000
                     slot = (c - 1) // 2  # 0..6: ax ay az temp gx gy gz
                     imu_cur[slot] = raw
-                    typ = state[_IMU_TYPE]
-                    if c == 5 and not (typ & 0x01):
-                        state[_IMU_N] += 2 if (typ & 0x02) else 8
-                    elif c == 7 and not (typ & 0x02):
-                        state[_IMU_N] += 6
+                    _imu_skip(state, c)
                 state[_IMU_N] += 1
             elif mcode == 3:
                 if state[_IMU_ON] != 1:
                     continue
                 state[_ACC_SC] = (mdata >> 2) & 0x3
                 state[_GYR_SC] = mdata & 0x3
-                typ = (mdata >> 5) & 0x7
-                state[_IMU_TYPE] = typ
-                if typ & 0x04:
-                    state[_IMU_N] = 0
-                elif typ & 0x01:
-                    state[_IMU_N] = 6
-                elif typ & 0x02:
-                    state[_IMU_N] = 8
-                else:
-                    state[_IMU_N] = 14
+                _imu_type(state, (mdata >> 5) & 0x7)
             elif mcode == 1:  # APS ROI value, high byte
                 state[_A_ROITMP] = mdata << 8
             elif mcode == 2:  # low byte: start column, start row, end column, end row in turn

@@ -14,6 +14,8 @@ from tectum.errors import TectumError
 
 from . import _protocol as P
 from ._decode import DavisDecoder, Dvs128Decoder
+from ._dvx import DvxDecoder
+from ._dvx_config import DvxConfig
 
 __all__ = ["DeviceInfo", "Camera", "find_cameras", "default_backend", "DeviceDisconnected", "UsbUnavailable"]
 
@@ -101,6 +103,11 @@ class Camera:
         self.aps_size: tuple[int, int] | None = None
         self.aps_orientation = 0
         self.adc_clock_mhz = 0
+        self.logic_clock_mhz = 0.0  # actual clocks (nominal x deviation / 1000)
+        self.usb_clock_mhz = 0.0
+        self.has: dict[str, bool] = {}  # optional FPGA features the device reports
+        self.imu_flips = 0
+        self.dvx: DvxConfig | None = None
         self._claimed = False
 
     # -- set-up -------------------------------------------------------------
@@ -129,16 +136,61 @@ class Camera:
             if 0 < acols <= 4096 and 0 < arows <= 4096:
                 self.aps_size = (arows, acols) if self.aps_orientation & 4 else (acols, arows)
             self.adc_clock_mhz = self.config_get(P.MOD_SYSINFO, P.SYSINFO_ADC_CLOCK)
+            self._clocks_and_features()
+        elif self.model.protocol == "dvxplorer":
+            self._open_dvxplorer()
         else:
             self.chip = "DVS128"
+
+    def _clocks_and_features(self) -> None:
+        dev = self.config_get(P.MOD_SYSINFO, P.SYSINFO_CLOCK_DEVIATION) or 1000
+        self.logic_clock_mhz = self.config_get(P.MOD_SYSINFO, P.SYSINFO_LOGIC_CLOCK) * dev / 1000
+        self.usb_clock_mhz = self.config_get(P.MOD_SYSINFO, P.SYSINFO_USB_CLOCK) * dev / 1000
+        feats = {"pixel_filter": (P.MOD_DVS, P.DVS_HAS_PIXEL_FILTER),
+                 "ba_filter": (P.MOD_DVS, P.DVS_HAS_BA_FILTER), "roi_filter": (P.MOD_DVS, P.DVS_HAS_ROI_FILTER),
+                 "skip_filter": (P.MOD_DVS, P.DVS_HAS_SKIP_FILTER),
+                 "polarity_filter": (P.MOD_DVS, P.DVS_HAS_POLARITY_FILTER),
+                 "generator": (P.MOD_EXTINPUT, P.EXTINPUT_HAS_GENERATOR)}
+        if self.model.protocol == "dvxplorer":
+            feats = {"generator": feats["generator"]}
+        self.has = {k: bool(self.config_get(m, q)) for k, (m, q) in feats.items()}
+
+    def _open_dvxplorer(self) -> None:
+        """DVXplorer / DVXplorer Lite (FX3): read its identity, then
+        initialise the chip as libcaer does at open."""
+        if (self.dev.bcdDevice >> 8) == P.DVX_DEVICE_MIPI:
+            raise TectumError("DVXplorer Mini (MIPI CX3 board) is not supported: its 32-bit event protocol is "
+                              "a different one (libcaer's mipiCx3EventTranslator)")
+        self.logic_version = self.config_get(P.MOD_SYSINFO, P.SYSINFO_LOGIC_VERSION)
+        patch = self.config_get(P.MOD_SYSINFO, P.SYSINFO_LOGIC_PATCH)
+        if (self.logic_version, patch) < P.DVX_REQUIRED_LOGIC:
+            raise TectumError(f"DVXplorer logic {self.logic_version}.{patch} is too old: update the device's "
+                              f"firmware/logic to {P.DVX_REQUIRED_LOGIC[0]}.{P.DVX_REQUIRED_LOGIC[1]} or newer")
+        chip = self.config_get(P.MOD_SYSINFO, P.SYSINFO_CHIP_ID)
+        self.chip = {P.DVX_CHIP_ID: "DVXplorer", P.DVX_LITE_CHIP_ID: "DVXplorer Lite"}.get(chip, f"chip {chip}")
+        self._clocks_and_features()
+        cols = self.config_get(P.MOD_DVS, P.DVS_SIZE_COLUMNS)
+        rows = self.config_get(P.MOD_DVS, P.DVS_SIZE_ROWS)
+        orient = self.config_get(P.MOD_DVS, P.DVS_ORIENTATION)
+        self.invert_xy = bool(orient & 0x04)
+        if not (0 < cols <= 4096 and 0 < rows <= 4096):
+            raise TectumError(f"{self.model.name}: the device reports a sensor of {cols}x{rows}")
+        self.sensor = (rows, cols) if self.invert_xy else (cols, rows)
+        self.imu_flips = self.config_get(P.MOD_IMU, P.DVX_IMU_ORIENTATION) & 7
+        self.dvx = DvxConfig(self.config_set, self.config_get, self.sensor, chip, flip_x=bool(orient & 2),
+                             flip_y=bool(orient & 1), usb_clock_mhz=self.usb_clock_mhz,
+                             logic_clock_mhz=self.logic_clock_mhz)
+        self.dvx.init_chip()
 
     def info(self) -> DeviceInfo:
         return DeviceInfo(self.model.name, self.dev.idVendor, self.dev.idProduct, self.dev.bus, self.dev.address,
                           self.serial, self.dev.bcdDevice & 0xFF, self.chip, self.sensor, self.logic_version)
 
-    def decoder(self) -> Dvs128Decoder | DavisDecoder:
+    def decoder(self) -> Dvs128Decoder | DavisDecoder | DvxDecoder:
         if self.model.protocol == "dvs128":
             return Dvs128Decoder()
+        if self.model.protocol == "dvxplorer":
+            return DvxDecoder(self.sensor, self.invert_xy, imu_flips=self.imu_flips)
         return DavisDecoder(self.sensor, self.invert_xy, aps_size=self.aps_size or self.sensor,
                             aps_orientation=self.aps_orientation, davis240=self.chip.startswith("DAVIS240"))
 
@@ -154,25 +206,72 @@ class Camera:
         return int(struct.unpack(">I", bytes(got))[0])
 
     def send_defaults(self) -> None:
-        """Default biases and settings, as libcaer's defaults where they
-        matter here: the main DVS biases, drop-free USB transfers, the APS
-        (global shutter when the chip has one, full-array ROI, 4 ms exposure,
-        40 ms frame interval, both in ADC clock cycles) and the IMU (1 kHz,
-        ±4 g, ±500 °/s, low-pass filter 1)."""
+        """libcaer's default configuration. DAVIS: every bias of the chip
+        family (coarse/fine, VDAC, shifted source) and the chip's shift
+        register, the FPGA's DVS filters where the logic has them (pixel
+        filters parked outside the array, background-activity filter on
+        at 2 ms, refractory filter off at 250 µs, full-array ROI, skip and
+        polarity filters off), drop DVS data on USB stalls, the APS (global
+        shutter when the chip has one, full-array ROI, 4 ms exposure, 40 ms
+        frame interval, in ADC clock cycles), the IMU (1 kHz, ±4 g,
+        ±500 °/s, low-pass 1), the external-input detector (pulses, 10 µs
+        in logic clock cycles) and a 1 ms early-packet delay (in USB clock
+        cycles). DVXplorer: see :class:`DvxConfig`."""
         if self.model.protocol == "dvs128":
             payload = b"".join(v.to_bytes(3, "big") for v in P.DVS128_DEFAULT_BIASES)
             self.dev.ctrl_transfer(0x40, P.DVS128_REQ_BIASES, 0, 0, payload)
             return
+        if self.model.protocol == "dvxplorer":
+            assert self.dvx is not None
+            self.dvx.defaults(self.has.get("generator", False))
+            return
         family = "DAVIS240" if self.chip.startswith("DAVIS240") else "DAVIS346"
-        for param, value in P.DAVIS_DEFAULT_BIASES[family].items():
+        for param, value in P.DAVIS_FULL_BIASES[family].items():
             self.config_set(P.MOD_BIAS, param, value)
-        self.config_set(P.MOD_MUX, P.MUX_DROP_DVS_STALL, 0)
-        self.config_set(P.MOD_DVS, P.DVS_WAIT_ON_STALL, 1)
-        self.config_set(P.MOD_USB, P.USB_EARLY_PACKET_DELAY, 8)  # x 125 µs: 1 ms
+        for param, value in P.DAVIS_CHIP_DEFAULTS.items():
+            if family == "DAVIS240" and param == 144:  # ADC test: DAVIS346/640 only
+                continue
+            self.config_set(P.MOD_BIAS, param, value)
+        for param, value in self.davis_fpga_defaults().items():
+            self.config_set(param[0], param[1], value)
         self._aps_defaults()
-        for param, value in ((P.IMU_SAMPLE_RATE_DIVIDER, 0), (P.IMU_ACCEL_DLPF, 1), (P.IMU_ACCEL_FULL_SCALE, 1),
-                             (P.IMU_GYRO_DLPF, 1), (P.IMU_GYRO_FULL_SCALE, 1)):
-            self.config_set(P.MOD_IMU, param, value)
+
+    def davis_fpga_defaults(self) -> dict[tuple[int, int], int]:
+        """(module, parameter) -> value of libcaer's DAVIS FPGA defaults
+        (without the APS, which :meth:`_aps_defaults` sends)."""
+        w, h = self.sensor
+        out = {(P.MOD_MUX, P.MUX_TS_RESET): 0, (P.MOD_MUX, P.MUX_DROP_EXT_STALL): 1,
+               (P.MOD_MUX, P.MUX_DROP_DVS_STALL): 1, (P.MOD_DVS, P.DVS_WAIT_ON_STALL): 0,
+               (P.MOD_DVS, P.DVS_EXTERNAL_AER_CONTROL): 0}
+        if self.has.get("pixel_filter"):
+            for k in range(8):  # rows/columns past the array: no pixel filtered
+                out[(P.MOD_DVS, P.DVS_FILTER_PIXEL_0_ROW + 2 * k)] = h
+                out[(P.MOD_DVS, P.DVS_FILTER_PIXEL_0_ROW + 2 * k + 1)] = w
+        if self.has.get("ba_filter"):
+            out.update({(P.MOD_DVS, P.DVS_FILTER_BA): 1, (P.MOD_DVS, P.DVS_FILTER_BA_TIME): 8,  # x 250 µs
+                        (P.MOD_DVS, P.DVS_FILTER_REFRACTORY): 0, (P.MOD_DVS, P.DVS_FILTER_REFRACTORY_TIME): 1})
+        if self.has.get("roi_filter"):
+            out.update({(P.MOD_DVS, P.DVS_ROI_START_COLUMN): 0, (P.MOD_DVS, P.DVS_ROI_START_ROW): 0,
+                        (P.MOD_DVS, P.DVS_ROI_END_COLUMN): w - 1, (P.MOD_DVS, P.DVS_ROI_END_ROW): h - 1})
+        if self.has.get("skip_filter"):
+            out.update({(P.MOD_DVS, P.DVS_SKIP_EVENTS): 0, (P.MOD_DVS, P.DVS_SKIP_EVENTS_EVERY): 5})
+        if self.has.get("polarity_filter"):
+            out.update({(P.MOD_DVS, P.DVS_POLARITY_FLATTEN): 0, (P.MOD_DVS, P.DVS_POLARITY_SUPPRESS): 0,
+                        (P.MOD_DVS, P.DVS_POLARITY_SUPPRESS_TYPE): 0})
+        out.update({(P.MOD_IMU, P.IMU_SAMPLE_RATE_DIVIDER): 0, (P.MOD_IMU, P.IMU_ACCEL_DLPF): 1,
+                    (P.MOD_IMU, P.IMU_ACCEL_FULL_SCALE): 1, (P.MOD_IMU, P.IMU_GYRO_DLPF): 1,
+                    (P.MOD_IMU, P.IMU_GYRO_FULL_SCALE): 1})
+        cyc = self.logic_clock_mhz
+        out.update({(P.MOD_EXTINPUT, P.EXTINPUT_DETECT_RISING): 0, (P.MOD_EXTINPUT, P.EXTINPUT_DETECT_FALLING): 0,
+                    (P.MOD_EXTINPUT, P.EXTINPUT_DETECT_PULSES): 1, (P.MOD_EXTINPUT, P.EXTINPUT_PULSE_POLARITY): 1,
+                    (P.MOD_EXTINPUT, P.EXTINPUT_PULSE_LENGTH): round(10 * cyc)})
+        if self.has.get("generator"):
+            out.update({(P.MOD_EXTINPUT, P.EXTINPUT_RUN_GENERATOR): 0, (P.MOD_EXTINPUT, P.EXTINPUT_GEN_POLARITY): 1,
+                        (P.MOD_EXTINPUT, P.EXTINPUT_GEN_INTERVAL): round(10 * cyc),
+                        (P.MOD_EXTINPUT, P.EXTINPUT_GEN_LENGTH): round(5 * cyc),
+                        (P.MOD_EXTINPUT, P.EXTINPUT_GEN_ON_RISING): 0, (P.MOD_EXTINPUT, P.EXTINPUT_GEN_ON_FALLING): 0})
+        out[(P.MOD_USB, P.USB_EARLY_PACKET_DELAY)] = round(8 * 125 * self.usb_clock_mhz)
+        return out
 
     def _aps_defaults(self) -> None:
         if self.aps_size is None:
@@ -197,6 +296,9 @@ class Camera:
         if self.model.protocol == "dvs128":
             self.dev.ctrl_transfer(0x40, P.DVS128_REQ_START, 0, 0, b"")
             return
+        if self.dvx is not None:
+            self.dvx.start()
+            return
         self.config_set(P.MOD_MUX, P.MUX_RUN_CHIP, 1)
         self.config_set(P.MOD_USB, P.USB_RUN, 1)
         self.config_set(P.MOD_MUX, P.MUX_TS_RUN, 1)
@@ -210,6 +312,9 @@ class Camera:
     def stop(self) -> None:
         if self.model.protocol == "dvs128":
             self.dev.ctrl_transfer(0x40, P.DVS128_REQ_STOP, 0, 0, b"")
+            return
+        if self.dvx is not None:
+            self.dvx.stop()
             return
         for mod, p in ((P.MOD_APS, P.APS_RUN), (P.MOD_DVS, P.DVS_RUN), (P.MOD_MUX, P.MUX_RUN),
                        (P.MOD_USB, P.USB_RUN)):

@@ -31,10 +31,12 @@ import usb.core
 from tectum.sources.pattern import moving_bars
 
 from . import _protocol as P
+from ._emulated_dvx import DvxEmulation, dvx_boot_config, pack_words
 
 __all__ = ["EmulatedCamera", "EmulatedBackend", "Truth", "emulated_backend"]
 
-_SENSORS = {"dvs128": (128, 128), "davis240": (240, 180), "davis346": (346, 260)}
+_SENSORS = {"dvs128": (128, 128), "davis240": (240, 180), "davis346": (346, 260), "dvxplorer": (640, 480),
+            "dvxplorer_lite": (320, 240)}
 _CHIPS = {"davis240": P.CHIP_DAVIS240C, "davis346": P.CHIP_DAVIS346B}
 
 
@@ -50,6 +52,7 @@ class Truth:
     imu_t: list[int] = field(default_factory=list)
     accel: list[tuple[float, float, float]] = field(default_factory=list)
     gyro: list[tuple[float, float, float]] = field(default_factory=list)
+    temperature: list[float] = field(default_factory=list)  # °C (DVXplorer)
     #: APS frames: (start of frame, exposure start, exposure end, end of
     #: frame) µs and the 8-bit image a host must show (rows, columns)
     frame_times: list[tuple[int, int, int, int]] = field(default_factory=list)
@@ -60,9 +63,15 @@ class Truth:
         return cat[0].astype(np.int64), cat[1].astype(np.uint16), cat[2].astype(np.uint16), cat[3].astype(np.int8)
 
 
-class EmulatedCamera:
+class EmulatedCamera(DvxEmulation):
     """A camera of ``model`` ("dvs128", "davis240", "davis346", FX3 unless
-    ``fx2``) streaming ``duration_us`` µs of moving bars.
+    ``fx2``; "dvxplorer", "dvxplorer_lite") streaming ``duration_us`` µs of
+    moving bars.
+
+    DAVIS: ``filters`` says whether its logic has the DVS filters (pixel,
+    background activity, ROI, skip, polarity) and the pulse generator.
+    DVXplorer: ``imu_flips`` its IMU orientation bits (4 x, 2 y, 1 z);
+    ``mipi`` plays the MIPI CX3 board (DVXplorer Mini), which we refuse.
 
     Faults: ``reset_at_us`` sends a timestamp reset there (the device clock
     restarts at 0); ``overrun_reads`` are bulk-read indices that fail with
@@ -80,11 +89,15 @@ class EmulatedCamera:
                  window_us: int = 5_000, reset_at_us: int | None = None, overrun_reads: tuple[int, ...] = (),
                  disconnect_after: int | None = None, replug_after_polls: int | None = None,
                  max_transfer: int = 4096, imu_period_us: int = 1000, realtime: bool = False,
-                 bus: int = 1, address: int = 5, aps_orientation: int = 0, adc_clock_mhz: int = 30) -> None:
+                 bus: int = 1, address: int = 5, aps_orientation: int = 0, adc_clock_mhz: int = 30,
+                 imu_flips: int = 0, mipi: bool = False, filters: bool = True) -> None:
         if model not in _SENSORS:
             raise ValueError(f"unknown model {model!r}; known: {sorted(_SENSORS)}")
         self.model, self.serial, self.sensor = model, serial, _SENSORS[model]
         self.pid = P.DVS128_PID if model == "dvs128" else (P.DAVIS_FX2_PID if fx2 else P.DAVIS_FX3_PID)
+        if model.startswith("dvxplorer"):
+            self.pid = P.DVX_PID
+        self.imu_flips, self.mipi, self.filters = imu_flips, mipi, filters
         self.endpoint = P.DVS128_ENDPOINT if model == "dvs128" else P.DAVIS_ENDPOINT
         self.duration_us, self.window_us = duration_us, window_us
         self.pattern = dict(speed=speed, period_px=24, bar_px=8, noise_hz=noise_hz, jitter_us=20.0)
@@ -95,6 +108,7 @@ class EmulatedCamera:
         self.bus, self.address = bus, address
         self.aps_orientation, self.adc_clock_mhz = aps_orientation, adc_clock_mhz
         self.control_log: list[tuple[int, int, int, int, bytes]] = []
+        self.register_log: list[tuple[int, int]] = []  # DVXplorer chip register writes, in order
         self.config: dict[tuple[int, int], int] = {}
         self.biases = b""
         self.truth = Truth()
@@ -123,8 +137,17 @@ class EmulatedCamera:
         self._frame_ends: list[int] = []
         self._pending_frame: tuple[int, int, np.ndarray, np.ndarray] | None = None
         self._wall0 = 0.0
-        if self.model != "dvs128":
+        if self.model.startswith("dvxplorer"):
+            self.config.update(dvx_boot_config(self.model, self.sensor, self.imu_flips))
+        elif self.model != "dvs128":
             w, h = self.sensor
+            has = int(self.filters)
+            self.config.update({(P.MOD_SYSINFO, P.SYSINFO_LOGIC_CLOCK): 104, (P.MOD_SYSINFO, P.SYSINFO_USB_CLOCK): 80,
+                                (P.MOD_SYSINFO, P.SYSINFO_CLOCK_DEVIATION): 1005,
+                                (P.MOD_DVS, P.DVS_HAS_PIXEL_FILTER): has, (P.MOD_DVS, P.DVS_HAS_BA_FILTER): has,
+                                (P.MOD_DVS, P.DVS_HAS_ROI_FILTER): has, (P.MOD_DVS, P.DVS_HAS_SKIP_FILTER): has,
+                                (P.MOD_DVS, P.DVS_HAS_POLARITY_FILTER): has,
+                                (P.MOD_EXTINPUT, P.EXTINPUT_HAS_GENERATOR): has})
             self.config.update({(P.MOD_SYSINFO, P.SYSINFO_LOGIC_VERSION): 18,
                                 (P.MOD_SYSINFO, P.SYSINFO_CHIP_ID): _CHIPS[self.model],
                                 (P.MOD_SYSINFO, P.SYSINFO_LOGIC_PATCH): 1,
@@ -189,8 +212,16 @@ class EmulatedCamera:
         if rtype & 0x80:
             return struct.pack(">I", self.config.get((value, index), 0))[:length]
         self.config[(value, index)] = struct.unpack(">I", bytes(data))[0]
-        running = all(self.config.get(k, 0) for k in ((P.MOD_USB, P.USB_RUN), (P.MOD_MUX, P.MUX_RUN),
-                                                       (P.MOD_DVS, P.DVS_RUN)))
+        if value == P.DVX_DEVICE_DVS and self.model.startswith("dvxplorer"):
+            self.register_log.append((index, self.config[(value, index)]))
+            if index == P.R_TS_RESET and self.config[(value, index)] == 0 and self._gen_t > 0:
+                self._words_reset()  # the chip's timestamp counter restarts
+                self._dev_origin, self._wrap, self._last_ts = self._gen_t, 0, None
+        if self.model.startswith("dvxplorer"):
+            running = self.dvx_streaming()
+        else:
+            running = all(self.config.get(k, 0) for k in ((P.MOD_USB, P.USB_RUN), (P.MOD_MUX, P.MUX_RUN),
+                                                           (P.MOD_DVS, P.DVS_RUN)))
         if running and not self.streaming:
             self._start()
         elif not running:
@@ -258,9 +289,10 @@ class EmulatedCamera:
             t1 = self.reset_at_us
         if t1 > t0:
             pk = moving_bars(t0, t1, sensor=self.sensor, rng=self._rng, **self.pattern)
-            self._encode(pk.t, pk.x, pk.y, pk.p, t1)
+            sent = self._encode(pk.t, pk.x, pk.y, pk.p, t1)
+            tt, tx, ty, tp = sent if sent is not None else (pk.t.copy(), pk.x.copy(), pk.y.copy(), pk.p.copy())
             tr = self.truth
-            tr.t.append(pk.t.copy()), tr.x.append(pk.x.copy()), tr.y.append(pk.y.copy()), tr.p.append(pk.p.copy())
+            tr.t.append(tt), tr.x.append(tx), tr.y.append(ty), tr.p.append(tp)
         self._gen_t = t1
         if self.reset_at_us is not None and not self._reset_sent and t1 == self.reset_at_us:
             self._reset_sent = True
@@ -271,7 +303,17 @@ class EmulatedCamera:
         self._due.append((len(self._buf), t1))
 
     # per-model word writers
-    def _encode(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, t_end: int) -> None:
+    def _encode(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, t_end: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """Append the words; returns the events in the order sent when that
+        differs from the input's (DVXplorer)."""
+        if self.model.startswith("dvxplorer"):
+            imu_times = list(range(self._next_imu, t_end, self.imu_period_us)) if self.imu_period_us else []
+            if imu_times:
+                self._next_imu = imu_times[-1] + self.imu_period_us
+            *events, words = self._encode_dvx(t, x, y, p, imu_times)
+            self._buf += pack_words(words)
+            return tuple(events)  # type: ignore[return-value]
         if self.model == "dvs128":
             self._encode_dvs128(t, x, y, p)
         else:
@@ -441,6 +483,8 @@ class EmulatedBackend(usb.backend.IBackend):
 
     def get_device_descriptor(self, dev: EmulatedCamera) -> _Desc:
         fw = 14 if dev.model == "dvs128" else (4 if dev.pid == P.DAVIS_FX2_PID else 6)
+        if dev.pid == P.DVX_PID:
+            fw = 8 | ((P.DVX_DEVICE_MIPI if dev.mipi else 1) << 8)
         return _Desc(bLength=18, bDescriptorType=1, bcdUSB=0x0300 if dev.pid == P.DAVIS_FX3_PID else 0x0200,
                      bDeviceClass=0, bDeviceSubClass=0, bDeviceProtocol=0, bMaxPacketSize0=64,
                      idVendor=P.VID, idProduct=dev.pid, bcdDevice=fw, iManufacturer=1, iProduct=2,

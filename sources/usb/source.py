@@ -1,4 +1,5 @@
-"""``usb:`` — live events from an iniVation camera (DVS128, DAVIS240/346).
+"""``usb:`` — live events from an iniVation camera (DVS128, DAVIS240/346,
+DVXplorer and DVXplorer Lite).
 
 Bulk reads run in a worker thread (``trio.to_thread``) with a bounded size
 and a short timeout, so the trio loop never blocks and cancellation is
@@ -26,14 +27,15 @@ from ._device import Camera, DeviceDisconnected, UsbUnavailable, default_backend
 
 __all__ = ["UsbSource"]
 
-_MODEL_FILTER = {"": None, "dvs128": "dvs128", "davis": "davis", "davis240": "davis", "davis346": "davis"}
+_MODEL_FILTER = {"": None, "dvs128": "dvs128", "davis": "davis", "davis240": "davis", "davis346": "davis",
+                 "dvxplorer": "dvxplorer"}
 
 
 class UsbSource(Source):
     """Events (and DAVIS IMU samples) from a camera on USB.
 
-    ``usb:`` opens the first camera found; ``usb:davis`` / ``usb:dvs128``
-    restrict the model; ``serial`` picks one camera.
+    ``usb:`` opens the first camera found; ``usb:davis`` / ``usb:dvs128`` /
+    ``usb:dvxplorer`` restrict the model; ``serial`` picks one camera.
 
     Parameters (units): ``read_size`` bytes per bulk read; ``timeout_ms``
     per read; ``duration_us`` stop after this much camera time (0: until
@@ -43,7 +45,7 @@ class UsbSource(Source):
     ``reconnect`` (wait up to ``reconnect_s`` s for the camera to return,
     time goes on from where it was); ``idle_s`` ends the stream after that
     many seconds without data (0: never); ``emulate`` a model name (``davis346``,
-    ``dvs128``, ``davis346:realtime``) plays an emulated camera;
+    ``dvs128``, ``dvxplorer``, ``davis346:realtime``) plays an emulated camera;
     ``backend`` a pyusb backend object (Python API). DAVIS: ``frames`` runs
     the APS (8-bit frames, ``t`` mid-exposure, with ``exposure_start`` /
     ``exposure_end`` µs), ``exposure_us`` and ``frame_interval_us`` override
@@ -61,7 +63,7 @@ class UsbSource(Source):
                  exposure_us: int = 0, frame_interval_us: int = 0) -> None:
         kind = url.split(":", 1)[1].strip("/").lower() if ":" in url else ""
         if kind not in _MODEL_FILTER:
-            raise ValueError(f"unknown camera kind {kind!r} in {url!r}; known: usb:, usb:davis, usb:dvs128")
+            raise ValueError(f"unknown camera kind {kind!r} in {url!r}; known: usb:, usb:davis, usb:dvs128, usb:dvxplorer")
         if not 512 <= read_size <= 1 << 22:
             raise ValueError("read_size must be within 512 B .. 4 MiB")
         if timeout_ms <= 0 or duration_us < 0 or reconnect_s < 0 or idle_s < 0 or exposure_us < 0 \
