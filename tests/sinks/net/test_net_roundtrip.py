@@ -53,7 +53,7 @@ def test_two_processes_over_tcp_give_the_same_file(tmp_path) -> None:
 
 def _udp_run(rate: float) -> tuple[tectum.EventPacket, ListSink, NetSource, NetSink]:
     port = free_port(socket.SOCK_DGRAM)
-    src, got, th = start_receiver(f"udp://127.0.0.1:{port}", idle_s=2.0)
+    src, got, th = start_receiver(f"udp://127.0.0.1:{port}", idle_s=20.0)  # ends on the END message; idle only as a safety net
     tx = tectum.Pipeline()
     sink = NetSink(f"udp://127.0.0.1:{port}", rate_mev_s=rate)
     s = tx.source("pattern:", sensor="64x48", duration_us=100_000)
@@ -61,7 +61,7 @@ def _udp_run(rate: float) -> tuple[tectum.EventPacket, ListSink, NetSource, NetS
     tx.sink(sink, s)
     tx.sink(truth, s)
     tectum.run(tx)
-    th.join(15)
+    th.join(40)
     return truth.events(), got, src, sink
 
 
@@ -79,7 +79,7 @@ def test_udp_loss_is_counted_not_fatal() -> None:
     """Datagrams dropped between sink and source (a lossy link, emulated by
     a relay that drops every 5th datagram) are counted by the receiver."""
     port_rx, port_relay = free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_DGRAM)
-    src, got, th = start_receiver(f"udp://127.0.0.1:{port_rx}", idle_s=1.0)
+    src, got, th = start_receiver(f"udp://127.0.0.1:{port_rx}", idle_s=20.0)  # ends on the END message; idle only as a safety net
     import threading
 
     relay = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -87,12 +87,15 @@ def test_udp_loss_is_counted_not_fatal() -> None:
     relay.settimeout(0.5)
     out = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     dropped = []
+    stop = threading.Event()
 
     def forward() -> None:
         i = 0
-        while True:
+        while not stop.is_set():  # runs until told: the sender may be slow to start
             try:
                 d = relay.recv(65536)
+            except TimeoutError:
+                continue
             except OSError:
                 return
             if d[3] == 1 and i % 5 == 4:  # drop some EVENTS datagrams
@@ -107,7 +110,8 @@ def test_udp_loss_is_counted_not_fatal() -> None:
     tx.sink(NetSink(f"udp://127.0.0.1:{port_relay}", rate_mev_s=0.5),
             tx.source("pattern:", sensor="64x48", duration_us=50_000))
     tectum.run(tx)
-    th.join(15)
+    th.join(40)
+    stop.set()
     t.join(5)
     relay.close()
     out.close()

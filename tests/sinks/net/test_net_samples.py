@@ -35,7 +35,7 @@ def camera_over(scheme: str) -> tuple[ListSink, ListSink, NetSource, NetSink]:
     """An emulated DAVIS346 (events, IMU, frames) sent through a network
     sink to a network source in another pipeline."""
     port = free_port(socket.SOCK_STREAM if scheme == "tcp" else socket.SOCK_DGRAM)
-    src = NetSource(f"{scheme}://127.0.0.1:{port}", idle_s=2.0)
+    src = NetSource(f"{scheme}://127.0.0.1:{port}", idle_s=20.0)  # ends on the END message; idle only as a safety net
     rx = tectum.Pipeline()
     got = ListSink()
     rx.sink(got, rx.source(src))
@@ -49,7 +49,7 @@ def camera_over(scheme: str) -> tuple[ListSink, ListSink, NetSource, NetSink]:
     tx.sink(sink, s)
     tx.sink(truth, s)
     tectum.run(tx)
-    th.join(15)
+    th.join(40)
     return truth, got, src, sink
 
 
