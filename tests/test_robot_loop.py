@@ -55,7 +55,7 @@ def test_robot_loop_on_the_paced_pattern() -> None:
         ticks, lat = control_loop(tp, node, lambda t_us: t0 + t_us / 1e6, seconds=0.4)
     finally:
         tp.stop()
-        tp.join(10)
+        tp.join(60)
     assert lat
     ms = np.array(lat) * 1e3
     print(f"\nrobot loop (paced pattern): {ticks} ticks, latency p50 {np.median(ms):.2f} ms")

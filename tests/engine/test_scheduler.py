@@ -188,7 +188,7 @@ async def test_open_pipeline_taps_and_cancel(small_stream):
     p2 = Pipeline()
     sink2 = ListSink()
     p2.sink(sink2, p2.source(Endless()))
-    with trio.fail_after(5):
+    with trio.fail_after(30):
         async with tectum.open_pipeline(p2) as run:
             await trio.sleep(0.02)
             run.cancel()

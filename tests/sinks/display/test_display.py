@@ -109,7 +109,7 @@ def live_view():
                     noise_hz=0.0))
     th = tectum.ThreadedPipeline(p, watch=[]).start()
     base = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 10
+    deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
         try:
             if '"frames": 0' not in urllib.request.urlopen(base + "/stats.json", timeout=2).read().decode():
@@ -119,7 +119,7 @@ def live_view():
         time.sleep(0.05)
     yield base
     th.stop()
-    th.join(10)
+    th.join(60)
 
 
 def test_live_view_serves_page_frames_and_stats(live_view: str) -> None:

@@ -117,10 +117,10 @@ def serve(packets: list, tmp_path, **kw) -> tuple[np.lib.npyio.NpzFile, DvNetSin
     sink = DvNetSink("dv+tcp://127.0.0.1:0", wait_s=15, linger_s=0.3, **kw)
     p.sink(sink, p.source(ListSource(packets)))
     th = tectum.ThreadedPipeline(p, watch=[]).start()
-    assert sink.ready.wait(5)
+    assert sink.ready.wait(60)
     reader = run_dv(DV_READ, sink.port, tmp_path / "got.npz")
     finish(reader)
-    th.join(10)
+    th.join(60)
     return np.load(tmp_path / "got.npz"), sink
 
 

@@ -27,7 +27,7 @@ def start_receiver(url: str, **kw) -> tuple[NetSource, ListSink, tectum.Threaded
     got = ListSink()
     rx.sink(got, rx.source(src))
     th = tectum.ThreadedPipeline(rx, watch=[]).start()
-    assert src.ready.wait(5)
+    assert src.ready.wait(60)
     return src, got, th
 
 

@@ -40,7 +40,7 @@ def camera_over(scheme: str) -> tuple[ListSink, ListSink, NetSource, NetSink]:
     got = ListSink()
     rx.sink(got, rx.source(src))
     th = tectum.ThreadedPipeline(rx, watch=[]).start()
-    assert src.ready.wait(5)
+    assert src.ready.wait(60)
     cam = EmulatedCamera("davis346", duration_us=70_000, speed=200.0, noise_hz=1.0)
     tx = tectum.Pipeline()
     s = tx.source(UsbSource("usb:", backend=EmulatedBackend(cam), idle_s=0.1, frame_interval_us=20_000))

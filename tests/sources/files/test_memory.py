@@ -38,3 +38,58 @@ def test_evt2_peak_rss_stays_flat(tmp_path: Path) -> None:
         peak = max(peak, proc.memory_info().rss)
     assert total == 40 * n
     assert peak - base < 120 * 2**20, f"RSS grew by {(peak - base) / 2**20:.0f} MiB reading a {f.stat().st_size >> 20} MiB file"
+
+
+def _write_big_evt2(path: Path, n_chunks: int, words_per_chunk: int = 1 << 24) -> int:
+    """A RAW EVT 2.0 file of ``n_chunks`` x 64 MiB, fast: one template chunk of
+    groups [EV_TIME_HIGH, 63 CD events], its TIME_HIGH words shifted per
+    chunk. Returns the number of events."""
+    g = words_per_chunk // 64
+    rng = np.random.default_rng(0)
+    tmpl = np.empty((g, 64), np.uint32)
+    lsb = np.arange(63, dtype=np.uint32)
+    x = rng.integers(0, 640, (g, 63)).astype(np.uint32)
+    y = rng.integers(0, 480, (g, 63)).astype(np.uint32)
+    tmpl[:, 1:] = ((lsb & 1) << 28) | (lsb << 22) | (x << 11) | y
+    high = np.arange(g, dtype=np.uint32)
+    with open(path, "wb") as f:
+        f.write(b"% evt 2.0\n% format EVT2\n% geometry 640x480\n% end\n")
+        for c in range(n_chunks):
+            tmpl[:, 0] = (8 << 28) | (high + c * g)
+            f.write(tmpl.tobytes())
+    return n_chunks * g * 63
+
+
+def test_multi_gb_evt2_peak_rss_flat(tmp_path: Path) -> None:
+    """The issue's check: a >= 2 GiB file streams with flat memory (RSS
+    growth bounded by the chunk size and the column pool, not the file)."""
+    import os
+    import shutil
+
+    n_chunks = 32  # 32 x 64 MiB = 2 GiB
+    size = n_chunks << 26
+    if os.environ.get("TECTUM_SKIP_BIG"):
+        pytest.skip("TECTUM_SKIP_BIG is set: multi-GB file test skipped")
+    free = shutil.disk_usage(tmp_path).free
+    if free < 3 * size:
+        pytest.skip(f"needs {3 * size >> 20} MiB free in {tmp_path}, has {free >> 20} MiB")
+    f = tmp_path / "big2g.raw"
+    try:
+        n = _write_big_evt2(f, n_chunks)
+        assert f.stat().st_size >= 2 << 30
+        proc = psutil.Process()
+        src = open_file(str(f))
+        base = proc.memory_info().rss
+        peak, total, last = base, 0, -1
+        for k, pkt in enumerate(src.packets()):
+            total += len(pkt)
+            if len(pkt):
+                assert int(pkt.t[0]) >= last
+                last = int(pkt.t[-1])
+            if k % 8 == 0:
+                peak = max(peak, proc.memory_info().rss)
+        peak = max(peak, proc.memory_info().rss)
+        assert total == n
+        assert peak - base < 150 * 2**20, f"RSS grew by {(peak - base) / 2**20:.0f} MiB reading a 2 GiB file"
+    finally:
+        f.unlink(missing_ok=True)

@@ -90,7 +90,7 @@ def test_hostile_tcp_sender_is_counted_and_the_source_survives() -> None:
     sink = ListSink()
     p.sink(sink, p.source(src))
     th = tectum.ThreadedPipeline(p, watch=[]).start()
-    assert src.ready.wait(5)
+    assert src.ready.wait(60)
 
     def frame(m: bytes) -> bytes:
         return len(m).to_bytes(4, "little") + m
@@ -103,7 +103,7 @@ def test_hostile_tcp_sender_is_counted_and_the_source_survives() -> None:
         c.shutdown(socket.SHUT_WR)
         c.settimeout(5)
         c.recv(1)
-    th.join(10)
+    th.join(60)
     got = sink.events()
     assert np.array_equal(got.t, pk.t) and np.array_equal(got.y, pk.y)
     r = src.counts
