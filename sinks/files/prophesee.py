@@ -10,8 +10,9 @@ reader adds back. Encoders:
 * EVT 2.0: an ``EV_TIME_HIGH`` word whenever ``t >> 6`` changes, then one
   CD_ON/CD_OFF word per event.
 * EVT 3.0: ``EVT_TIME_HIGH`` (stepping at most 2^11 x 4096 µs at a time so the
-  reader's wrap rule holds across long gaps), ``EVT_TIME_LOW``, ``EVT_ADDR_Y``
-  when they change, and per event ``EVT_ADDR_X`` with its polarity; runs of
+  reader's wrap rule holds across long gaps, and through 0 at each 24-bit
+  wrap as a sensor does: faery 0.7 misses a wrap that skips 0),
+  ``EVT_TIME_LOW``, ``EVT_ADDR_Y`` when they change, and per event ``EVT_ADDR_X`` with its polarity; runs of
   events sharing time, row and polarity go as ``VECT_BASE_X`` + ``VECT_12``
   / ``VECT_8`` masks.
 * DAT: EventCD records (type 12, size 8).
@@ -62,12 +63,18 @@ def encode_evt3(t, x, y, p, state, out):  # pragma: no cover - numba
         lo = t[i] & 0xFFF
         if h != last_h:
             if last_h >= 0:
-                while h - last_h > 2047:  # step so no jump exceeds the reader's wrap rule
-                    last_h += 2047
+                # steps of at most 2047 (the reader's wrap rule), landing on 0 at
+                # each 24-bit wrap, as a sensor does (some readers need it)
+                while h - last_h > 2047 or (h >> 12) != (last_h >> 12):
+                    nxt = min(last_h + 2047, h)
+                    if (nxt >> 12) != (last_h >> 12):
+                        nxt = ((last_h >> 12) + 1) << 12
+                    last_h = nxt
                     out[k] = np.uint16((0x8 << 12) | (last_h & 0xFFF))
                     k += 1
-            out[k] = np.uint16((0x8 << 12) | (h & 0xFFF))
-            k += 1
+            if h != last_h or last_h < 0:
+                out[k] = np.uint16((0x8 << 12) | (h & 0xFFF))
+                k += 1
             last_h = h
             last_l = -1
         if lo != last_l:
@@ -178,7 +185,7 @@ class Evt3Sink(_RawSink):
         gaps = 0
         if len(t):
             last = max(int(self.state[0]), 0)
-            gaps = int((int(t[-1]) >> 12) - last) // 2047 + 1
+            gaps = int((int(t[-1]) >> 12) - last) // 2047 + (int(t[-1]) >> 24) - (last >> 12) + 2
         out = np.empty(4 * len(packet) + gaps + 8, np.uint16)
         k = encode_evt3(t, packet.x, packet.y, packet.p, self.state, out)
         self.f.write(out[:k].astype("<u2").tobytes())
