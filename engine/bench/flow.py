@@ -11,9 +11,10 @@
   against the true ``vx``/``vy``). AEE (px/s, %), median relative error, AAE,
   density, noise given a flow; lifetime relative error.
 * failure maps: sweeps of noise rate, speed, texture density, edge
-  orientation and contrast threshold; per method the first value where the
-  median error doubles (against the sweep's best) or density falls under
-  half of its best. Charts (PNG) need matplotlib (extra ``charts``).
+  orientation and contrast threshold; per method the values where the
+  median error doubles (against the sweep's best, taken as at least 2.5 %:
+  1 % -> 3 % is noise, not a failure) or density falls under half of its
+  best. Charts (PNG) need matplotlib (extra ``charts``).
 """
 
 from __future__ import annotations
@@ -45,6 +46,13 @@ METHODS: dict[str, tuple[Callable[[], Any], str]] = {
     "lucas_kanade normal": (lambda: LucasKanade(radius=3, dt_us=2000, min_explained=0.0), "normal"),
     "lucas_kanade full": (lambda: LucasKanade(radius=3, dt_us=2000, mode="full", min_explained=0.0), "full"),
     "contrast_max 32px/10ms": (ContrastMax, "full"),
+    "contrast_max 32px/10ms fixed span": (lambda: ContrastMax(max_window_us=10_000), "full"),
+}
+
+#: lifetime settings scored (vs 1/|normal speed|)
+LIFETIMES: dict[str, Callable[[], Any]] = {
+    "lifetime plane_fit": PlaneFitLifetime,
+    "lifetime plane_fit burst 10ms": lambda: PlaneFitLifetime(burst_us=10_000),
 }
 
 
@@ -78,6 +86,7 @@ def speed(quick: bool) -> list[dict[str, Any]]:
     rows = []
     makers = {name: make for name, (make, _) in METHODS.items()}
     makers["lifetime plane_fit"] = PlaneFitLifetime
+    makers["lifetime plane_fit burst 10ms"] = lambda: PlaneFitLifetime(burst_us=10_000)
     for name, make in makers.items():
         r = throughput(lambda: feed(make(), [pkt]), len(pkt), repeat=2 if quick else 3)
         # CPU time too: the machine may be shared, wall time then overstates the cost
@@ -90,15 +99,20 @@ def speed(quick: bool) -> list[dict[str, Any]]:
                      "cpu_mev_s": len(pkt) / min(cpu) / 1e6})
     # contrast maximisation on a 1 Mev/s, 346x260 stream: compute time / stream time
     dur = 100_000 if quick else 300_000
-    tex = translating_edges((346, 260), dur, 300.0, 150.0, angles_deg=(0, 60, 120), spacing_px=40,
+    tex = translating_edges((346, 260), dur, 210.0, 105.0, angles_deg=(0, 60, 120), spacing_px=40,
                             contrast=(0.5, 0.5), threshold=0.5, blur_px=0, jitter_us=100, noise_hz=1.0, seed=4)
     rate = len(tex) / (dur * 1e-6) / 1e6
-    t0 = time.perf_counter()
-    feed(ContrastMax(), [tex.without_columns("vx", "vy")])
-    el = time.perf_counter() - t0
-    rows.append({"method": f"contrast_max real-time factor at {rate:.2f} Mev/s (346x260)",
-                 "mev_s": len(tex) / el / 1e6, "us_per_event": el / len(tex) * 1e6,
-                 "realtime_factor": (dur * 1e-6) / el})
+    feed(ContrastMax(), [tex.without_columns("vx", "vy")])  # compile
+    els = []
+    for _ in range(2):
+        c0 = time.process_time()  # CPU time: the machine may be shared
+        out = concat(feed(ContrastMax(), [tex.without_columns("vx", "vy")]))
+        els.append(time.process_time() - c0)
+    el = min(els)
+    e = _score(out, tex, "full")
+    rows.append({"method": f"contrast_max real-time factor at {rate:.2f} Mev/s (346x260, CPU time)",
+                 "mev_s": len(tex) / el / 1e6, "cpu_mev_s": len(tex) / el / 1e6, "us_per_event": el / len(tex) * 1e6,
+                 "realtime_factor": (dur * 1e-6) / el, "density": e["density"], "median_rel_pct": e["median_rel_pct"]})
     return rows
 
 
@@ -110,11 +124,12 @@ def accuracy(quick: bool) -> list[dict[str, Any]]:
         scene, truth = (ref, "reference edges 1000 px/s, 300 us jitter, 1 Hz/px (vs normal truth)") if kind == "normal" \
             else (tex, "texture 800 px/s, 300 us jitter, 1 Hz/px (vs full truth)")
         rows.append({"method": name, "scene": truth, **_score(_run(make, scene), scene, kind)})
-    out = PlaneFitLifetime().process(ref.without_columns("lifetime"))[0]
-    e = lifetime_errors(out["lifetime"], ref["lifetime"], ref["noise"])
-    rows.append({"method": "lifetime plane_fit", "scene": "reference edges (vs 1/|normal speed|)",
-                 "median_rel_pct": e["median_rel_pct"], "rel_aee_pct": e["mean_rel_pct"], "density": e["density"],
-                 "noise_valid": e["noise_valid"]})
+    for lname, lmake in LIFETIMES.items():
+        out = lmake().process(ref.without_columns("lifetime"))[0]
+        e = lifetime_errors(out["lifetime"], ref["lifetime"], ref["noise"])
+        rows.append({"method": lname, "scene": "reference edges (vs 1/|normal speed|)",
+                     "median_rel_pct": e["median_rel_pct"], "rel_aee_pct": e["mean_rel_pct"], "density": e["density"],
+                     "noise_valid": e["noise_valid"]})
     rows += _simulated(quick)
     rows += _imu_rotation(quick)
     return rows
@@ -146,12 +161,13 @@ def _simulated(quick: bool) -> list[dict[str, Any]]:
         for name, (make, kind) in METHODS.items():
             rows.append({"method": name, "scene": f"simulate:{scene} realistic (vs {kind} truth)",
                          **_score(_run(make, ev), ev, kind)})
-        out = PlaneFitLifetime().process(ev.without_columns("lifetime"))[0]
         life = np.where(np.isfinite(ev["lifetime"]), ev["lifetime"], np.nan)
-        e = lifetime_errors(out["lifetime"], life, (ev["noise"] != 0).astype(np.uint8))
-        rows.append({"method": "lifetime plane_fit", "scene": f"simulate:{scene} realistic",
-                     "median_rel_pct": e["median_rel_pct"], "rel_aee_pct": e["mean_rel_pct"],
-                     "density": e["density"], "noise_valid": e["noise_valid"]})
+        for lname, lmake in LIFETIMES.items():
+            out = lmake().process(ev.without_columns("lifetime"))[0]
+            e = lifetime_errors(out["lifetime"], life, (ev["noise"] != 0).astype(np.uint8))
+            rows.append({"method": lname, "scene": f"simulate:{scene} realistic",
+                         "median_rel_pct": e["median_rel_pct"], "rel_aee_pct": e["mean_rel_pct"],
+                         "density": e["density"], "noise_valid": e["noise_valid"]})
     return rows
 
 
@@ -251,8 +267,8 @@ def _boundaries(values: list[float], per: dict[str, list[dict[str, float]]]) -> 
             out[name] = "never valid"
             continue
         best_e, best_d = np.nanmin(err), dens.max()
-        bad = [(v, "error x2" if (not np.isfinite(e) or e > 2 * max(best_e, 1.0)) else "density /2")
-               for v, e, d in zip(values, err, dens) if not np.isfinite(e) or e > 2 * max(best_e, 1.0) or d < best_d / 2]
+        bad = [(v, "error x2" if (not np.isfinite(e) or e > 2 * max(best_e, 2.5)) else "density /2")
+               for v, e, d in zip(values, err, dens) if not np.isfinite(e) or e > 2 * max(best_e, 2.5) or d < best_d / 2]
         out[name] = ", ".join(f"{v:g} ({why})" for v, why in bad) or "none in range"
     return out
 
@@ -269,8 +285,8 @@ def _charts(out: Path, acc: list[dict[str, Any]], spd: list[dict[str, Any]], map
     files = []
     fig, ax = plt.subplots(figsize=(7, 5))
     speeds = {r["method"]: r["mev_s"] for r in spd}
-    for r in acc:
-        if r["method"] in METHODS and "simulate" not in r["scene"]:
+    for r in acc:  # the synthetic scenes (the IMU rows have no relative AEE)
+        if r["method"] in METHODS and r["scene"].startswith(("reference", "texture")):
             ax.scatter(speeds[r["method"]], r["rel_aee_pct"], s=40)
             ax.annotate(f"{r['method']} ({METHODS[r['method']][1]})", (speeds[r["method"]], r["rel_aee_pct"]),
                         fontsize=7, xytext=(4, 4), textcoords="offset points")
@@ -308,7 +324,7 @@ def _charts(out: Path, acc: list[dict[str, Any]], spd: list[dict[str, Any]], map
 def run(out: Path, quick: bool) -> dict[str, Any]:
     out.mkdir(parents=True, exist_ok=True)
     spd = speed(quick)
-    print(table(spd, ["method", "mev_s", "cpu_mev_s", "us_per_event", "realtime_factor"]))
+    print(table(spd, ["method", "mev_s", "cpu_mev_s", "us_per_event", "realtime_factor", "density", "median_rel_pct"]))
     acc = accuracy(quick)
     print(table(acc, ["method", "scene", "aee", "rel_aee_pct", "median_rel_pct", "aae_deg", "density",
                       "noise_valid", "median_ratio", "sign_agree"]))

@@ -11,7 +11,7 @@ from numba import njit
 
 from tectum import EventPacket, Operator
 
-__all__ = ["NEVER", "new_sae", "store_gradient_flow", "FlowOperator"]
+__all__ = ["NEVER", "new_sae", "store_gradient_flow", "gradient_flow", "FlowOperator"]
 
 #: Timestamp of a pixel that never fired (far in the past, no overflow on t - NEVER).
 NEVER = np.iinfo(np.int64).min // 4
@@ -24,22 +24,35 @@ def new_sae(sensor: tuple[int, int]) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True, inline="always")
-def store_gradient_flow(i, ok, gx, gy, min_speed, max_speed, vx, vy, valid):  # type: ignore[no-untyped-def]
-    """Write event ``i``'s normal flow from the time-surface gradient
-    ``(gx, gy)`` µs/px: ``1e6 g / |g|^2`` px/s if ``ok`` and the speed is in
-    ``[min_speed, max_speed]``, else NaN and invalid."""
+def _flow(ok, gx, gy, rms, max_rms, min_speed, max_speed):  # type: ignore[no-untyped-def]
+    """(vx, vy, ok): ``1e6 g / |g|^2`` px/s from the time-surface gradient
+    ``(gx, gy)`` µs/px if ``ok``, the residual RMS (µs) is at most
+    ``max_rms`` times the time per pixel ``|g|`` and the speed is in
+    ``[min_speed, max_speed]``; else NaN and invalid."""
+    ok = ok and rms <= max_rms * np.sqrt(gx * gx + gy * gy)
     g2 = gx * gx + gy * gy
     if ok and g2 > 0.0:
         ok = min_speed <= 1e6 / np.sqrt(g2) <= max_speed
     else:
         ok = False
     if ok:
-        vx[i] = 1e6 * gx / g2
-        vy[i] = 1e6 * gy / g2
-    else:
-        vx[i] = np.nan
-        vy[i] = np.nan
-    valid[i] = ok
+        return 1e6 * gx / g2, 1e6 * gy / g2, True
+    return np.nan, np.nan, False
+
+
+@njit(cache=True, nogil=True, inline="always")
+def store_gradient_flow(i, ok, gx, gy, min_speed, max_speed, vx, vy, valid):  # type: ignore[no-untyped-def]
+    """Write event ``i``'s normal flow from the time-surface gradient
+    ``(gx, gy)`` µs/px: ``1e6 g / |g|^2`` px/s if ``ok`` and the speed is in
+    ``[min_speed, max_speed]``, else NaN and invalid."""
+    vx[i], vy[i], valid[i] = _flow(ok, gx, gy, 0.0, np.inf, min_speed, max_speed)
+
+
+@njit(cache=True, nogil=True)
+def gradient_flow(ok, gx, gy, rms, max_rms, min_speed, max_speed):  # type: ignore[no-untyped-def]
+    """:func:`_flow` not inlined, on purpose: kernels compiled with
+    fast-math call it and get exactly the IEEE results of plain code."""
+    return _flow(ok, gx, gy, rms, max_rms, min_speed, max_speed)
 
 
 class FlowOperator(Operator):

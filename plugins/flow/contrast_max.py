@@ -3,25 +3,43 @@
 Time is cut into windows of ``window_us`` (aligned to multiples of it); each
 window's events are split into square patches of ``patch_px`` pixels (0 =
 one patch for the whole sensor). Per patch, the flow ``v`` maximises the
-sharpness of the image of warped events ``x - v (t - t_mid)`` (bilinear
-voting; sharpness = sum of squared pixel values, which for a fixed number of
-events is the image variance up to a constant). The search is a
-coarse-to-fine pattern search from zero with a step of ``max_speed / 2``
-down to 0.05 px of displacement, on coarser pixels while the step is large;
-a patch whose previous window gave a valid flow starts from it with a step
-of ``max_speed / 16`` instead.
+sharpness of the image of warped events ``x - v (t - t_mid)`` (sum of
+squared pixel values, which for a fixed number of events is the image
+variance up to a constant). Each event votes with a separable quadratic
+B-spline of 3 x 3 pixels (a Gaussian-like blob, sigma 0.5 px: the image of
+warped events smoothed, as Gallego et al. do, so the objective is smooth in
+``v`` and does not favour whole-pixel displacements, which plain bilinear
+voting does for sub-pixel motion). The search is a coarse-to-fine pattern
+search from zero with a step of ``max_speed / 2`` down to 0.05 px of
+displacement, on coarser pixels while the step is large; a patch whose
+previous window gave a valid flow starts from it with a step of
+``max_speed / 16`` instead.
 
 A patch's flow is given to all its events (**full flow**), valid only if:
 it has ``min_events`` events; the warped image is focused (sharpness per
-event >= ``min_focus``: random events give about 1) and at least
-``min_gain`` times sharper than without motion compensation (else the
-motion is too small to measure in one window); and its edges have several
-orientations (smaller over larger eigenvalue of its gradient structure
-tensor >= ``min_cond``): a lone straight edge leaves the flow along it
-undetermined, the aperture problem, reported as invalid.
+event >= ``min_focus``: with the smoothed votes random events give about
+0.4-0.6 at up to 300 events per 32 px patch; lone or sparse edges in one
+10 ms window about 0.9-1.3, where the flow is often wrong, so they wait
+for a longer span) and at least
+``min_gain`` times sharper than without motion compensation; and its edges
+have several orientations (smaller over larger eigenvalue of its gradient
+structure tensor >= ``min_cond``): a lone straight edge leaves the flow
+along it undetermined, the aperture problem, reported as invalid.
+
+Adaptive time span: a slow patch moves too little in one window to be
+measured (no gain over no motion) or only coarsely. When a patch's estimate
+is invalid (but not aperture-limited) or moves it less than
+``min_disp_px`` over the span, the span
+grows, by doubling, up to ``max_window_us``: the estimate then uses the
+patch's events of the last 2, 4, ... windows (speeds searched up to
+``max_speed * window_us / span``: the same range of displacements; from
+the shorter span's estimate, with a finer step if that was valid), and the
+events of the current window get the flow of the first span that moves the
+patch by ``min_disp_px``, else of the longest span that gave a valid one.
 
 Windowed: output for a window is emitted when the watermark passes its end
-(or at end of stream), identical however the packets are split.
+(or at end of stream), identical however the packets are split (the
+longer spans are made of whole earlier windows).
 """
 
 from __future__ import annotations
@@ -33,43 +51,52 @@ from tectum import EventPacket, concat
 
 from ._common import FlowOperator
 
-__all__ = ["ContrastMax", "contrast_max_window"]
+__all__ = ["ContrastMax", "contrast_max_window", "contrast_max_grow"]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _spline(wx):  # type: ignore[no-untyped-def]
+    """Nearest pixel and the quadratic B-spline weights of pixels n-1, n, n+1
+    for a point at ``wx`` (px)."""
+    n = int(np.floor(wx + 0.5))
+    d = wx - n
+    a = 0.5 - d
+    b = 0.5 + d
+    return n, 0.5 * a * a, 0.75 - d * d, 0.5 * b * b
 
 
 @njit(cache=True, nogil=True, inline="always")
 def _vote(xs, ys, ts, lo, hi, vx, vy, img, margin, scale):  # type: ignore[no-untyped-def]
-    """Bilinear image of events lo..hi warped by ``v`` (px/s) to the window's
-    middle, on pixels ``scale`` times the sensor's, added into ``img``."""
+    """Image of events lo..hi warped by ``v`` (px/s) to the span's middle,
+    each a 3 x 3 quadratic B-spline, on pixels ``scale`` times the sensor's,
+    added into ``img``; returns the box of touched pixels (r0, r1, c0, c1),
+    inclusive."""
     ih, iw = img.shape
+    r0, r1, c0, c1 = ih, -1, iw, -1
     for j in range(lo, hi):
-        wx = (xs[j] - vx * ts[j] + margin) / scale
-        wy = (ys[j] - vy * ts[j] + margin) / scale
-        ix, iy = int(np.floor(wx)), int(np.floor(wy))
-        if 0 <= ix < iw - 1 and 0 <= iy < ih - 1:
-            fx, fy = wx - ix, wy - iy
-            img[iy, ix] += (1 - fx) * (1 - fy)
-            img[iy, ix + 1] += fx * (1 - fy)
-            img[iy + 1, ix] += (1 - fx) * fy
-            img[iy + 1, ix + 1] += fx * fy
+        ix, ax0, ax1, ax2 = _spline((xs[j] - vx * ts[j] + margin) / scale)
+        iy, ay0, ay1, ay2 = _spline((ys[j] - vy * ts[j] + margin) / scale)
+        if 1 <= ix < iw - 1 and 1 <= iy < ih - 1:
+            r0, r1, c0, c1 = min(r0, iy - 1), max(r1, iy + 1), min(c0, ix - 1), max(c1, ix + 1)
+            for r, ay in ((iy - 1, ay0), (iy, ay1), (iy + 1, ay2)):
+                img[r, ix - 1] += ay * ax0
+                img[r, ix] += ay * ax1
+                img[r, ix + 1] += ay * ax2
+    return r0, r1, c0, c1
 
 
 @njit(cache=True, nogil=True)
 def _sharpness(xs, ys, ts, lo, hi, vx, vy, img, margin, scale=1.0):  # type: ignore[no-untyped-def]
-    """Sum of squares of the bilinear image of warped events lo..hi (then
+    """Sum of squares of the smoothed image of warped events lo..hi (then
     cleared), on pixels ``scale`` times the sensor's (coarse-to-fine search)."""
-    ih, iw = img.shape
-    _vote(xs, ys, ts, lo, hi, vx, vy, img, margin, scale)
+    r0, r1, c0, c1 = _vote(xs, ys, ts, lo, hi, vx, vy, img, margin, scale)
     s = 0.0
-    for j in range(lo, hi):
-        wx = (xs[j] - vx * ts[j] + margin) / scale
-        wy = (ys[j] - vy * ts[j] + margin) / scale
-        ix, iy = int(np.floor(wx)), int(np.floor(wy))
-        if 0 <= ix < iw - 1 and 0 <= iy < ih - 1:
-            for cy in range(iy, iy + 2):
-                for cx in range(ix, ix + 2):
-                    u = img[cy, cx]
-                    s += u * u
-                    img[cy, cx] = 0.0
+    for r in range(r0, r1 + 1):
+        row = img[r]
+        for c in range(c0, c1 + 1):
+            u = row[c]
+            s += u * u
+            row[c] = 0.0
     return s
 
 
@@ -100,7 +127,7 @@ def _isotropy(xs, ys, ts, lo, hi, vx, vy, img, margin):  # type: ignore[no-untyp
 def _maximise(xs, ys, ts, lo, hi, img, margin, max_speed, start_x, start_y, start_step, min_step, half_s):  # type: ignore[no-untyped-def]
     """Pattern search from (start_x, start_y) px/s, halving the step down to
     ``min_step``; while a step moves events by more than a pixel at the
-    window's ends (``half_s`` seconds from its middle) the image is made of
+    span's ends (``half_s`` seconds from its middle) the image is made of
     coarser pixels, which keeps the narrow ridges of the objective climbable."""
     bx, by = start_x, start_y
     step = start_step
@@ -112,72 +139,142 @@ def _maximise(xs, ys, ts, lo, hi, img, margin, max_speed, start_x, start_y, star
         while moved:
             moved = False
             cx, cy = bx, by
-            for dx in (-1, 0, 1):
-                for dy in (-1, 0, 1):
-                    if dx == 0 and dy == 0:
-                        continue
-                    vx, vy = cx + dx * step, cy + dy * step
-                    if abs(vx) > max_speed or abs(vy) > max_speed:
-                        continue
-                    f = _sharpness(xs, ys, ts, lo, hi, vx, vy, img, margin, scale)
-                    if f > best:
-                        best, bx, by, moved = f, vx, vy, True
+            for dx, dy in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+                vx, vy = cx + dx * step, cy + dy * step
+                if abs(vx) > max_speed or abs(vy) > max_speed:
+                    continue
+                f = _sharpness(xs, ys, ts, lo, hi, vx, vy, img, margin, scale)
+                if f > best:
+                    best, bx, by, moved = f, vx, vy, True
         step *= 0.5
     return bx, by, _sharpness(xs, ys, ts, lo, hi, bx, by, img, margin, 1.0)
 
 
 @njit(cache=True, nogil=True)
-def contrast_max_window(t, x, y, t_mid, half_s, patch, max_speed, min_step, min_events, min_focus, min_gain,
-                        min_cond, prev_v, prev_ok, vx, vy, valid):  # type: ignore[no-untyped-def]
-    """Flow (px/s) for one window's events; ``prev_v`` (PY, PX, 2) and
-    ``prev_ok`` (PY, PX) hold each patch's last result and are updated."""
-    n = t.shape[0]
-    npy, npx = prev_ok.shape
+def _estimate(xs, ys, ts, lo, hi, img, margin, max_speed, start_x, start_y, start_step, min_step, half_s,
+              min_events, min_focus, min_gain, min_cond):  # type: ignore[no-untyped-def]
+    """One patch's flow (px/s) from its events lo..hi and why it is not
+    valid (see the module docstring): (vx, vy, ok, longer) where ``longer``
+    says a longer span may help (too few events, unfocused or no gain over
+    no motion: too few events or too little motion); an aperture-limited
+    patch stays so."""
+    if hi - lo < min_events:
+        return 0.0, 0.0, False, True
+    fx, fy, best = _maximise(xs, ys, ts, lo, hi, img, margin, max_speed, start_x, start_y, start_step, min_step,
+                             half_s)
+    if best / (hi - lo) < min_focus:
+        return fx, fy, False, True
+    # the flow must sharpen the image clearly more than no motion does
+    if best < min_gain * _sharpness(xs, ys, ts, lo, hi, 0.0, 0.0, img, margin, 1.0):
+        return fx, fy, False, True
+    return fx, fy, _isotropy(xs, ys, ts, lo, hi, fx, fy, img, margin) >= min_cond, False
+
+
+@njit(cache=True, nogil=True)
+def _by_patch(t, x, y, idx, patch, npx, t_mid):  # type: ignore[no-untyped-def]
+    """Events ``idx`` ordered by patch (stable): their patch ids, positions
+    inside the patch (px) and times from ``t_mid`` (s), and the order."""
+    n = idx.shape[0]
     pid = np.empty(n, np.int64)
-    for i in range(n):
-        pid[i] = (np.int64(y[i]) // patch) * npx + np.int64(x[i]) // patch
-    order = np.argsort(pid, kind="mergesort")
-    half = 0.5 * max_speed * 1e-6 * (np.max(t) - np.min(t) + 1) if n else 0.0
-    margin = int(np.ceil(max(half, 0.0))) + 2
-    img = np.zeros((patch + 2 * margin + 2, patch + 2 * margin + 2))
-    xs = np.empty(n)
-    ys = np.empty(n)
-    ts = np.empty(n)
     for q in range(n):
-        i = order[q]
+        i = idx[q]
+        pid[q] = (np.int64(y[i]) // patch) * npx + np.int64(x[i]) // patch
+    order = np.argsort(pid, kind="mergesort")
+    xs, ys, ts, ps = np.empty(n), np.empty(n), np.empty(n), np.empty(n, np.int64)
+    for q in range(n):
+        i = idx[order[q]]
         xs[q] = np.int64(x[i]) % patch
         ys[q] = np.int64(y[i]) % patch
         ts[q] = (t[i] - t_mid) * 1e-6
+        ps[q] = pid[order[q]]
+    return ps, xs, ys, ts, idx[order]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _patch_end(ps, lo):  # type: ignore[no-untyped-def]
+    """End of the run of events of patch ``ps[lo]`` starting at ``lo``."""
+    hi = lo
+    while hi < ps.shape[0] and ps[hi] == ps[lo]:
+        hi += 1
+    return hi
+
+
+@njit(cache=True, nogil=True)
+def contrast_max_window(t, x, y, t_mid, half_s, patch, max_speed, min_step, min_events, min_focus, min_gain,
+                        min_cond, min_disp, prev_v, prev_ok, need, vx, vy, valid):  # type: ignore[no-untyped-def]
+    """Flow (px/s) for one window's events; ``prev_v`` (PY, PX, 2) and
+    ``prev_ok`` (PY, PX) hold each patch's last result and are updated;
+    ``need`` (PY, PX) is set for the patches whose estimate moves them less
+    than ``min_disp`` px over the window, or is invalid for any reason but
+    the aperture problem (a longer span may do better, see
+    :func:`contrast_max_grow`)."""
+    n = t.shape[0]
+    npy, npx = prev_ok.shape
+    margin = int(np.ceil(max_speed * half_s)) + 3
+    img = np.zeros((patch + 2 * margin + 2, patch + 2 * margin + 2))
+    ps, xs, ys, ts, src = _by_patch(t, x, y, np.arange(n), patch, npx, t_mid)
     lo = 0
     while lo < n:
-        p = pid[order[lo]]
-        hi = lo
-        while hi < n and pid[order[hi]] == p:
-            hi += 1
-        py_, px_ = p // npx, p % npx
-        ok = hi - lo >= min_events
-        fx = fy = 0.0
-        if ok:
-            if prev_ok[py_, px_]:
-                fx, fy, best = _maximise(xs, ys, ts, lo, hi, img, margin, max_speed, prev_v[py_, px_, 0],
-                                         prev_v[py_, px_, 1], max_speed / 16.0, min_step, half_s)
-            else:
-                fx, fy, best = _maximise(xs, ys, ts, lo, hi, img, margin, max_speed, 0.0, 0.0, max_speed / 2.0,
-                                         min_step, half_s)
-            ok = best / (hi - lo) >= min_focus
-        if ok:
-            # the flow must sharpen the image clearly more than no motion does
-            ok = best >= min_gain * _sharpness(xs, ys, ts, lo, hi, 0.0, 0.0, img, margin, 1.0)
-        if ok:
-            ok = _isotropy(xs, ys, ts, lo, hi, fx, fy, img, margin) >= min_cond
+        hi = _patch_end(ps, lo)
+        py_, px_ = ps[lo] // npx, ps[lo] % npx
+        if prev_ok[py_, px_]:
+            sx, sy, st = prev_v[py_, px_, 0], prev_v[py_, px_, 1], max_speed / 16.0
+        else:
+            sx, sy, st = 0.0, 0.0, max_speed / 2.0
+        fx, fy, ok, longer = _estimate(xs, ys, ts, lo, hi, img, margin, max_speed, sx, sy, st, min_step, half_s,
+                                       min_events, min_focus, min_gain, min_cond)
+        need[py_, px_] = longer or (ok and np.hypot(fx, fy) * 2.0 * half_s < min_disp)
         prev_ok[py_, px_] = ok
         prev_v[py_, px_, 0] = fx
         prev_v[py_, px_, 1] = fy
         for q in range(lo, hi):
-            i = order[q]
+            i = src[q]
             valid[i] = ok
             vx[i] = fx if ok else np.nan
             vy[i] = fy if ok else np.nan
+        lo = hi
+
+
+@njit(cache=True, nogil=True)
+def contrast_max_grow(t, x, y, cur0, t_mid, half_s, patch, max_speed, min_step, min_events, min_focus, min_gain,
+                      min_cond, min_disp, prev_v, prev_ok, need, vx, vy, valid):  # type: ignore[no-untyped-def]
+    """The patches flagged in ``need`` again, on a longer span: events
+    ``t, x, y`` (time-sorted) of the span, the current window's from index
+    ``cur0`` on; ``vx, vy, valid`` are the current window's outputs. A
+    valid estimate replaces the earlier one (and ``prev_v``); a patch leaves
+    ``need`` unless it is still too slow or too sparse to measure."""
+    n = t.shape[0]
+    npy, npx = prev_ok.shape
+    margin = int(np.ceil(max_speed * half_s)) + 3
+    img = np.zeros((patch + 2 * margin + 2, patch + 2 * margin + 2))
+    sel = np.empty(n, np.int64)
+    m = 0
+    for i in range(n):
+        if need[np.int64(y[i]) // patch, np.int64(x[i]) // patch]:
+            sel[m] = i
+            m += 1
+    ps, xs, ys, ts, src = _by_patch(t, x, y, sel[:m], patch, npx, t_mid)
+    lo = 0
+    while lo < m:
+        hi = _patch_end(ps, lo)
+        py_, px_ = ps[lo] // npx, ps[lo] % npx
+        # from the shorter span's estimate (a valid one with a finer step)
+        st = max_speed / (16.0 if prev_ok[py_, px_] else 4.0)
+        sx, sy = prev_v[py_, px_, 0], prev_v[py_, px_, 1]
+        fx, fy, ok, longer = _estimate(xs, ys, ts, lo, hi, img, margin, max_speed, sx, sy, st, min_step, half_s,
+                                       min_events, min_focus, min_gain, min_cond)
+        need[py_, px_] = longer
+        prev_v[py_, px_, 0] = fx
+        prev_v[py_, px_, 1] = fy
+        if ok:
+            need[py_, px_] = np.hypot(fx, fy) * 2.0 * half_s < min_disp
+            prev_ok[py_, px_] = True
+            for q in range(lo, hi):
+                i = src[q]
+                if i >= cur0:
+                    valid[i - cur0] = True
+                    vx[i - cur0] = fx
+                    vy[i - cur0] = fy
         lo = hi
 
 
@@ -188,8 +285,12 @@ class ContrastMax(FlowOperator):
     false (too few events, unfocused, or aperture-limited). Parameters:
     ``window_us`` (µs), ``patch_px`` (px, 0 = whole sensor), ``max_speed``
     (px/s, the search range), ``min_events``, ``min_focus`` (sharpness per
-    event), ``min_gain`` (over no motion), ``min_cond`` (0..1). Emits each window when the watermark passes
-    its end: latency up to one window.
+    event), ``min_gain`` (over no motion), ``min_cond`` (0..1),
+    ``min_disp_px`` (px) and ``max_window_us`` (µs, a multiple of
+    ``window_us``; = ``window_us`` for fixed windows): the adaptive span of
+    slow patches. Emits each window when the watermark passes its end:
+    latency up to one window. State: the events of the last
+    ``max_window_us`` µs.
     """
 
     name = "flow.contrast_max"
@@ -197,21 +298,29 @@ class ContrastMax(FlowOperator):
 
     def __init__(self, window_us: int = 10_000, patch_px: int = 32, max_speed: float = 2000.0,
                  min_events: int = 40, min_focus: float = 1.3, min_gain: float = 1.2, min_cond: float = 0.15,
+                 min_disp_px: float = 2.0, max_window_us: int = 80_000,
                  out_vx: str = "vx", out_vy: str = "vy", out_valid: str = "valid") -> None:
         if window_us <= 0 or patch_px < 0 or max_speed <= 0 or min_events < 1 or min_cond < 0:
             raise ValueError("need window_us > 0, patch_px >= 0, max_speed > 0, min_events >= 1, min_cond >= 0")
+        if max_window_us < window_us or max_window_us % window_us or min_disp_px < 0:
+            raise ValueError("need max_window_us a multiple of window_us (>= it) and min_disp_px >= 0")
         self.window_us, self.patch_px, self.max_speed = int(window_us), int(patch_px), float(max_speed)
         self.min_events, self.min_focus, self.min_cond = int(min_events), float(min_focus), float(min_cond)
-        self.min_gain = float(min_gain)
+        self.min_gain, self.min_disp, self.max_window = float(min_gain), float(min_disp_px), int(max_window_us)
         self._set_outputs(out_vx, out_vy, out_valid)
-        # search down to 0.05 px of displacement at the window's ends
-        self.min_step = 0.05 / (0.5 * self.window_us * 1e-6)
         self._pending: list[EventPacket] = []
+        self._history: list[EventPacket] = []  # earlier whole windows, oldest first
         self._win: int | None = None  # start of the open window, µs
         self._prev_v: np.ndarray | None = None
 
     def _patch(self, sensor: tuple[int, int]) -> int:
         return self.patch_px or max(sensor)
+
+    def _params(self, span_us: int) -> tuple[float, float, float]:
+        """(half span in s, speed range px/s, smallest step px/s) of a span:
+        the same range of displacements, down to 0.05 px at its ends."""
+        half_s = 0.5e-6 * span_us
+        return half_s, self.max_speed * self.window_us / span_us, 0.05 / half_s
 
     def _run_window(self, pkt: EventPacket, t0: int) -> EventPacket:
         w, h = pkt.sensor
@@ -220,11 +329,26 @@ class ContrastMax(FlowOperator):
             self._prev_v = np.zeros((-(-h // patch), -(-w // patch), 2))
             self._prev_ok = np.zeros((-(-h // patch), -(-w // patch)), np.bool_)
         vx, vy, valid = self._alloc(len(pkt))
+        end = t0 + self.window_us
+        keep = self.max_window - self.window_us
+        self._history = [q for q in self._history if q.t_end > end - keep - self.window_us]
         if len(pkt):
-            contrast_max_window(pkt.t, pkt.x, pkt.y, t0 + self.window_us // 2, 0.5e-6 * self.window_us, patch,
-                                self.max_speed,
-                                self.min_step, self.min_events, self.min_focus, self.min_gain, self.min_cond,
-                                self._prev_v, self._prev_ok, vx, vy, valid)
+            need = np.zeros(self._prev_ok.shape, np.bool_)
+            half_s, vmax, step = self._params(self.window_us)
+            contrast_max_window(pkt.t, pkt.x, pkt.y, end - self.window_us // 2, half_s, patch, vmax, step,
+                                self.min_events, self.min_focus, self.min_gain, self.min_cond, self.min_disp,
+                                self._prev_v, self._prev_ok, need, vx, vy, valid)
+            span = 2 * self.window_us
+            while need.any() and span <= self.max_window:
+                past = [q.slice_time(end - span, None) for q in self._history if q.t_end > end - span]
+                both = concat([*past, pkt]) if past else pkt
+                half_s, vmax, step = self._params(span)
+                contrast_max_grow(both.t, both.x, both.y, len(both) - len(pkt), end - span // 2, half_s, patch,
+                                  vmax, step, self.min_events, self.min_focus, self.min_gain, self.min_cond,
+                                  self.min_disp, self._prev_v, self._prev_ok, need, vx, vy, valid)
+                span *= 2
+        if keep:
+            self._history.append(pkt)
         return self._emit(pkt, vx, vy, valid)
 
     def _flush(self, upto: int | None) -> list[EventPacket]:

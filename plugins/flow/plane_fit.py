@@ -10,39 +10,37 @@ from numba import njit
 
 from tectum import EventPacket
 
-from ._common import FlowOperator, new_sae, store_gradient_flow
-from ._plane import plane_fit_at, plane_scratch
+from ._common import FlowOperator, gradient_flow
+from ._plane import FASTMATH, SPAN, crossing_time, new_surface, plane_fit_at, plane_scratch, rel_time
 
 __all__ = ["PlaneFit", "plane_flow_kernel"]
 
 
-@njit(cache=True, nogil=True)
-def plane_flow_kernel(t, x, y, p, sae, last, burst_us, radius, window_us, n_iter, reject_us, robust, robust_k,
+@njit(cache=True, nogil=True, fastmath=FASTMATH)
+def plane_flow_kernel(t, x, y, p, sae, base, last, burst_us, radius, window_us, n_iter, reject_us, robust, robust_k,
                       floor_us, min_points, max_rms, min_speed, max_speed, vx, vy, valid):  # type: ignore[no-untyped-def]
-    """Per event: update ``sae`` then fit; normal flow (px/s) or NaN + invalid.
+    """Per event: update the surface ``sae`` (relative to ``base[0]``, see
+    :func:`tectum.plugins.flow._plane.new_surface`) then fit; normal flow
+    (px/s) or NaN + invalid.
 
     ``max_rms`` bounds the inliers' residual RMS as a fraction of the time
     the edge takes to cross one pixel (a noisy fit is not reported).
     With ``burst_us > 0``, ``last`` (H, W) int64 holds each pixel's last event
-    time, signed by its polarity (0 = none); see :class:`PlaneFit`."""
+    time, signed by its polarity (0 = none); see :class:`PlaneFit`.
+    Compiled with the fit's fast-math flags (the fit inlined here vectorises
+    only under them); the flow itself comes from plain code
+    (:func:`gradient_flow`, not inlined)."""
     scr = plane_scratch(radius)
     for i in range(t.shape[0]):
         k = 1 if p[i] > 0 else 0
-        xi, yi, ti = np.int64(x[i]), np.int64(y[i]), t[i]
-        tref = ti
-        if burst_us > 0:
-            prev = last[yi, xi]
-            # same polarity as the pixel's previous event and soon after it: same crossing
-            same = prev != 0 and (prev > 0) == (k == 1) and ti - abs(prev) <= burst_us
-            last[yi, xi] = ti + 1 if k == 1 else -(ti + 1)
-            if same and ti - sae[k, yi, xi] <= window_us:
-                tref = sae[k, yi, xi]
-        sae[k, yi, xi] = tref
+        xi, yi = np.int64(x[i]), np.int64(y[i])
+        tref = crossing_time(sae, last, burst_us, window_us, k, xi, yi, radius, t[i], rel_time(sae, base, t[i]))
+        sae[yi + radius, xi + radius, k] = tref
         a, b, _, rms, ok = plane_fit_at(sae, k, xi, yi, tref, radius, window_us, n_iter, reject_us, robust,
                                         robust_k, floor_us, min_points, scr)
         # the residual RMS must stay under max_rms times the time per pixel
-        ok = ok and rms <= max_rms * np.sqrt(a * a + b * b)
-        store_gradient_flow(i, ok, a, b, min_speed, max_speed, vx, vy, valid)
+        fx, fy, ok = gradient_flow(ok, a, b, rms, max_rms, min_speed, max_speed)
+        vx[i], vy[i], valid[i] = fx, fy, ok
 
 
 class PlaneFit(FlowOperator):
@@ -65,7 +63,9 @@ class PlaneFit(FlowOperator):
     that follows the pixel's previous event (same polarity) within
     ``burst_us`` belongs to the same crossing: the surface keeps the
     crossing's first time and the event gets the flow fitted at it. State:
-    2 x H x W int64 timestamps (and H x W of last events with ``burst_us``).
+    an int32 surface of both polarities' last times, relative to a base
+    (see :mod:`tectum.plugins.flow._plane`), and H x W int64 of last events
+    with ``burst_us``.
     """
 
     name = "flow.plane_fit"
@@ -75,8 +75,8 @@ class PlaneFit(FlowOperator):
                  robust: bool = False, robust_k: float = 3.0, floor_us: float = 300.0, min_points: int = 6,
                  max_rms: float = 1.0, min_speed: float = 1.0, max_speed: float = 20_000.0, burst_us: int = 0,
                  out_vx: str = "vx", out_vy: str = "vy", out_valid: str = "valid") -> None:
-        if radius < 1 or window_us <= 0 or n_iter < 0 or min_points < 3:
-            raise ValueError("need radius >= 1, window_us > 0, n_iter >= 0, min_points >= 3")
+        if radius < 1 or not 0 < window_us < SPAN // 2 or n_iter < 0 or min_points < 3:
+            raise ValueError(f"need radius >= 1, 0 < window_us < {SPAN // 2}, n_iter >= 0, min_points >= 3")
         if not 0 <= min_speed < max_speed or reject_us <= 0 or robust_k <= 0 or floor_us < 0 or max_rms <= 0:
             raise ValueError("need 0 <= min_speed < max_speed and positive thresholds")
         self.radius, self.window_us, self.n_iter = int(radius), int(window_us), int(n_iter)
@@ -91,11 +91,12 @@ class PlaneFit(FlowOperator):
 
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self.sae is None:
-            self.sae = new_sae(packet.sensor)
+            self.sae = new_surface(packet.sensor, self.radius)
+            self.base = np.array([packet.t_start], np.int64)
             w, h = packet.sensor
             self.last = np.zeros((h, w) if self.burst_us else (1, 1), np.int64)
         vx, vy, valid = self._alloc(len(packet))
-        plane_flow_kernel(packet.t, packet.x, packet.y, packet.p, self.sae, self.last, self.burst_us, self.radius, self.window_us,
+        plane_flow_kernel(packet.t, packet.x, packet.y, packet.p, self.sae, self.base, self.last, self.burst_us, self.radius, self.window_us,
                           self.n_iter, self.reject_us, self.robust, self.robust_k, self.floor_us,
                           self.min_points, self.max_rms, self.min_speed, self.max_speed, vx, vy, valid)
         return [self._emit(packet, vx, vy, valid)]

@@ -65,6 +65,22 @@ def test_contrast_max_recovers_full_flow_of_texture_and_refuses_lone_edges():
     assert e["density"] < 0.05  # aperture problem: full flow undetermined, so invalid
 
 
+def _slow_texture(duration_us=120_000, seed=3):
+    """Texture at 70 px/s: 0.7 px per 10 ms window, too little to measure in one."""
+    return translating_edges((64, 64), duration_us, 56.0, 42.0, angles_deg=(0, 60, 120), spacing_px=10,
+                             jitter_us=100, noise_hz=1.0, seed=seed)
+
+
+def test_contrast_max_grows_its_span_for_slow_patches():
+    tex = _slow_texture()
+    fixed, _ = _score(ContrastMax(window_us=10_000, patch_px=32, max_window_us=10_000), tex, normal=False)
+    grown, out = _score(ContrastMax(window_us=10_000, patch_px=32), tex, normal=False)
+    assert fixed["density"] < 0.2  # one window: no gain over no motion, refused
+    assert grown["density"] > 0.6 and grown["median_rel_pct"] < 10 and grown["aae_deg"] < 5, grown
+    with pytest.raises(ValueError):
+        ContrastMax(window_us=10_000, max_window_us=25_000)
+
+
 def _pure_noise(rate_hz=50.0):
     rng = np.random.default_rng(5)
     n = int(rate_hz * 64 * 64 * 0.05)
@@ -97,6 +113,13 @@ def test_batch_invariance_of_other_settings(make):
     pkt = translating_edges((32, 24), 20_000, *v, angles_deg=(0, 70), spacing_px=8, jitter_us=100,
                             noise_hz=20.0, seed=4).without_columns("vx", "vy")
     assert_batch_invariant(make, pkt, max_examples=5)
+
+
+def test_contrast_max_span_growth_is_batch_invariant():
+    pkt = _slow_texture(duration_us=50_000, seed=5).without_columns("vx", "vy")
+    pkt = pkt.select((pkt.x < 32) & (pkt.y < 32))
+    assert_batch_invariant(lambda: ContrastMax(window_us=5000, patch_px=16, min_events=10, max_window_us=20_000),
+                           pkt, max_examples=4)
 
 
 def test_truth_columns_survive_with_other_output_names():
