@@ -10,10 +10,11 @@ B-spline of 3 x 3 pixels (a Gaussian-like blob, sigma 0.5 px: the image of
 warped events smoothed, as Gallego et al. do, so the objective is smooth in
 ``v`` and does not favour whole-pixel displacements, which plain bilinear
 voting does for sub-pixel motion). The search is a coarse-to-fine pattern
-search from zero with a step of ``max_speed / 2`` down to 0.05 px of
-displacement, on coarser pixels while the step is large; a patch whose
-previous window gave a valid flow starts from it with a step of
-``max_speed / 16`` instead.
+search from zero with a step of ``max_speed / 2`` down to about 0.1 px of
+displacement, on coarser pixels while the step is large, ending at the
+vertex of the parabolas through the best point and its 4 neighbours (within
+half a step); a patch whose previous window gave a valid flow starts from it
+with a step of ``max_speed / 16`` instead.
 
 A patch's flow is given to all its events (**full flow**), valid only if:
 it has ``min_events`` events; the warped image is focused (sharpness per
@@ -33,7 +34,8 @@ is invalid (but not aperture-limited) or moves it less than
 grows, by doubling, up to ``max_window_us``: the estimate then uses the
 patch's events of the last 2, 4, ... windows (speeds searched up to
 ``max_speed * window_us / span``: the same range of displacements; from
-the shorter span's estimate, with a finer step if that was valid), and the
+the shorter span's estimate, with a step of ``max_speed / 8``, or
+``/ 16`` if that was valid), and the
 events of the current window get the flow of the first span that moves the
 patch by ``min_disp_px``, else of the longest span that gave a valid one.
 
@@ -85,19 +87,48 @@ def _vote(xs, ys, ts, lo, hi, vx, vy, img, margin, scale):  # type: ignore[no-un
     return r0, r1, c0, c1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, fastmath=True)
 def _sharpness(xs, ys, ts, lo, hi, vx, vy, img, margin, scale=1.0):  # type: ignore[no-untyped-def]
-    """Sum of squares of the smoothed image of warped events lo..hi (then
-    cleared), on pixels ``scale`` times the sensor's (coarse-to-fine search)."""
-    r0, r1, c0, c1 = _vote(xs, ys, ts, lo, hi, vx, vy, img, margin, scale)
+    """Sum of squares of the smoothed image of warped events lo..hi (``img``
+    is left cleared), on pixels ``scale`` times the sensor's (coarse-to-fine
+    search). Summed while voting, without a sweep of the image: adding ``w``
+    to a pixel holding ``u`` adds ``2 u w + w^2`` to the sum of squares, and
+    the ``w^2`` of one event's 3 x 3 votes is separable."""
+    ih, iw = img.shape
+    inv = 1.0 / scale
+    r0, r1, c0, c1 = ih, -1, iw, -1
     s = 0.0
-    for r in range(r0, r1 + 1):
-        row = img[r]
-        for c in range(c0, c1 + 1):
-            u = row[c]
-            s += u * u
-            row[c] = 0.0
-    return s
+    q = 0.0
+    for j in range(lo, hi):
+        wx = (xs[j] - vx * ts[j] + margin) * inv
+        wy = (ys[j] - vy * ts[j] + margin) * inv
+        fx = np.floor(wx + 0.5)
+        fy = np.floor(wy + 0.5)
+        ix, iy = int(fx), int(fy)
+        if 1 <= ix < iw - 1 and 1 <= iy < ih - 1:
+            dx, dy = wx - fx, wy - fy
+            a, b = 0.5 - dx, 0.5 + dx
+            ax0, ax1, ax2 = 0.5 * a * a, 0.75 - dx * dx, 0.5 * b * b
+            a, b = 0.5 - dy, 0.5 + dy
+            ay0, ay1, ay2 = 0.5 * a * a, 0.75 - dy * dy, 0.5 * b * b
+            r0, r1, c0, c1 = min(r0, iy), max(r1, iy), min(c0, ix), max(c1, ix)
+            q += (ax0 * ax0 + ax1 * ax1 + ax2 * ax2) * (ay0 * ay0 + ay1 * ay1 + ay2 * ay2)
+            row = img[iy - 1]
+            u0, u1, u2 = row[ix - 1], row[ix], row[ix + 1]
+            row[ix - 1], row[ix], row[ix + 1] = u0 + ay0 * ax0, u1 + ay0 * ax1, u2 + ay0 * ax2
+            e = ay0 * (ax0 * u0 + ax1 * u1 + ax2 * u2)
+            row = img[iy]
+            u0, u1, u2 = row[ix - 1], row[ix], row[ix + 1]
+            row[ix - 1], row[ix], row[ix + 1] = u0 + ay1 * ax0, u1 + ay1 * ax1, u2 + ay1 * ax2
+            e += ay1 * (ax0 * u0 + ax1 * u1 + ax2 * u2)
+            row = img[iy + 1]
+            u0, u1, u2 = row[ix - 1], row[ix], row[ix + 1]
+            row[ix - 1], row[ix], row[ix + 1] = u0 + ay2 * ax0, u1 + ay2 * ax1, u2 + ay2 * ax2
+            e += ay2 * (ax0 * u0 + ax1 * u1 + ax2 * u2)
+            s += e
+    for r in range(r0 - 1, r1 + 2):
+        img[r, c0 - 1:c1 + 2] = 0.0
+    return 2.0 * s + q
 
 
 @njit(cache=True, nogil=True)
@@ -106,16 +137,17 @@ def _isotropy(xs, ys, ts, lo, hi, vx, vy, img, margin):  # type: ignore[no-untyp
     image of warped events: near 0 for a lone straight edge (aperture problem),
     larger where edges of several orientations meet."""
     ih, iw = img.shape
-    _vote(xs, ys, ts, lo, hi, vx, vy, img, margin, 1.0)
+    r0, r1, c0, c1 = _vote(xs, ys, ts, lo, hi, vx, vy, img, margin, 1.0)
     sxx = sxy = syy = 0.0
-    for r in range(1, ih - 1):
-        for c in range(1, iw - 1):
+    # the gradient is zero but next to the touched box (pixels 1..size-2 only)
+    for r in range(max(1, r0 - 1), min(ih - 1, r1 + 2)):
+        for c in range(max(1, c0 - 1), min(iw - 1, c1 + 2)):
             gx = img[r, c + 1] - img[r, c - 1]
             gy = img[r + 1, c] - img[r - 1, c]
             sxx += gx * gx
             sxy += gx * gy
             syy += gy * gy
-    img[:, :] = 0.0
+    img[max(0, r0):r1 + 1, max(0, c0):c1 + 1] = 0.0
     tr = sxx + syy
     if tr <= 0.0:
         return 0.0
@@ -132,22 +164,47 @@ def _maximise(xs, ys, ts, lo, hi, img, margin, max_speed, start_x, start_y, star
     bx, by = start_x, start_y
     step = start_step
     best = 0.0
+    scale = 0.0  # of the image ``best`` was measured on
+    near = np.zeros(4)  # the objective at the centre's 4 neighbours
     while step >= min_step:
-        scale = max(1.0, step * half_s)
-        best = _sharpness(xs, ys, ts, lo, hi, bx, by, img, margin, scale)
+        if max(1.0, step * half_s) != scale:
+            scale = max(1.0, step * half_s)
+            best = _sharpness(xs, ys, ts, lo, hi, bx, by, img, margin, scale)
+        back = -1  # the direction back to the last centre: known to be worse
         moved = True
         while moved:
             moved = False
             cx, cy = bx, by
-            for dx, dy in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+            last = best
+            for k, (dx, dy) in enumerate(((-1, 0), (1, 0), (0, -1), (0, 1))):
                 vx, vy = cx + dx * step, cy + dy * step
+                if k == back:
+                    continue
                 if abs(vx) > max_speed or abs(vy) > max_speed:
+                    near[k] = -1.0
                     continue
                 f = _sharpness(xs, ys, ts, lo, hi, vx, vy, img, margin, scale)
+                near[k] = f
                 if f > best:
                     best, bx, by, moved = f, vx, vy, True
+                    back = k ^ 1
+            if moved:
+                near[back] = last
+        if step < 4.0 * min_step and scale == 1.0:
+            # the last step: the vertex of the parabola through the centre and its neighbours
+            for k, c in ((0, bx), (2, by)):
+                den = near[k] - 2.0 * best + near[k + 1]
+                if near[k] >= 0.0 and near[k + 1] >= 0.0 and den < 0.0:
+                    d = min(0.5, max(-0.5, 0.5 * (near[k] - near[k + 1]) / den)) * step
+                    if k == 0:
+                        bx += d
+                    else:
+                        by += d
+            return bx, by, best
         step *= 0.5
-    return bx, by, _sharpness(xs, ys, ts, lo, hi, bx, by, img, margin, 1.0)
+    if scale != 1.0:
+        best = _sharpness(xs, ys, ts, lo, hi, bx, by, img, margin, 1.0)
+    return bx, by, best
 
 
 @njit(cache=True, nogil=True)
@@ -259,7 +316,7 @@ def contrast_max_grow(t, x, y, cur0, t_mid, half_s, patch, max_speed, min_step, 
         hi = _patch_end(ps, lo)
         py_, px_ = ps[lo] // npx, ps[lo] % npx
         # from the shorter span's estimate (a valid one with a finer step)
-        st = max_speed / (16.0 if prev_ok[py_, px_] else 4.0)
+        st = max_speed / (16.0 if prev_ok[py_, px_] else 8.0)
         sx, sy = prev_v[py_, px_, 0], prev_v[py_, px_, 1]
         fx, fy, ok, longer = _estimate(xs, ys, ts, lo, hi, img, margin, max_speed, sx, sy, st, min_step, half_s,
                                        min_events, min_focus, min_gain, min_cond)
