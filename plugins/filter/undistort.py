@@ -11,7 +11,7 @@ from tectum import EventPacket, Operator
 
 from .calibration import Camera, read_calibration
 
-__all__ = ["Undistort", "undistort_lut", "lut_kernel"]
+__all__ = ["Undistort", "undistort_lut", "packed_lut", "lut_kernel", "kept_index_kernel"]
 
 
 def undistort_lut(camera: Camera, sensor: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -34,20 +34,59 @@ def undistort_lut(camera: Camera, sensor: tuple[int, int]) -> tuple[np.ndarray, 
     return lut_x, lut_y
 
 
+def packed_lut(lut_x: np.ndarray, lut_y: np.ndarray) -> np.ndarray:
+    """The two tables of :func:`undistort_lut` as one (H, W) int32 table,
+    ``y << 16 | x`` of the landing pixel, -1 where it lands outside (one
+    memory read per event instead of two). int64 when rows above 32767
+    would not fit the sign bit."""
+    dtype = np.int32 if lut_x.shape[0] <= 32768 else np.int64
+    return np.where(lut_x >= 0, (lut_y.astype(np.int64) << 16) | lut_x, -1).astype(dtype)
+
+
+_LUTS: dict[tuple[bytes, ...], np.ndarray] = {}
+_LUTS_MAX = 8
+
+
+def _cached_lut(camera: Camera, sensor: tuple[int, int]) -> np.ndarray:
+    """The packed table of ``camera`` on ``sensor``, built once per
+    calibration (a few small tables per process, read-only)."""
+    key = tuple(a.tobytes() if a is not None else b"-" for a in (camera.K, camera.D, camera.R, camera.P))
+    key += (np.array(sensor, np.int64).tobytes(),)
+    lut = _LUTS.get(key)
+    if lut is None:
+        lut = packed_lut(*undistort_lut(camera, sensor))
+        lut.flags.writeable = False
+        if len(_LUTS) >= _LUTS_MAX:
+            _LUTS.pop(next(iter(_LUTS)))
+        _LUTS[key] = lut
+    return lut
+
+
 @njit(cache=True, nogil=True)
-def lut_kernel(t, x, y, p, lut_x, lut_y, ot, ox, oy, op, idx):  # type: ignore[no-untyped-def]
-    """Map each event through the (H, W) int32 tables, dropping those where
-    the table holds -1: kept events go, compacted, to ``ot, ox, oy, op``
-    and their input index to ``idx``. Returns the number kept."""
+def lut_kernel(t, x, y, p, lut, ot, ox, oy, op):  # type: ignore[no-untyped-def]
+    """Map each event through the packed (H, W) int32 table (:func:`packed_lut`),
+    dropping those where it holds -1: kept events go, compacted, to ``ot,
+    ox, oy, op``. Returns the number kept; all kept when it equals the
+    input length."""
     n = 0
     for i in range(x.shape[0]):
-        nx = lut_x[y[i], x[i]]
+        v = lut[y[i], x[i]]
         ot[n] = t[i]
-        ox[n] = nx
-        oy[n] = lut_y[y[i], x[i]]
+        ox[n] = v & 0xFFFF
+        oy[n] = v >> 16
         op[n] = p[i]
+        n += v >= 0
+    return n
+
+
+@njit(cache=True, nogil=True)
+def kept_index_kernel(x, y, lut, idx):  # type: ignore[no-untyped-def]
+    """Input indices of the events :func:`lut_kernel` keeps, into ``idx``;
+    returns their number (for the extra columns)."""
+    n = 0
+    for i in range(x.shape[0]):
         idx[n] = i
-        n += nx >= 0
+        n += lut[y[i], x[i]] >= 0
     return n
 
 
@@ -62,7 +101,8 @@ class Undistort(Operator):
     UZH ``calib.txt``); ``side`` picks a stereo camera; ``camera`` gives a
     :class:`Camera` directly (Python use).
 
-    State: two int32 tables, 8 x W x H bytes (720 kB for 346x260).
+    State: one packed int32 table, 4 x W x H bytes (360 kB for 346x260),
+    shared by the operators of the same calibration in a process.
     """
 
     name = "filter.undistort"
@@ -76,7 +116,7 @@ class Undistort(Operator):
                 raise ValueError("filter.undistort needs calib=PATH (or a Camera)")
             camera = read_calibration(calib, side)
         self.camera = camera
-        self.lut: tuple[np.ndarray, np.ndarray] | None = None
+        self.lut: np.ndarray | None = None  # packed, see packed_lut
 
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self.lut is None:
@@ -84,11 +124,18 @@ class Undistort(Operator):
             if size is not None and size != packet.sensor:
                 raise ValueError(f"calibration is for a {size[0]}x{size[1]} sensor, events come from "
                                  f"{packet.sensor[0]}x{packet.sensor[1]}")
-            self.lut = undistort_lut(self.camera, packet.sensor)
+            self.lut = _cached_lut(self.camera, packet.sensor)
         m = len(packet)
         ot, ox, oy = np.empty(m + 1, np.int64), np.empty(m + 1, np.uint16), np.empty(m + 1, np.uint16)
-        op, idx = np.empty(m + 1, np.int8), np.empty(m + 1, np.int64)
-        n = lut_kernel(packet.t, packet.x, packet.y, packet.p, self.lut[0], self.lut[1], ot, ox, oy, op, idx)
-        cols = {k: v[idx[:n]] for k, v in packet.columns.items()}
+        op = np.empty(m + 1, np.int8)
+        n = lut_kernel(packet.t, packet.x, packet.y, packet.p, self.lut, ot, ox, oy, op)
+        cols = packet.columns
+        if cols:
+            if n == m:
+                cols = dict(cols)
+            else:
+                idx = np.empty(m + 1, np.int64)
+                kept_index_kernel(packet.x, packet.y, self.lut, idx)
+                cols = {k: v[idx[:n]] for k, v in cols.items()}
         return [EventPacket(ot[:n], ox[:n], oy[:n], op[:n], sensor=packet.sensor,
                             t_start=packet.t_start, t_end=packet.t_end, columns=cols)]

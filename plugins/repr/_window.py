@@ -76,21 +76,25 @@ class Windowed(Operator):
             self._by_time(packet, frames)
         else:
             self._by_count(packet, frames)
-        if len(packet):
+        if packet.t.shape[0]:
             self._last = int(packet.t[-1])
         return [self._emit(frames, packet.t_end)]
 
     def _by_time(self, pk: EventPacket, frames: list[tuple[int, np.ndarray]]) -> None:
         w = int(self.window_us)  # type: ignore[arg-type]
-        t, pos, n = pk.t, 0, len(pk)
-        while self._end <= pk.t_end:
-            j = int(np.searchsorted(t, self._end, side="left")) if pos < n else n
+        t, pos, n, t_end = pk.t, 0, len(pk), pk.t_end
+        last = int(t[-1]) if n else 0
+        while self._end <= t_end:
+            # every event lies before t_end: no search when the window ends there or after the last event
+            j = n if (pos == n or self._end == t_end or last < self._end) else \
+                int(np.searchsorted(t, self._end, side="left"))
             self._take(pk, pos, j)
             frames.append((self._end - 1, self._frame(self._end - w, self._end - 1)))
             self._n = 0
             self._end += w
             pos = j
-        self._take(pk, pos, n)
+        if pos < n:
+            self._take(pk, pos, n)
 
     def _by_count(self, pk: EventPacket, frames: list[tuple[int, np.ndarray]]) -> None:
         c = int(self.count)  # type: ignore[arg-type]

@@ -114,19 +114,24 @@ def decay_kernel(t, x, y, p, v, base, tau_us, rebase_after):  # type: ignore[no-
     ``v`` (H, W, 2) float64 (0 = never fired), ``base`` int64[1] (µs). When
     an event comes more than ``rebase_after`` µs after ``base``, ``v`` is
     rescaled to that event's time first (keeps ``v`` finite; depends only
-    on timestamps, so it is batch invariant). One exp per event instead of
-    one per pixel per frame."""
+    on timestamps, so it is batch invariant). One exp per distinct timestamp
+    (runs of equal ones share it) instead of one per pixel per frame."""
     inv = 1.0 / tau_us
     b = base[0]
+    t_prev = b - 1  # exp of the previous timestamp, reused for runs of equal ones
+    e = 0.0
     for i in range(t.shape[0]):
         ti = t[i]
-        if ti - b > rebase_after:
-            f = np.exp(-(ti - b) * inv)
-            vv = v.ravel()
-            for j in range(vv.shape[0]):
-                vv[j] *= f
-            b = ti
-        v[y[i], x[i], 1 if p[i] > 0 else 0] = np.exp((ti - b) * inv)
+        if ti != t_prev:
+            if ti - b > rebase_after:
+                f = np.exp(-(ti - b) * inv)
+                vv = v.ravel()
+                for j in range(vv.shape[0]):
+                    vv[j] *= f
+                b = ti
+            e = np.exp((ti - b) * inv)
+            t_prev = ti
+        v[y[i], x[i], 1 if p[i] > 0 else 0] = e
     base[0] = b
 
 

@@ -26,7 +26,7 @@ class _Image(Windowed):
 
     def _frame(self, t0: int, t1: int) -> np.ndarray:
         out = self.state  # the accumulator becomes the frame; a fresh one takes over
-        self.state = np.zeros_like(out)
+        self.state = np.zeros(out.shape, out.dtype)  # calloc: cheaper than zeros_like's fill
         return out
 
 

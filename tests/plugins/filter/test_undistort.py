@@ -95,3 +95,16 @@ def test_uzh_calib_from_shared_data():
     assert cam.K[0, 0] == pytest.approx(335.419462958) and cam.D.size == 5
     lx, ly = undistort_lut(cam, (240, 180))
     assert (lx >= 0).mean() > 0.9
+
+
+@pytest.mark.parametrize("dist", [D, np.zeros(5)])
+def test_extra_columns_follow_their_events(make_pattern, dist):
+    """Extra columns stay with the kept events, with drops (barrel
+    distortion) and without (no distortion: every event kept)."""
+    ev = make_pattern()
+    ev = ev.with_columns(index=np.arange(len(ev), dtype=np.int64))
+    out = feed(Undistort(camera=Camera(K, dist)), [ev])[0]
+    ok, ux, uy = reference(ev, Camera(K, dist))
+    assert np.array_equal(out.columns["index"], np.flatnonzero(ok))
+    assert np.array_equal(out.columns["noise"], ev.columns["noise"][ok])
+    assert np.array_equal(out.x, ux) and np.array_equal(out.y, uy) and np.array_equal(out.p, ev.p[ok])

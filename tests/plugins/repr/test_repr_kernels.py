@@ -69,3 +69,36 @@ def test_color(ev):
     assert np.all(img[untouched] == 16)
     with pytest.raises(ValueError):
         R.parse_color("#12345")
+
+
+def test_decay_kernel_shares_exp_within_timestamp_runs():
+    """decay_kernel reuses the exp of runs of equal timestamps: its state is
+    bit-identical to one exp per event (the obvious loop, in numba too so
+    both use the same exp), across a rebase."""
+    from numba import njit
+
+    from tectum.plugins.repr.kernels import decay_kernel
+
+    @njit
+    def one_exp_per_event(t, x, y, p, v, base, tau_us, rebase_after):  # type: ignore[no-untyped-def]
+        b = base[0]
+        for i in range(t.shape[0]):
+            if t[i] - b > rebase_after:
+                v *= np.exp(-(t[i] - b) / tau_us)
+                b = t[i]
+            v[y[i], x[i], 1 if p[i] > 0 else 0] = np.exp((t[i] - b) * (1.0 / tau_us))
+        base[0] = b
+
+    rng = np.random.default_rng(3)
+    n = 4000
+    t = np.sort(rng.integers(0, 600, n)).astype(np.int64) * 50  # runs of equal timestamps
+    x, y = rng.integers(0, 9, n).astype(np.uint16), rng.integers(0, 7, n).astype(np.uint16)
+    p = rng.choice(np.array([-1, 1], np.int8), n)
+    states = []
+    for fn in (decay_kernel, one_exp_per_event):
+        v, base = np.zeros((7, 9, 2)), np.array([t[0]], np.int64)
+        for a, b in ((0, 1500), (1500, 1501), (1501, n)):  # split inside a run too
+            fn(t[a:b], x[a:b], y[a:b], p[a:b], v, base, 2000.0, 8000)
+        states.append((v, base))
+    assert states[0][1][0] == states[1][1][0] > t[0]  # rebased
+    assert np.array_equal(states[0][0], states[1][0])
