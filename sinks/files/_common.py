@@ -91,12 +91,17 @@ class FileSink(Sink):
             except OSError:
                 pass
             self.f = None
-        if self._tmp is not None:
-            try:
-                os.unlink(self._tmp)
-            except OSError:
-                pass
-            self._tmp = None
+        discard(self._tmp)
+        self._tmp = None
+
+
+def discard(path: str | None) -> None:
+    """Remove a partial output file, if there is one (after an abort)."""
+    if path is not None:
+        try:
+            os.unlink(path)
+        except OSError:
+            pass
 
 
 def header_date() -> str:

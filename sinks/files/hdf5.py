@@ -16,6 +16,8 @@ import numpy as np
 
 from tectum import EventPacket, Packet, Sink
 
+from ._common import discard
+
 __all__ = ["Hdf5Sink"]
 
 
@@ -103,9 +105,5 @@ class Hdf5Sink(Sink):
             except Exception:
                 pass
             self.h = None
-        if self._tmp is not None:
-            try:
-                os.unlink(self._tmp)
-            except OSError:
-                pass
-            self._tmp = None
+        discard(self._tmp)
+        self._tmp = None
