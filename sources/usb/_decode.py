@@ -78,6 +78,25 @@ def _imu_skip(state: np.ndarray, c: np.int64) -> None:
 
 
 @njit(cache=True)
+def _imu_byte(state: np.ndarray, mdata: np.int64) -> tuple[np.int64, np.int64]:
+    """One IMU data byte (high byte first, then low): returns the sample
+    component 0..6 (device order) and its int16 value once a pair is
+    complete, else (-1, 0). Advances the byte count, skipping sensors not sent."""
+    c = state[_IMU_N]
+    state[_IMU_N] += 1
+    if c % 2 == 0:
+        state[_IMU_TMP] = mdata
+        return -1, 0
+    if c > 13:
+        return -1, 0
+    raw = (state[_IMU_TMP] << 8) | mdata
+    if raw >= 0x8000:
+        raw -= 0x10000
+    _imu_skip(state, c)
+    return (c - 1) // 2, raw
+
+
+@njit(cache=True)
 def _imu_type(state: np.ndarray, typ: np.int64) -> None:
     """An IMU configuration word: which sensors follow, hence the first count."""
     state[_IMU_TYPE] = typ
@@ -302,17 +321,9 @@ def davis_kernel(words: np.ndarray, start: int, state: np.ndarray, imu_cur: np.n
             if mcode == 0:
                 if state[_IMU_ON] != 1:
                     continue
-                c = state[_IMU_N]
-                if c % 2 == 0:
-                    state[_IMU_TMP] = mdata
-                elif c <= 13:
-                    raw = (state[_IMU_TMP] << 8) | mdata
-                    if raw >= 0x8000:
-                        raw -= 0x10000
-                    slot = (c - 1) // 2  # 0..6: ax ay az temp gx gy gz
+                slot, raw = _imu_byte(state, mdata)  # slots 0..6: ax ay az temp gx gy gz
+                if slot >= 0:
                     imu_cur[slot] = raw
-                    _imu_skip(state, c)
-                state[_IMU_N] += 1
             elif mcode == 3:
                 if state[_IMU_ON] != 1:
                     continue

@@ -30,8 +30,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._decode import _BAD, _CUR, _LAST, _IMU_BAD, _IMU_N, _IMU_ON, _IMU_TMP, _IMU_TYPE, _SPECIAL, _WRAP, _WRAPS, G, \
-    Decoded, _Base, _emit_time, _imu_skip, _imu_type, _reset
+from ._decode import _BAD, _CUR, _LAST, _IMU_BAD, _IMU_N, _IMU_ON, _IMU_TYPE, _SPECIAL, _WRAP, _WRAPS, G, \
+    Decoded, _Base, _emit_time, _imu_byte, _imu_type, _reset
 
 __all__ = ["DvxDecoder", "dvx_kernel"]
 
@@ -130,22 +130,15 @@ def dvx_kernel(words: np.ndarray, state: np.ndarray, imu_cur: np.ndarray, t: np.
             if mcode == 0:
                 if state[_IMU_ON] != 1:
                     continue
-                c = state[_IMU_N]
-                if c % 2 == 0:
-                    state[_IMU_TMP] = mdata
-                elif c <= 13:
-                    raw = (state[_IMU_TMP] << 8) | mdata
-                    if raw >= 0x8000:
-                        raw -= 0x10000
+                comp, raw = _imu_byte(state, mdata)
+                if comp >= 0:
                     # accel Y, X, Z, temperature, gyro Y, X, Z -> slots ax ay az t gx gy gz
-                    slot = (1, 0, 2, 3, 5, 4, 6)[(c - 1) // 2]
+                    slot = (1, 0, 2, 3, 5, 4, 6)[comp]
                     axis = slot % 4  # 0 x, 1 y, 2 z (3: temperature, never flipped)
                     flip = state[_IFLIP]  # bits: 4 x, 2 y, 1 z
                     if axis < 3 and (flip >> (2 - axis)) & 1 and raw != -32768:
                         raw = -raw
                     imu_cur[slot] = raw
-                    _imu_skip(state, c)
-                state[_IMU_N] += 1
             elif mcode == 3:
                 if state[_IMU_ON] != 1:
                     continue
