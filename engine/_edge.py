@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Sequence
 from typing import Any, Literal
 
 import trio
@@ -38,45 +39,31 @@ class Edge:
 
     async def send(self, item: Any) -> None:
         """Put an item; may wait (``block``) or drop (other policies)."""
-        if self._closed:
-            raise trio.ClosedResourceError("edge is closed")
-        if len(self._q) >= self.capacity:
-            if self.policy == "block":
-                while len(self._q) >= self.capacity:
-                    await self._writers.park()
-                    if self._closed:
-                        raise trio.ClosedResourceError("edge is closed")
-            elif self.policy == "keep_latest":
-                self._q.popleft()
-                self.drops += 1
-            else:
-                self.drops += 1
-                await trio.lowlevel.checkpoint_if_cancelled()
-                return
-        self._q.append(item)
-        if self._readers:
-            self._readers.unpark()
-        # No checkpoint while there is room: the sender yields on its own
-        # schedule (see the scheduler), so items are handed over in bursts.
+        await self.send_all((item,))
 
-    async def send_all(self, items: list[Any]) -> None:
-        """Put several items, in order, each under the policy."""
+    async def send_all(self, items: Sequence[Any]) -> None:
+        """Put several items, in order, each under the policy. No checkpoint
+        while there is room: senders yield on their own schedule (see the
+        scheduler), so items are handed over in bursts."""
         q, cap = self._q, self.capacity
         for item in items:
             if self._closed:
                 raise trio.ClosedResourceError("edge is closed")
-            if len(q) < cap:
-                q.append(item)
-            elif self.policy == "block":
-                if self._readers:
-                    self._readers.unpark()
-                await self.send(item)
-            elif self.policy == "keep_latest":
-                q.popleft()
-                q.append(item)
-                self.drops += 1
-            else:
-                self.drops += 1
+            if len(q) >= cap:
+                if self.policy == "block":
+                    while len(q) >= cap:
+                        if self._readers:
+                            self._readers.unpark()
+                        await self._writers.park()
+                        if self._closed:
+                            raise trio.ClosedResourceError("edge is closed")
+                elif self.policy == "keep_latest":
+                    q.popleft()
+                    self.drops += 1
+                else:
+                    self.drops += 1
+                    continue
+            q.append(item)
         if self._readers:
             self._readers.unpark()
 
