@@ -39,32 +39,47 @@ def decode_evt2(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
     last_raw = state[2]
     wraps = state[3]
     track = where.shape[0] > 0
-    cap = t.shape[0]
-    m = min(words.shape[0], cap)  # one event per word at most
-    base = th << 6
+    m = min(words.shape[0], t.shape[0])  # one event per word at most
+    cd_end = np.uint32(0x20000000)  # words below are CD_OFF / CD_ON
     i = 0
     while i < m:
+        # a run of CD events sharing one time base: a branch-free, vectorisable loop
+        k = i
+        while k < m and words[k] < cd_end:
+            k += 1
+        r = k - i
+        if r and have == 0:  # no time base yet: dropped, counted
+            state[4] += r
+        elif r:
+            base = th << 6
+            src = words[i:k]
+            to = t[n:n + r]
+            xo = x[n:n + r]
+            yo = y[n:n + r]
+            po = p[n:n + r]
+            for q in range(r):
+                w = src[q]
+                to[q] = base | np.int64((w >> np.uint32(22)) & np.uint32(0x3F))
+                xo[q] = np.uint16((w >> np.uint32(11)) & np.uint32(0x7FF))
+                yo[q] = np.uint16(w & np.uint32(0x7FF))
+                po[q] = np.int8((w >> np.uint32(27)) & np.uint32(2)) - np.int8(1)
+            if track:
+                wo = where[n:n + r]
+                for q in range(r):
+                    wo[q] = i + q
+            n += r
+        i = k
+        if i >= m:
+            break
         w = np.int64(words[i])
         i += 1
         typ = w >> 28
-        if typ <= 1:  # CD events first: nearly every word
-            if have == 0:
-                state[4] += 1
-                continue
-            t[n] = base | ((w >> 22) & 0x3F)
-            x[n] = (w >> 11) & 0x7FF
-            y[n] = w & 0x7FF
-            p[n] = typ * 2 - 1
-            if track:
-                where[n] = i - 1
-            n += 1
-        elif typ == 8:
+        if typ == 8:
             raw = w & 0x0FFFFFFF
             if have == 1 and raw < last_raw and last_raw - raw > (1 << 27):
                 wraps += 1
             last_raw = raw
             th = (wraps << 28) + raw
-            base = th << 6
             have = 1
         elif typ == 0xA:
             if have == 1:
@@ -192,15 +207,37 @@ def check_events(t, x, y, lo, hi, offset, prev, w, h):  # pragma: no cover - num
     is below the running maximum (starting at ``prev``) or whose ``x >= w``
     or ``y >= h``; -1 when all are good, and then ``offset`` is added to
     ``t[lo:hi]`` in place (on failure nothing is changed)."""
-    run = prev
-    for i in range(lo, hi):
-        v = t[i] + offset
-        if v < run or x[i] >= w or y[i] >= h:
-            return i
-        run = v
+    if hi <= lo:
+        return -1
+    if t[lo] + offset < prev or x[lo] >= w or y[lo] >= h:
+        return lo
+    # blocks of reductions (vectorised; a bad block is then searched event by
+    # event): while no time decreased, the running maximum is the previous time
+    wu = np.uint16(min(w, 65535))
+    hu = np.uint16(min(h, 65535))
+    i = lo + 1
+    while i < hi:
+        j = min(i + 4096, hi)
+        a = t[i - 1:j - 1]
+        b = t[i:j]
+        xs = x[i:j]
+        ys = y[i:j]
+        d = np.int64(0)
+        mx = np.uint16(0)
+        my = np.uint16(0)
+        for k in range(j - i):
+            d = min(d, b[k] - a[k])
+            mx = max(mx, xs[k])
+            my = max(my, ys[k])
+        if d < 0 or (w <= 65535 and mx >= wu) or (h <= 65535 and my >= hu):
+            for k in range(i, j):
+                if t[k] < t[k - 1] or x[k] >= w or y[k] >= h:
+                    return k
+        i = j
     if offset != 0:
-        for i in range(lo, hi):
-            t[i] += offset
+        tt = t[lo:hi]
+        for k in range(hi - lo):
+            tt[k] += offset
     return -1
 
 
@@ -210,23 +247,49 @@ DAT_STATE = 3
 
 
 @njit(cache=True, nogil=True)
-def decode_dat(words, state, t, x, y, p):  # pragma: no cover - numba
-    """``words`` are uint32 pairs (time, data); returns n_events."""
+def decode_dat(records, state, t, x, y, p):  # pragma: no cover - numba
+    """``records`` are little-endian uint64 (low word time, high word data);
+    returns n_events. Blocks without a wrap are decoded in a vectorised loop."""
     wraps = state[0]
     last = state[1]
     have = state[2]
-    m = words.shape[0] // 2
-    for i in range(m):
-        raw = np.int64(words[2 * i])
-        if have == 1 and raw < last and last - raw > (np.int64(1) << 31):
-            wraps += 1
-        last = raw
-        have = 1
-        d = words[2 * i + 1]
-        t[i] = (wraps << 32) + raw
-        x[i] = d & 0x3FFF
-        y[i] = (d >> 14) & 0x3FFF
-        p[i] = 1 if (d >> 28) & 0xF else -1
+    m = records.shape[0]
+    half = np.int64(1) << 31
+    i = 0
+    while i < m:
+        j = min(i + 4096, m)
+        r = records[i:j]
+        to = t[i:j]
+        xo = x[i:j]
+        yo = y[i:j]
+        po = p[i:j]
+        # a wrap is a fall of more than half the 32-bit range
+        prev = last if have == 1 else np.int64(r[0] & np.uint64(0xFFFFFFFF))
+        drop = np.int64(0)
+        for k in range(j - i):
+            raw = np.int64(r[k] & np.uint64(0xFFFFFFFF))
+            drop = max(drop, prev - raw)
+            prev = raw
+        if drop > half:
+            for k in range(j - i):
+                raw = np.int64(r[k] & np.uint64(0xFFFFFFFF))
+                if have == 1 and raw < last and last - raw > half:
+                    wraps += 1
+                last = raw
+                have = 1
+                to[k] = (wraps << 32) + raw
+        else:
+            hi = wraps << 32
+            for k in range(j - i):
+                to[k] = hi + np.int64(r[k] & np.uint64(0xFFFFFFFF))
+            last = np.int64(r[j - i - 1] & np.uint64(0xFFFFFFFF))
+            have = 1
+        for k in range(j - i):
+            d = np.uint32(r[k] >> np.uint64(32))
+            xo[k] = np.uint16(d & np.uint32(0x3FFF))
+            yo[k] = np.uint16((d >> np.uint32(14)) & np.uint32(0x3FFF))
+            po[k] = np.int8(1) if (d >> np.uint32(28)) != 0 else np.int8(-1)
+        i = j
     state[0] = wraps
     state[1] = last
     state[2] = have

@@ -32,7 +32,7 @@ import numpy as np
 from tectum import FormatError, Kind, Packet, TriggerPacket
 
 from . import _kernels as K
-from ._common import (EventAssembler, FileSource, SampleTiler, header_dict, read_prefixed_header,
+from ._common import (EventAssembler, FileSource, SampleTiler, header_dict, read_buffer, read_prefixed_header,
                       sensor_from_header, t0_from_header)
 
 __all__ = ["Evt2Source", "Evt3Source", "DatSource", "raw_format_of"]
@@ -97,12 +97,11 @@ class RawSource(FileSource):
         overwritten by the next chunk."""
         size = np.dtype(self.word).itemsize
         step = max(size, self.chunk_bytes - self.chunk_bytes % size)
-        buf = bytearray(step)
-        view = memoryview(buf)
+        buf = read_buffer(step)
         dtype = np.dtype(self.word).newbyteorder("<")
         pos = start
         while True:
-            got = f.readinto(view)
+            got = f.readinto(buf)
             if not got:
                 return
             k = got - got % size
@@ -270,31 +269,30 @@ class DatSource(FileSource):
         return start + lo * 8
 
     def _chunks(self, f: Any, pos: int, end: int) -> Iterator[tuple[int, np.ndarray]]:
-        """(file offset, uint32 words) per chunk of whole records; the words
-        live in one buffer, overwritten by the next chunk."""
+        """(file offset, records as little-endian uint64) per chunk of whole
+        records; they live in one buffer, overwritten by the next chunk."""
         step = max(8, self.chunk_bytes // 8 * 8)
-        buf = bytearray(step)
-        view = memoryview(buf)
+        buf = read_buffer(step)
         f.seek(pos)
         while pos < end:
-            got = f.readinto(view[:min(step, end - pos)])
+            got = f.readinto(buf[:min(step, end - pos)])
             if not got:
                 return
-            yield pos, np.frombuffer(buf, "<u4", count=got // 4)
+            yield pos, np.frombuffer(buf, "<u8", count=got // 8)
             pos += got
 
-    def _decode(self, words: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, ...]:
-        m = words.shape[0] // 2
+    def _decode(self, records: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, ...]:
+        m = records.shape[0]
         t, x, y = np.empty(m, np.int64), np.empty(m, np.uint16), np.empty(m, np.uint16)
         p = np.empty(m, np.int8)
-        K.decode_dat(words, state, t, x, y, p)
+        K.decode_dat(records, state, t, x, y, p)
         return t, x, y, p
 
     def _scan_extent(self, f: Any, start: int, end: int) -> tuple[int, int]:
         w = h = 1
         state = np.zeros(K.DAT_STATE, np.int64)
-        for _, words in self._chunks(f, start, end):
-            _, x, y, _ = self._decode(words, state)
+        for _, records in self._chunks(f, start, end):
+            _, x, y, _ = self._decode(records, state)
             if x.shape[0]:
                 w, h = max(w, int(x.max()) + 1), max(h, int(y.max()) + 1)
         return w, h
@@ -302,10 +300,10 @@ class DatSource(FileSource):
     def _events(self, f: Any, pos: int, end: int, sensor: tuple[int, int]) -> Iterator[Packet]:
         state = np.zeros(K.DAT_STATE, np.int64)
         asm = EventAssembler(self, sensor, offset=self.t0_offset if self.apply_t0 else 0)
-        for at, words in self._chunks(f, pos, end):
-            m = words.shape[0] // 2
+        for at, records in self._chunks(f, pos, end):
+            m = records.shape[0]
             t, x, y, p = asm.reserve(m)
-            K.decode_dat(words, state, t, x, y, p)
+            K.decode_dat(records, state, t, x, y, p)
             yield from asm.commit(m, at, lambda at=at, m=m: at + 8 * np.arange(m, dtype=np.int64))
             if asm.past_end():
                 break

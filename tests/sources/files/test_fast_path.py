@@ -130,18 +130,48 @@ def test_check_events_matches_reference(ev, offset, prev) -> None:
     t = np.array([e[0] for e in ev], np.int64)
     x = np.array([e[1] for e in ev], np.uint16)
     y = np.array([e[2] for e in ev], np.uint16)
-    want, run = -1, prev
-    for i in range(len(ev)):
-        v = int(t[i]) + offset
-        if v < run or x[i] >= 64 or y[i] >= 48:
-            want = i
-            break
-        run = v
+    want = _check_ref(t, x, y, 0, len(ev), offset, prev, 64, 48)
     before = t.copy()
     got = K.check_events(t, x, y, 0, len(ev), offset, prev, 64, 48)
     assert got == want
     assert np.array_equal(t, before + offset if want < 0 else before)
 
+
+
+def _check_ref(t: np.ndarray, x: np.ndarray, y: np.ndarray, lo: int, hi: int, offset: int, prev: int, w: int,
+               h: int) -> int:
+    run = prev
+    for i in range(lo, hi):
+        v = int(t[i]) + offset
+        if v < run or x[i] >= w or y[i] >= h:
+            return i
+        run = v
+    return -1
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 20_000), st.integers(0, 300), st.floats(0, 1), st.sampled_from(["t", "x", "y", "none"]),
+       st.sampled_from([(640, 480), (70_000, 480), (640, 70_000)]))
+def test_check_events_finds_one_bad_event_across_blocks(n, lo, frac, what, sensor) -> None:
+    """The blocked (vectorised) check finds the same first bad event as the
+    plain loop, wherever it lies, also past the 4096-event blocks."""
+    rng = np.random.default_rng(n)
+    w, h = sensor
+    t = np.cumsum(rng.integers(0, 3, n)).astype(np.int64)
+    x = rng.integers(0, min(w, 65535), n).astype(np.uint16)
+    y = rng.integers(0, min(h, 65535), n).astype(np.uint16)
+    lo = min(lo, n - 1)
+    k = lo + int(frac * (n - 1 - lo))
+    if what == "t" and k > lo:
+        t[k] = t[k - 1] - 1
+    elif what == "x" and w < 65535:
+        x[k] = w
+    elif what == "y" and h < 65535:
+        y[k] = h + 3
+    want = _check_ref(t, x, y, lo, n, 7, -1, w, h)
+    before = t.copy()
+    assert K.check_events(t, x, y, lo, n, 7, -1, w, h) == want
+    assert np.array_equal(t[lo:], before[lo:] + 7 if want < 0 else before[lo:])
 
 def test_lz4_fast_path_equals_the_frame_decoder() -> None:
     lz4f = pytest.importorskip("lz4.frame")

@@ -113,3 +113,35 @@ def test_trigger_words_give_channel_and_value():
     w2 = np.array([(8 << 28) | 2, (0xA << 28) | (7 << 22) | (17 << 8) | 1], np.uint32)
     _, nt, _, _, _ = K.decode_evt2(w2, np.zeros(K.EVT2_STATE, np.int64), True, *out, tr)
     assert tr[:nt].tolist() == [[(2 << 6) | 7, 17, 1]]
+
+
+def ref_dat(times, data):
+    out, wraps, last = [], 0, None
+    for raw, d in zip(times, data):
+        if last is not None and raw < last and last - raw > 1 << 31:
+            wraps += 1
+        last = raw
+        out.append(((wraps << 32) + raw, d & 0x3FFF, (d >> 14) & 0x3FFF, 1 if d >> 28 else -1))
+    return out
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 12_000), st.lists(st.integers(0, 12_000), max_size=3), st.integers(0, 2**32 - 1),
+       st.integers(0, 4))
+def test_dat_unrolls_wraps_in_any_chunking(n, cuts, t0, n_wraps):
+    """32-bit times falling by more than half their range count one wrap,
+    wherever the wraps and the chunk boundaries (vector blocks) fall."""
+    rng = np.random.default_rng(n)
+    steps = rng.integers(0, 1 << 20, n).astype(np.int64)
+    steps[rng.integers(0, n, n_wraps)] += 1 << 31  # jumps that wrap the 32-bit time
+    times = ((t0 + np.cumsum(steps)) & 0xFFFFFFFF).astype(np.uint64)
+    data = rng.integers(0, 1 << 32, n, dtype=np.uint64)
+    rec = times | (data << np.uint64(32))
+    state = np.zeros(K.DAT_STATE, np.int64)
+    got = []
+    for part in np.split(rec, sorted(c % (n + 1) for c in cuts)):
+        t, x, y = np.empty(len(part), np.int64), np.empty(len(part), np.uint16), np.empty(len(part), np.uint16)
+        p = np.empty(len(part), np.int8)
+        K.decode_dat(part, state, t, x, y, p)
+        got += list(zip(t.tolist(), x.tolist(), y.tolist(), p.tolist()))
+    assert got == ref_dat(times.tolist(), data.tolist())
