@@ -1,7 +1,9 @@
 """Numba FlatBuffer walkers for AEDAT 4.0 packets, many packets per call.
 
 A file holds thousands of small packets: looking up each packet's fields in
-Python cost more than decoding the events. :func:`fill_events` decodes one
+Python cost more than decoding the events. :func:`scan_packets` finds the
+packets (and their LZ4 block) in a read buffer, many per call;
+:func:`fill_events` decodes one
 packet straight into a batch's preallocated columns (no per-packet arrays,
 no joined copy); :func:`table_fields` takes one buffer holding many
 decompressed, size-prefixed FlatBuffers (``offs[k]`` to ``ends[k]``). The
@@ -14,7 +16,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["fill_events", "table_fields"]
+from . import _lz4 as LZ4
+
+__all__ = ["fill_events", "inflate_events", "lz4_frame", "scan_packets", "table_fields"]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -75,6 +79,33 @@ def _vector(buf, lo, hi, field, elem):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
+def _split(b, o, t, x, y, p):  # pragma: no cover - numba
+    """The ``Event`` structs ``b`` (16 bytes each) into the columns from ``o``."""
+    n = b.shape[0] // 16
+    to = t[o:o + n]
+    xo = x[o:o + n]
+    yo = y[o:o + n]
+    po = p[o:o + n]
+    if b.ctypes.data % 8 == 0:  # aligned, as FlatBuffers write it: whole-word loads
+        q = b.view(np.int64)
+        h = b.view(np.uint16)
+        for i in range(n):
+            to[i] = q[2 * i]
+            xo[i] = h[8 * i + 4]
+            yo[i] = h[8 * i + 5]
+            po[i] = np.int8(1) if b[16 * i + 12] != 0 else np.int8(-1)
+        return
+    for i in range(n):
+        v = np.int64(0)
+        for j in range(8):
+            v |= np.int64(b[16 * i + j]) << (8 * j)
+        to[i] = v
+        xo[i] = _u16(b, 16 * i + 8)
+        yo[i] = _u16(b, 16 * i + 10)
+        po[i] = np.int8(1) if b[16 * i + 12] != 0 else np.int8(-1)
+
+
+@njit(cache=True, nogil=True)
 def fill_events(buf, o, t, x, y, p):  # pragma: no cover - numba
     """Split the ``Event`` structs (int64 t, int16 x, int16 y, bool polarity)
     of one EventPacket FlatBuffer into the columns from index ``o``; returns
@@ -83,26 +114,140 @@ def fill_events(buf, o, t, x, y, p):  # pragma: no cover - numba
     s, n = _vector(buf, 0, buf.shape[0], 0, 16)
     if n < 0 or o + n > t.shape[0]:
         return -1
-    if s % 8 == 0:  # aligned, as FlatBuffers write it: whole-word loads
-        q = buf[s:s + 16 * n].view(np.int64)
-        h = buf[s:s + 16 * n].view(np.uint16)
-        for i in range(n):
-            t[o + i] = q[2 * i]
-            x[o + i] = h[8 * i + 4]
-            y[o + i] = h[8 * i + 5]
-            p[o + i] = 1 if buf[s + 16 * i + 12] else -1
-        return n
-    b = s
-    for i in range(o, o + n):
-        v = np.int64(0)
-        for j in range(8):
-            v |= np.int64(buf[b + j]) << (8 * j)
-        t[i] = v
-        x[i] = _u16(buf, b + 8)
-        y[i] = _u16(buf, b + 10)
-        p[i] = 1 if buf[b + 12] else -1
-        b += 16
+    _split(buf[s:s + 16 * n], o, t, x, y, p)
     return n
+
+
+@njit(cache=True, nogil=True)
+def _inflate(buf, lo, hi, linked, scratch, size):  # pragma: no cover - numba
+    """The blocks ``buf[lo:hi]`` of an LZ4 frame (see :func:`lz4_frame`)
+    into ``scratch[:size]``: the bytes written, -1 when a block is corrupt."""
+    o = 0
+    j = lo
+    while j < hi:
+        w = _u32(buf, j)
+        n = w & 0x7FFFFFFF
+        j += 4
+        if w >> 31:  # stored uncompressed
+            if o + n > size:
+                return -1
+            scratch[o:o + n] = buf[j:j + n]
+            r = n
+        elif linked and o > 0:  # refers back to the blocks before it, up to 64 KiB
+            d = max(0, o - 65536)
+            r = LZ4.decompress_safe_dict(buf, j, n, scratch, o, size - o, d, o - d)
+        else:
+            r = LZ4.decompress_safe(buf, j, n, scratch, o, size - o)
+        if r < 0:
+            return -1
+        o += r
+        j += n
+    return o
+
+
+@njit(cache=True, nogil=True)
+def inflate_events(buf, rows, k, scratch, t, x, y, p, counts):  # pragma: no cover - numba
+    """Decompress and split the event packets ``rows[k:]`` (rows of
+    :func:`scan_packets` in ``buf``) into the columns, each packet through
+    ``scratch`` (so it stays in cache). ``counts[k]`` gets each packet's
+    number of events, -1 when its FlatBuffer is malformed, -2 when it does
+    not decompress. Stops before a packet that is not a plain LZ4 frame or
+    whose events may not fit in the columns. Returns (events written, next
+    packet). Call only when :data:`tectum.sources.files._lz4.AVAILABLE`."""
+    o = 0
+    while k < rows.shape[0]:
+        size = rows[k, 5]
+        if rows[k, 3] < 0 or size > scratch.shape[0] or o + size // 16 > t.shape[0]:
+            break
+        n = _inflate(buf, rows[k, 3], rows[k, 4], rows[k, 6], scratch, size)
+        if n < 0 or (rows[k, 7] >= 0 and n != rows[k, 7]):
+            counts[k] = -2
+        else:
+            s, m = _vector(scratch, 0, n, 0, 16)
+            counts[k] = m
+            if m > 0:
+                _split(scratch[s:s + 16 * m], o, t, x, y, p)
+                o += m
+        k += 1
+    return o, k
+
+
+@njit(cache=True, nogil=True)
+def lz4_frame(buf, lo, hi):  # pragma: no cover - numba
+    """The blocks of the LZ4 frame ``buf[lo:hi]``, when it is one the
+    kernels decode: version 01, no checksums, no dictionary, blocks then the
+    end mark then nothing. Returns (first block header, end mark position,
+    room the data needs, 1 when blocks are linked, content size or -1 when
+    the frame does not say, number of blocks); first block -1 for any other
+    frame (or a malformed one: the frame decoder then says why)."""
+    if hi - lo < 11 or _u32(buf, lo) != 0x184D2204:
+        return -1, 0, 0, 0, -1, 0
+    flg = np.int64(buf[lo + 4])
+    bd = np.int64(buf[lo + 5])
+    bm = (bd >> 4) & 7
+    if flg & 0xC0 != 0x40 or flg & 0x17 or bd & 0x8F or bm < 4:
+        return -1, 0, 0, 0, -1, 0  # other version, block/content checksums, dictionary id or reserved bits
+    block_max = np.int64(1) << (8 + 2 * bm)
+    j = lo + 6
+    content = np.int64(-1)
+    if flg & 0x08:
+        if j + 8 > hi:
+            return -1, 0, 0, 0, -1, 0
+        content = _u32(buf, j) | (_u32(buf, j + 4) << 32)
+        if content < 0 or content >= np.int64(1) << 31:
+            return -1, 0, 0, 0, -1, 0
+        j += 8
+    j += 1  # header checksum
+    first = j
+    nb = 0
+    while True:
+        if j + 4 > hi:
+            return -1, 0, 0, 0, -1, 0
+        n = _u32(buf, j) & 0x7FFFFFFF
+        if n == 0:
+            break
+        if n > block_max or j + 4 + n > hi:
+            return -1, 0, 0, 0, -1, 0
+        nb += 1
+        j += 4 + n
+    if j + 4 != hi or _u32(buf, j) != 0 or nb == 0:
+        return -1, 0, 0, 0, -1, 0
+    room = nb * block_max if content < 0 else min(content, nb * block_max)
+    return first, j, room, 0 if flg & 0x20 else 1, content, nb
+
+
+@njit(cache=True, nogil=True)
+def scan_packets(buf, start, have, max_size, lz4, rows):  # pragma: no cover - numba
+    """Walk the packet headers (int32 stream id, int32 size) in
+    ``buf[start:have]``: one row per complete packet, ``(payload start,
+    payload end, stream id, first block, end mark, room, linked, content
+    size)`` (the last five from :func:`lz4_frame` when ``lz4``, else first
+    block -1). Returns (rows filled, end of the last complete packet,
+    status): status 0 when what follows is an incomplete packet or ``rows``
+    is full, 1 when the header there has a size below 0 or above
+    ``max_size``."""
+    i = start
+    k = 0
+    while k < rows.shape[0] and i + 8 <= have:
+        sid = _u32(buf, i)
+        size = _u32(buf, i + 4)
+        if sid >= np.int64(1) << 31:
+            sid -= np.int64(1) << 32
+        if size >= np.int64(1) << 31 or size > max_size:
+            return k, i, 1
+        lo = i + 8
+        hi = lo + size
+        if hi > have:
+            break
+        rows[k, 0] = lo
+        rows[k, 1] = hi
+        rows[k, 2] = sid
+        rows[k, 3] = -1
+        if lz4:
+            rows[k, 3], rows[k, 4], rows[k, 5], rows[k, 6], rows[k, 7], _ = lz4_frame(buf, lo, hi)
+        k += 1
+        i = hi
+    return k, i, 0
 
 
 @njit(cache=True, nogil=True)

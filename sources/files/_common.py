@@ -28,7 +28,7 @@ import numpy as np
 
 from tectum import EventPacket, FormatError, Kind, Packet, SamplePacket, Source
 
-__all__ = ["FileSource", "EventAssembler", "SampleTiler", "ColumnPool", "parse_size", "read_buffer",
+__all__ = ["FileSource", "EventAssembler", "SampleTiler", "ColumnPool", "parse_size", "byte_buffer",
            "read_prefixed_header", "sensor_from_header", "DEFAULT_CHUNK_BYTES"]
 
 DEFAULT_CHUNK_BYTES = 1 << 22
@@ -175,12 +175,12 @@ class ColumnPool:
 #: The process's column pool (shared by every file source).
 POOL = ColumnPool()
 
-#: Reusable read buffers (uint8), on the same terms as :data:`POOL`.
+#: Reusable byte buffers (uint8), on the same terms as :data:`POOL`.
 BUFFERS = ColumnPool(max_sets=4, max_bytes=1 << 24, dtypes=(np.uint8,))
 
 
-def read_buffer(n: int) -> np.ndarray:
-    """A uint8 array of ``n`` bytes to ``readinto``, taken from
+def byte_buffer(n: int) -> np.ndarray:
+    """A uint8 array of ``n`` bytes to read or decompress into, taken from
     :data:`BUFFERS` (a fresh one would cost a page fault per 4 KiB)."""
     return BUFFERS.take(n)[0][:n]
 

@@ -17,9 +17,12 @@ but never added again).
 
 from __future__ import annotations
 
+import functools
+import os
 import struct
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -27,14 +30,22 @@ import numpy as np
 
 from tectum import EventPacket, Kind, Packet, SamplePacket
 
+from . import _aedat4_kernels as AK
+from . import _lz4
 from . import aedat4_codec as codec
-from ._common import EventAssembler, FileSource, SampleTiler
+from ._common import EventAssembler, FileSource, SampleTiler, byte_buffer
 from ._flatbuf import FlatError, root
 
 __all__ = ["Aedat4Source", "Stream", "PacketEntry", "read_io_header"]
 
 MAGIC = b"#!AER-DAT4.0\r\n"
 _MAX_PACKET = 1 << 30
+#: Bytes read at a time, at most.
+_READ_BYTES = 1 << 22
+#: Packets of the packet table this close (bytes) are read together.
+_GAP = 1 << 16
+#: Events decoded into one set of columns, at most (unless one packet holds more).
+_RUN_EVENTS = 1 << 22
 
 
 @dataclass
@@ -115,16 +126,22 @@ class Aedat4Source(FileSource):
     Parameters (besides :class:`FileSource`'s)
     ------------------------------------------
     use_index:
-        Use the file's packet table to skip packets outside the time range
-        (default); off, every packet is walked.
+        Use the file's packet table to read only the packets in the time
+        range, and to skip frames when they are not asked for (default);
+        off, every packet is read.
     streams:
         Comma-separated kinds to decode (``events,frames,imu,triggers``, the
         default); packets of other streams are skipped undecompressed.
+    threads:
+        Threads decoding LZ4 event packets, this one included (0, the
+        default: one per CPU, at most 4; 1: this thread only).
 
-    Event packets are decoded many at a time (up to ``chunk_bytes`` of
-    events): one FlatBuffer walk in compiled code per batch, one
-    :class:`tectum.EventPacket` out per batch rather than per file packet.
-    Only the first events stream is read (one sensor per source).
+    Event packets are decoded a read (up to ``chunk_bytes``) at a time:
+    LZ4 frames are decompressed and split into columns in compiled code
+    (calling the liblz4 inside the ``lz4`` package), on up to ``threads``
+    threads, into one :class:`tectum.EventPacket` per read rather than one
+    per file packet; other compressions go through Python one packet at a
+    time. Only the first events stream is read (one sensor per source).
     """
 
     name = "aedat4"
@@ -133,9 +150,12 @@ class Aedat4Source(FileSource):
     produces = (Kind.EVENTS, Kind.FRAMES, Kind.IMU, Kind.TRIGGERS)
 
     def __init__(self, path: str, use_index: bool = True, streams: str = "events,frames,imu,triggers",
-                 **kw: Any) -> None:
+                 threads: int = 0, **kw: Any) -> None:
         super().__init__(path, **kw)
+        if threads < 0:
+            raise ValueError("threads must be >= 0")
         self.use_index = use_index
+        self.threads = min(threads or (os.cpu_count() or 1), 4)
         names = {"events": "EVTS", "frames": "FRME", "imu": "IMUS", "triggers": "TRIG"}
         wanted = [w.strip() for w in streams.split(",") if w.strip()]
         if not set(wanted) <= set(names):
@@ -163,26 +183,20 @@ class Aedat4Source(FileSource):
         """The file's packet table, or None when it has none (or it is corrupt)."""
         f, comp, dtp, _, start = self._open_header()
         try:
-            return self._table(f, comp, dtp, start)
+            tab = self._table(f, comp, dtp, start)
         finally:
             self.close()
+        return None if tab is None else [PacketEntry(*r) for r in tab.tolist()]
 
-    def _table(self, f: Any, comp: int, dtp: int, start: int) -> list[PacketEntry] | None:
+    def _table(self, f: Any, comp: int, dtp: int, start: int) -> np.ndarray | None:
+        """The packet table as rows of :func:`aedat4_codec.table_of`, or None."""
         size = f.seek(0, 2)
         if dtp < start or dtp >= size:
             return None
         f.seek(dtp)
         try:
-            buf = codec.decompress(f.read(size - dtp), comp)
-            tab = root(buf, size_prefixed=True, ident=b"FTAB")
-            out = []
-            for e in tab.tables(0):
-                at = e.struct_at(1, 8)
-                sid, sz = struct.unpack_from("<ii", buf, at) if at is not None else (0, 0)
-                out.append(PacketEntry(e.scalar(0, "q"), sid, sz, e.scalar(2, "q"), e.scalar(3, "q"),
-                                       e.scalar(4, "q")))
-            return out
-        except (ValueError, FlatError, struct.error):
+            return codec.table_of(codec.decompress(f.read(size - dtp), comp))
+        except (ValueError, FlatError):
             return None
 
     def _packets(self) -> Iterator[Packet]:
@@ -192,107 +206,138 @@ class Aedat4Source(FileSource):
         if ev_ids and sensor is None:
             self._fail("the events stream declares no sizeX/sizeY: give sensor=WxH")
         limit = dtp if dtp >= start else f.seek(0, 2)
-        entries = None
-        if self.use_index and (self.t_start_us is not None or self.t_end_us is not None):
-            entries = self._table(f, comp, dtp, start)
-        if entries is not None:
-            lo = self.t_start_us if self.t_start_us is not None else -(1 << 62)
-            hi = self.t_end_us if self.t_end_us is not None else 1 << 62
-            offsets = [(e.offset, e.stream, e.size) for e in entries if e.t_last >= lo and e.t_first < hi]
-        else:
-            offsets = None
-        batch = _Batch(self, comp, sensor, ev_ids[0] if ev_ids else None)
         want = {s.id for s in streams.values() if s.type_id in self._kinds}
-        for pos, sid, payload in self._walk(f, start, limit, offsets, want):
-            s = streams.get(sid)
-            if s is None or s.type_id not in self._kinds:
-                continue
-            try:
-                buf = codec.decompress(payload, comp)
-            except ValueError as e:
-                if not self.skip_bad:
-                    self._fail(f"packet of stream {sid} ({s.type_id}) does not decompress: {e}", pos)
-                self._note_skip(pos, pos + 8 + len(payload) - 1, 1)
-                continue
-            if s.type_id == "FRME":
-                yield from batch.frame(sid, buf, pos)
-            elif s.type_id != "EVTS" or sid == batch.ev_id:
-                batch.add(s.type_id, sid, buf, pos)
-            if batch.full():
-                yield from batch.flush()
-                if batch.done():
-                    break
-        yield from batch.flush()
+        lo = self.t_start_us if self.t_start_us is not None else -(1 << 62)
+        hi = self.t_end_us if self.t_end_us is not None else 1 << 62
+        ranged = self.t_start_us is not None or self.t_end_us is not None
+        # the table also saves reading frames (most of a DAVIS file) when they are not asked for
+        frames_unread = any(s.type_id == "FRME" and s.id not in want for s in streams.values())
+        entries = self._table(f, comp, dtp, start) if self.use_index and (ranged or frames_unread) else None
+        if entries is not None and (ranged or _tiles(entries, start, dtp)):
+            pick = np.isin(entries[:, 1], list(want)) & (entries[:, 5] >= lo) & (entries[:, 4] < hi)
+            chunks = self._indexed(f, entries[pick, 0] - 8, entries[pick, 0] + entries[pick, 2], comp)
+        else:
+            chunks = self._chunks(f, start, limit, comp)
+        batch = _Batch(self, comp, sensor, ev_ids[0] if ev_ids else None)
+        kinds = {s.id: s.type_id for s in streams.values() if s.type_id in self._kinds}
+        others = np.array([sid for sid, k in kinds.items() if k != "EVTS"], np.int64)
+        for buf, rows in chunks:
+            if batch.ev_id in kinds:
+                batch.add_events(buf, rows[rows[:, 2] == batch.ev_id])
+            mv = memoryview(buf)
+            for lo, hi, sid, *_, at in rows[np.isin(rows[:, 2], others)].tolist():
+                yield from batch.add(kinds[sid], sid, mv[lo:hi], at)
+            yield from batch.flush()  # while the chunk is still in cache
+            if batch.done():
+                break
         yield from batch.finish()
 
-    def _walk(self, f: Any, start: int, limit: int, offsets: list[tuple[int, int, int]] | None,
-              want: set[int] | None = None) -> Iterator[tuple[int, int, bytes]]:
-        """(file offset, stream id, payload) of each packet (in ``want``, a
-        set of stream ids, when given)."""
-        if offsets is not None:
-            for off, sid, size in offsets:  # the table points at payloads, after the 8-byte header
-                f.seek(off - 8)
-                hdr = f.read(8)
-                if len(hdr) < 8 or struct.unpack("<ii", hdr) != (sid, size):
-                    self._fail("packet table entry does not match the packet header", off - 8)
-                yield off - 8, sid, self._payload(f, off - 8, size, limit)
-            return
-        pos = start
+    def _chunks(self, f: Any, start: int, limit: int, comp: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        """(buffer, rows) per read of about ``chunk_bytes``: the rows of
+        :func:`scan_packets` for the complete packets in the buffer, with
+        the file offset of each packet's header appended. A packet cut by
+        the end of a read starts the next buffer; a buffer is never
+        overwritten while a row's view of it lives (it comes from the
+        buffer pool)."""
+        rows = np.empty((4096, 9), np.int64)
+        lz4 = comp in (1, 2)
+        carry = np.empty(0, np.uint8)
+        need = 8
+        pos = start  # next unread byte
         f.seek(pos)
-        buf = bytearray(max(self.chunk_bytes, 64))  # reused: a payload is consumed before the next refill
-        base = have = 0  # buf[:have] holds the file from offset base
-
-        def refill(need: int) -> None:
-            """Make buf hold [pos, pos + need) when the file has it."""
-            nonlocal buf, base, have
-            keep = max(0, have - (pos - base))
-            if need > len(buf):
-                grown = bytearray(need)
-                grown[:keep] = buf[have - keep:have]
-                buf = grown
-            elif keep:
-                buf[:keep] = buf[have - keep:have]
-            base, have = pos, keep
-            if keep == 0:
-                f.seek(pos)
-            view = memoryview(buf)
-            while have < len(buf):
-                got = f.readinto(view[have:])
+        while True:
+            base = pos - carry.shape[0]
+            n = min(max(min(self.chunk_bytes, _READ_BYTES), need), limit - base)
+            if n <= 0:
+                return
+            buf = byte_buffer(n)
+            buf[:carry.shape[0]] = carry
+            have = carry.shape[0]
+            while have < n:
+                got = f.readinto(buf[have:n])
                 if not got:
                     break
                 have += got
-
-        while pos < limit:
-            if pos + 8 > base + have:
-                refill(8)
-            if base + have - pos < 8:
-                if not self.skip_bad:
-                    self._fail("file ends inside a packet header (truncated)", pos)
-                self._note_skip(pos, limit - 1, 1)
+            pos = base + have
+            i, status = 0, 0
+            while True:
+                k, i, status = AK.scan_packets(buf, i, have, _MAX_PACKET, lz4, rows)
+                if k:
+                    yield buf, _located(rows[:k], base)
+                if k < rows.shape[0] or status:
+                    break
+            if status or (i < have and (have < n or pos >= limit)):  # broken, or cut by the end of the data
+                self._bad_tail(buf, base, i, have, limit)
                 return
-            sid, size = struct.unpack_from("<ii", buf, pos - base)
-            if size < 0 or size > _MAX_PACKET or pos + 8 + size > limit:
-                if not self.skip_bad:
-                    self._fail(f"packet size {size} (stream {sid}) runs past the end of the data "
-                               "(truncated or corrupt)", pos)
-                self._note_skip(pos, limit - 1, 1)
+            if have < n:
                 return
-            end = pos + 8 + size
-            if want is not None and sid not in want:  # skipped unread
-                pos = end
-                continue
-            if end > base + have:
-                refill(end - pos)
-                if end > base + have:
-                    self._fail("file ends inside a packet (truncated)", pos)
-            yield pos, sid, memoryview(buf)[pos - base + 8:end - base]
-            pos = end
+            carry = buf[i:have].copy()
+            need = 8 + int.from_bytes(carry[4:8].tobytes(), "little") if carry.shape[0] >= 8 else 8
 
-    def _payload(self, f: Any, pos: int, size: int, limit: int) -> bytes:
-        data = f.read(size)
-        if len(data) < size:
-            self._fail("file ends inside a packet (truncated)", pos)
-        return data
+    def _bad_tail(self, buf: np.ndarray, base: int, i: int, have: int, limit: int) -> None:
+        """The data ends (or breaks) at ``buf[i]`` inside a packet: raise, or
+        with ``skip_bad`` count the rest as skipped."""
+        at = base + i
+        if not self.skip_bad:
+            if have - i < 8:
+                self._fail("file ends inside a packet header (truncated)", at)
+            sid, size = struct.unpack_from("<ii", buf, i)
+            self._fail(f"packet size {size} (stream {sid}) runs past the end of the data (truncated or corrupt)", at)
+        self._note_skip(at, limit - 1, 1)
+
+    def _indexed(self, f: Any, heads: np.ndarray, ends: np.ndarray,
+                 comp: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        """Chunks (as :meth:`_chunks`) holding the packets ``[heads[k],
+        ends[k])`` (file offsets) the packet table points at, read into one
+        buffer up to ``_READ_BYTES`` at a time. Packets less than ``_GAP``
+        apart are read together, with what lies between (skipped later like
+        any unwanted packet); larger gaps are seeked over."""
+        order = np.argsort(heads, kind="stable")
+        spans: list[tuple[int, int, list[int]]] = []  # (start, end, headers of the packets asked for)
+        for a, b in zip(heads[order].tolist(), ends[order].tolist()):
+            if spans and a - spans[-1][1] < _GAP and b - spans[-1][0] <= _READ_BYTES:
+                spans[-1][2].append(a)
+                spans[-1] = (spans[-1][0], max(spans[-1][1], b), spans[-1][2])
+            else:
+                spans.append((a, b, [a]))
+        i = 0
+        while i < len(spans):
+            j, size = i, 0
+            while j < len(spans) and (j == i or size + spans[j][1] - spans[j][0] <= _READ_BYTES):
+                size += spans[j][1] - spans[j][0]
+                j += 1
+            buf = byte_buffer(size)
+            at = np.empty(j - i, np.int64)  # where each span starts in the buffer
+            o = 0
+            for k, (a, b, _) in enumerate(spans[i:j]):
+                at[k] = o
+                f.seek(a)
+                while o < at[k] + b - a:
+                    got = f.readinto(buf[o:at[k] + b - a])
+                    if not got:
+                        self._fail("file ends inside a packet (truncated)", a + o - int(at[k]))
+                    o += got
+            rows = self._scan_all(buf, comp)
+            span = np.searchsorted(at, rows[:, 0] - 8, side="right") - 1
+            rows[:, 8] = np.array([s[0] for s in spans[i:j]], np.int64)[span] + rows[:, 0] - 8 - at[span]
+            asked = np.array([a for sp in spans[i:j] for a in sp[2]], np.int64)
+            missing = asked[~np.isin(asked, rows[:, 8])]
+            if missing.shape[0]:
+                self._fail("packet table entry does not match the packet header", int(missing[0]))
+            yield buf, rows
+            i = j
+
+    def _scan_all(self, buf: np.ndarray, comp: int) -> np.ndarray:
+        """The rows of the packets in ``buf`` (from its start, while they
+        parse), with room for the file offset (the last column)."""
+        rows = np.empty((4096, 9), np.int64)
+        found, at = [], 0
+        while at < buf.shape[0]:
+            k, at, status = AK.scan_packets(buf, at, buf.shape[0], _MAX_PACKET, comp in (1, 2), rows)
+            if not k:
+                break
+            found.append(rows[:k].copy())
+        return np.concatenate(found) if found else rows[:0].copy()
 
     def info(self) -> dict[str, Any]:
         """From the packet table when there is one (no decoding)."""
@@ -319,27 +364,42 @@ class Aedat4Source(FileSource):
 
 
 class _Batch:
-    """Decompressed packets waiting to be decoded together, per stream."""
+    """Packets waiting to be decoded together, per stream. Event packets are
+    kept compressed until the batch is full, then decompressed and decoded
+    into one set of columns."""
 
     _DECODERS = {"IMUS": codec.imus_of, "TRIG": codec.triggers_of}
 
     def __init__(self, src: Aedat4Source, comp: int, sensor: tuple[int, int] | None, ev_id: int | None) -> None:
         self.src = src
+        self.comp = comp
         self.ev_id = ev_id
         self.asm = EventAssembler(src, sensor) if sensor is not None else None
         self.tiler = SampleTiler(src)
+        self.events: list[tuple[np.ndarray, np.ndarray]] = []
         self.parts: dict[tuple[str, int], tuple[list[bytes], list[int]]] = {}
-        self.ev_bytes = 0
 
-    def add(self, type_id: str, sid: int, buf: bytes, pos: int) -> None:
+    def add_events(self, buf: np.ndarray, rows: np.ndarray) -> None:
+        """Event packets: ``rows`` of :meth:`Aedat4Source._chunks` in ``buf``."""
+        if rows.shape[0]:
+            self.events.append((buf, rows))
+
+    def add(self, type_id: str, sid: int, payload: memoryview, pos: int) -> Iterator[Packet]:
+        """A packet of another stream: frames come out at once, IMU and
+        triggers with the batch."""
+        try:
+            buf = codec.decompress(payload, self.comp)
+        except ValueError as e:
+            if not self.src.skip_bad:
+                self.src._fail(f"packet of stream {sid} ({type_id}) does not decompress: {e}", pos)
+            self.src._note_skip(pos, pos + 8 + len(payload) - 1, 1)
+            return
+        if type_id == "FRME":
+            yield from self.frame(sid, buf, pos)
+            return
         bufs, poss = self.parts.setdefault((type_id, sid), ([], []))
         bufs.append(buf)
         poss.append(pos)
-        if type_id == "EVTS":
-            self.ev_bytes += len(buf)
-
-    def full(self) -> bool:
-        return self.ev_bytes >= self.src.chunk_bytes
 
     def done(self) -> bool:
         end = self.src.t_end_us
@@ -359,12 +419,10 @@ class _Batch:
             yield out
 
     def _decode(self, type_id: str, bufs: list[bytes], poss: list[int]) -> tuple[Any, list[int]]:
-        """Decode the packets together; a malformed one is dropped (skip_bad)
-        or reported with its file offset."""
+        """Decode IMU or trigger packets together; a malformed one is dropped
+        (skip_bad) or reported with its file offset."""
         while True:
             try:
-                if type_id == "EVTS":
-                    return codec.events_of(bufs), poss
                 sizes = np.fromiter((len(b) for b in bufs), np.int64, len(bufs))
                 ends = np.cumsum(sizes)
                 return self._DECODERS[type_id](b"".join(bufs), ends - sizes, ends), poss
@@ -375,22 +433,130 @@ class _Batch:
                 self.src._note_skip(poss[k], poss[k] + 8 + len(bufs[k]) - 1, 1)
                 bufs, poss = bufs[:k] + bufs[k + 1:], poss[:k] + poss[k + 1:]
 
-    def flush(self) -> Iterator[Packet]:
-        parts, self.parts, self.ev_bytes = self.parts, {}, 0
-        for (type_id, sid), (bufs, poss) in parts.items():
-            if not bufs:
-                continue
-            out, poss = self._decode(type_id, bufs, poss)
-            if type_id == "EVTS":
-                assert self.asm is not None
-                t, x, y, p, counts = out
-                at = np.array(poss, np.int64)
-                yield from self.asm.push(t, x, y, p, poss[0], lambda: np.repeat(at, counts))
+    def _bad(self, what: str, pos: int, size: int) -> None:
+        if not self.src.skip_bad:
+            self.src._fail(f"packet of stream {self.ev_id} (EVTS) {what}", pos)
+        self.src._note_skip(pos, pos + 8 + size - 1, 1)
+
+    def _flush_events(self) -> Iterator[Packet]:
+        """Decode the batch's event packets: runs of plain LZ4 blocks in
+        compiled code (:func:`inflate_events`, on several threads), other
+        packets one by one."""
+        events, self.events = self.events, []
+        for buf, rows in events:
+            fast = (rows[:, 3] >= 0) & _lz4.AVAILABLE
+            room = np.cumsum(np.where(fast, rows[:, 5] // 16, 0))  # events each packet can hold, summed
+            k = 0
+            while k < rows.shape[0]:
+                if not fast[k]:
+                    yield from self._one(memoryview(buf)[rows[k, 0]:rows[k, 1]], int(rows[k, 8]))
+                    k += 1
+                    continue
+                # a run of plain LZ4 packets whose events fit in _RUN_EVENTS (at least one packet)
+                j = max(k + 1, int(np.searchsorted(room, (room[k - 1] if k else 0) + _RUN_EVENTS, side="right")))
+                if not fast[k:j].all():
+                    j = k + int(np.argmin(fast[k:j]))
+                yield from self._inflate_run(buf, rows[k:j])
+                k = j
+
+    def _inflate_run(self, buf: np.ndarray, rows: np.ndarray) -> Iterator[Packet]:
+        """Plain LZ4 event packets: parts of the run go to ``threads``
+        threads (the kernel releases the GIL), each into its own stretch of
+        the columns, which are then closed up."""
+        assert self.asm is not None
+        room = rows[:, 5] // 16
+        w = max(1, min(self.src.threads, rows.shape[0] // 16))
+        cuts = [round(rows.shape[0] * i / w) for i in range(w + 1)]
+        at = [int(room[:c].sum()) for c in cuts]
+        cols = self.asm.reserve(at[-1])
+        counts = np.zeros(rows.shape[0], np.int64)
+        scratch = int(rows[:, 5].max())
+
+        def part(i: int) -> int:
+            n, _ = AK.inflate_events(buf, rows[cuts[i]:cuts[i + 1]], 0, byte_buffer(scratch),
+                                     *(c[at[i]:at[i + 1]] for c in cols), counts[cuts[i]:cuts[i + 1]])
+            return n
+
+        futures = [_threads().submit(part, i) for i in range(1, w)]
+        n = part(0)
+        for i, fu in enumerate(futures, 1):
+            m = fu.result()
+            for c in cols:
+                c[n:n + m] = c[at[i]:at[i] + m]
+            n += m
+        pos = rows[:, 8]
+        for i in np.flatnonzero(counts < 0).tolist():
+            size = int(rows[i, 1] - rows[i, 0])
+            if counts[i] == -1:
+                self._bad("does not decode: malformed EventPacket FlatBuffer", int(pos[i]), size)
             else:
-                q = self.tiler.push(type(out), sid, out.t, poss[0], **out.data)
-                if q is not None:
-                    yield q
+                why = _why(memoryview(buf)[rows[i, 0]:rows[i, 1]], self.comp)
+                self._bad(f"does not decompress: {why}", int(pos[i]), size)
+        good = counts > 0
+        yield from self.asm.commit(n, int(pos[0]), lambda: np.repeat(pos[good], counts[good]))
+
+    def _one(self, payload: memoryview, pos: int) -> Iterator[Packet]:
+        """One event packet, decompressed in Python."""
+        assert self.asm is not None
+        d = _inflate(payload, self.comp)
+        if isinstance(d, ValueError):
+            self._bad(f"does not decompress: {d}", pos, len(payload))
+            return
+        t, x, y, p = self.asm.reserve(len(d) // 16)
+        n = AK.fill_events(np.frombuffer(d, np.uint8), 0, t, x, y, p)
+        if n < 0:
+            self._bad("does not decode: malformed EventPacket FlatBuffer", pos, len(payload))
+            n = 0
+        yield from self.asm.commit(n, pos)
+
+    def flush(self) -> Iterator[Packet]:
+        if self.events:
+            yield from self._flush_events()
+        parts, self.parts = self.parts, {}
+        for (type_id, sid), (bufs, poss) in parts.items():
+            out, poss = self._decode(type_id, bufs, poss)
+            q = self.tiler.push(type(out), sid, out.t, poss[0], **out.data)
+            if q is not None:
+                yield q
 
     def finish(self) -> Iterator[Packet]:
         if self.asm is not None:
             yield from self.asm.finish()
+
+
+def _inflate(payload: memoryview, comp: int) -> Any:
+    """A packet's decompressed FlatBuffer, or the ValueError saying why it
+    does not decompress."""
+    if comp == 0:
+        return payload
+    try:
+        return codec.decompress(payload, comp)
+    except ValueError as e:
+        return e
+
+
+def _why(payload: memoryview, comp: int) -> str:
+    """Why a packet does not decompress, in the words of the frame decoder."""
+    e = _inflate(payload, comp)
+    return str(e) if isinstance(e, ValueError) else "corrupt LZ4 block"
+
+
+def _located(rows: np.ndarray, base: int) -> np.ndarray:
+    """``rows`` with the file offset of each packet's header in the last
+    column, the buffer starting at file offset ``base``."""
+    rows[:, 8] = base + rows[:, 0] - 8
+    return rows.copy()
+
+
+def _tiles(table: np.ndarray, start: int, end: int) -> bool:
+    """Whether the table's packets cover ``[start, end)`` exactly, one after
+    the other (then reading only some streams' packets loses nothing)."""
+    tab = table[np.argsort(table[:, 0], kind="stable")]
+    heads, ends = tab[:, 0] - 8, tab[:, 0] + tab[:, 2]
+    return bool(tab.shape[0] and heads[0] == start and ends[-1] == end and np.array_equal(heads[1:], ends[:-1]))
+
+
+@functools.cache
+def _threads() -> ThreadPoolExecutor:
+    """The threads that decode parts of LZ4 runs, made on first use."""
+    return ThreadPoolExecutor(3, thread_name_prefix="tectum-aedat4")

@@ -32,17 +32,19 @@ converted to m/s² and rad/s.
 
 from __future__ import annotations
 
+import functools
 import struct
+from typing import Any
 
 import numpy as np
 
 from tectum import EventPacket, FramePacket, ImuPacket, Packet, TriggerPacket
 
 from . import _aedat4_kernels as K
-from ._flatbuf import FlatError, Table, build_table, root
+from ._flatbuf import FlatError, build_table, root
 
 __all__ = ["COMPRESSION", "EVENT_DTYPE", "FlatError", "compress", "decompress", "decode_packet", "decode_events",
-           "events_of", "imus_of", "triggers_of",
+           "imus_of", "triggers_of", "table_of",
            "encode_events", "encode_frames", "encode_imu", "encode_packet", "compression_code"]
 
 #: AEDAT 4.0 compression codes (IOHeader ``compression``).
@@ -86,38 +88,40 @@ def decompress(payload: bytes | memoryview, compression: int | str) -> bytes:
         raise ValueError(f"corrupt compressed packet: {e}") from None
 
 
-#: LZ4 frame block maximum sizes by the BD byte's bits 4-6.
-_LZ4_BLOCK_MAX = {4: 1 << 16, 5: 1 << 18, 6: 1 << 20, 7: 1 << 22}
-
-
 def _lz4_simple_frame(payload: bytes | memoryview) -> bytes | None:
     """Decompress an LZ4 frame holding one block, without checksums or
     dictionary (what DV writes), with ``lz4.block``: the frame decoder, not
     knowing the output size, grows its buffer and runs at half the speed.
     None for any other frame (the caller uses ``lz4.frame``, which also
     reports errors)."""
-    import lz4.block
+    buf = np.frombuffer(payload, np.uint8)
+    lo, _, size, _, _, blocks = K.lz4_frame(buf, 0, buf.shape[0])
+    if lo < 0 or blocks != 1:
+        return None
+    n = int.from_bytes(payload[lo:lo + 4], "little")
+    return lz4_block_data(payload[lo + 4:lo + 4 + (n & 0x7FFFFFFF)], size, n >> 31)
 
-    if len(payload) < 11 or bytes(payload[:4]) != b"\x04\x22\x4d\x18":
-        return None
-    flg, bd = payload[4], payload[5]
-    if flg & 0xC0 != 0x40 or flg & 0x17 or bd & 0x8F or (bd >> 4) & 7 not in _LZ4_BLOCK_MAX:
-        return None  # other version, block/content checksums, dictionary id or reserved bits
-    i = 7 + (8 if flg & 0x08 else 0)
-    if i + 8 > len(payload):
-        return None
-    size = int.from_bytes(payload[i:i + 4], "little")
-    raw, size = size >> 31, size & 0x7FFFFFFF
-    j = i + 4 + size
-    if size == 0 or j + 4 != len(payload) or bytes(payload[j:j + 4]) != b"\0\0\0\0":
-        return None  # not exactly one block then the end mark
-    block = payload[i + 4:j]
+
+def lz4_block_data(block: bytes | memoryview, size: int, raw: int) -> bytes | None:
+    """The data of one LZ4 block (at most ``size`` bytes; ``raw``: stored
+    uncompressed), None when it does not decompress."""
     if raw:
         return bytes(block)
     try:
-        return lz4.block.decompress(block, uncompressed_size=_LZ4_BLOCK_MAX[(bd >> 4) & 7])
+        return _lz4_block().decompress(block, uncompressed_size=size)
+    except ImportError:
+        raise
     except Exception:  # corrupt: let the frame decoder say why
         return None
+
+
+@functools.cache
+def _lz4_block() -> Any:
+    """``lz4.block``, imported once (an import statement per packet costs
+    the import lock, which threads then wait on)."""
+    import lz4.block
+
+    return lz4.block
 
 
 def compress(buf: bytes, compression: int | str) -> bytes:
@@ -133,31 +137,18 @@ def compress(buf: bytes, compression: int | str) -> bytes:
     return zstandard.ZstdCompressor(level=9 if c == 4 else 3).compress(buf)
 
 
-def events_of(bufs: list[bytes]) -> tuple[np.ndarray, ...]:
-    """(t, x, y, p, counts) of the EventPacket FlatBuffers ``bufs``, decoded
-    into one set of columns; FlatError names (``.packet``) the first bad one."""
-    cap = sum(len(b) for b in bufs) // 16
-    t, x, y, p = np.empty(cap, np.int64), np.empty(cap, np.uint16), np.empty(cap, np.uint16), np.empty(cap, np.int8)
-    counts = np.empty(len(bufs), np.int64)
-    o = 0
-    for k, b in enumerate(bufs):
-        n = K.fill_events(np.frombuffer(b, np.uint8), o, t, x, y, p)
-        if n < 0:
-            err = FlatError("malformed EventPacket FlatBuffer")
-            err.packet = k  # type: ignore[attr-defined]
-            raise err
-        counts[k] = n
-        o += n
-    return t[:o], x[:o], y[:o], p[:o], counts
-
-
 def decode_events(buf: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(t int64 µs, x uint16, y uint16, p int8 ±1) of an EventPacket FlatBuffer.
 
     x and y are int16 on the wire: negative values come out >= 32768 (and
     fail geometry checks downstream)."""
-    t, x, y, p, _ = events_of([buf])
-    return t, x, y, p
+    raw = np.frombuffer(buf, np.uint8)
+    cap = raw.shape[0] // 16
+    t, x, y, p = np.empty(cap, np.int64), np.empty(cap, np.uint16), np.empty(cap, np.uint16), np.empty(cap, np.int8)
+    n = K.fill_events(raw, 0, t, x, y, p)
+    if n < 0:
+        raise FlatError("malformed EventPacket FlatBuffer")
+    return t[:n], x[:n], y[:n], p[:n]
 
 
 def _gather(raw: np.ndarray, pos: np.ndarray, dtype: str, default: float | int) -> np.ndarray:
@@ -179,6 +170,20 @@ def _fields(buf: bytes | bytearray, fields: list[int], sizes: list[int], offs: n
         err.packet = int(bad)  # type: ignore[attr-defined]
         raise err
     return raw, pos
+
+
+def table_of(buf: bytes | bytearray) -> np.ndarray:
+    """The rows ``(payload offset, stream id, size, elements, first µs, last
+    µs)`` of a size-prefixed ``FileDataTable`` FlatBuffer (``FTAB``)."""
+    if len(buf) < 12 or bytes(buf[8:12]) != b"FTAB":
+        raise FlatError("not a FileDataTable (FTAB)")
+    raw, pos = _fields(buf, [0, 1, 2, 3, 4], [8, 8, 8, 8, 8])
+    info = pos[:, 1]
+    out = np.empty((pos.shape[0], 6), np.int64)
+    out[:, [0, 3, 4, 5]] = _gather(raw, pos[:, [0, 2, 3, 4]], "<i8", 0)
+    out[:, 1] = _gather(raw, info, "<i4", 0)
+    out[:, 2] = _gather(raw, np.where(info >= 0, info + 4, -1), "<i4", 0)
+    return out
 
 
 def _frames(buf: bytes) -> FramePacket:
@@ -334,8 +339,3 @@ def encode_packet(pkt: Packet, compression: int | str) -> list[tuple[str, bytes]
     if isinstance(pkt, ImuPacket):
         return [("IMUS", compress(encode_imu(pkt), compression))]
     raise ValueError(f"AEDAT4 cannot store {type(pkt).__name__}")
-
-
-def table_of(buf: bytes) -> Table:
-    """The root of a size-prefixed buffer (for callers inspecting fields)."""
-    return root(buf, size_prefixed=True)

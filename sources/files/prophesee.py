@@ -32,7 +32,7 @@ import numpy as np
 from tectum import FormatError, Kind, Packet, TriggerPacket
 
 from . import _kernels as K
-from ._common import (EventAssembler, FileSource, SampleTiler, header_dict, read_buffer, read_prefixed_header,
+from ._common import (EventAssembler, FileSource, SampleTiler, byte_buffer, header_dict, read_prefixed_header,
                       sensor_from_header, t0_from_header)
 
 __all__ = ["Evt2Source", "Evt3Source", "DatSource", "raw_format_of"]
@@ -97,7 +97,7 @@ class RawSource(FileSource):
         overwritten by the next chunk."""
         size = np.dtype(self.word).itemsize
         step = max(size, self.chunk_bytes - self.chunk_bytes % size)
-        buf = read_buffer(step)
+        buf = byte_buffer(step)
         dtype = np.dtype(self.word).newbyteorder("<")
         pos = start
         while True:
@@ -272,7 +272,7 @@ class DatSource(FileSource):
         """(file offset, records as little-endian uint64) per chunk of whole
         records; they live in one buffer, overwritten by the next chunk."""
         step = max(8, self.chunk_bytes // 8 * 8)
-        buf = read_buffer(step)
+        buf = byte_buffer(step)
         f.seek(pos)
         while pos < end:
             got = f.readinto(buf[:min(step, end - pos)])

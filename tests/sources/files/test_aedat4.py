@@ -1,0 +1,194 @@
+"""The AEDAT 4.0 reader: the compiled LZ4 path (threads, runs, reads cut
+anywhere) gives what the Python path gives, for every compression and LZ4
+frame layout; a packet that does not decompress or decode is named by its
+byte offset, or skipped and counted, the same way on both paths."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tectum import EventPacket, FormatError, concat
+from tectum.sinks.files import SINKS
+from tectum.sinks.files._common import write_all
+from tectum.sources.files import _lz4, aedat4
+from tectum.sources.files.aedat4 import Aedat4Source
+
+pytest.importorskip("lz4")
+pytest.importorskip("zstandard")
+
+SINK = next(c for c in SINKS if c.name == "aedat4")
+PER_PACKET = 700
+
+
+def _events(n: int = 60_000) -> EventPacket:
+    rng = np.random.default_rng(3)
+    return EventPacket.from_arrays(np.cumsum(rng.integers(0, 5, n)), rng.integers(0, 64, n), rng.integers(0, 48, n),
+                                   rng.choice([-1, 1], n), sensor=(64, 48))
+
+
+def _write(path: Path, pkt: EventPacket, **kw) -> Path:
+    write_all(SINK(str(path), **kw), [pkt])
+    return path
+
+
+def _read(path: Path, **kw) -> tuple[EventPacket, Aedat4Source]:
+    src = Aedat4Source(str(path), **kw)
+    pkts = [q for q in src.packets() if isinstance(q, EventPacket)]
+    return concat(pkts), src
+
+
+def _same(a: EventPacket, b: EventPacket) -> bool:
+    return all(np.array_equal(getattr(a, c), getattr(b, c)) for c in "txyp")
+
+
+@pytest.fixture(params=[True, False], ids=["compiled", "python"])
+def compiled(request, monkeypatch) -> bool:
+    if request.param and not _lz4.AVAILABLE:
+        pytest.skip("lz4 does not export LZ4_decompress_safe here")
+    monkeypatch.setattr(_lz4, "AVAILABLE", request.param)
+    return request.param
+
+
+@pytest.mark.parametrize("compression", ["lz4", "lz4_high", "zstd", "none"])
+@pytest.mark.parametrize("per_packet", [PER_PACKET, 6000], ids=["one-block", "linked-blocks"])
+def test_every_path_reads_the_same_events(tmp_path: Path, compiled: bool, compression: str, per_packet: int,
+                                          monkeypatch) -> None:
+    """6000 events are 96 KB: two linked 64 KiB LZ4 blocks per packet."""
+    ev = _events()
+    f = _write(tmp_path / "e.aedat4", ev, compression=compression, packet_events=per_packet)
+    for threads in (1, 2, 3):
+        got, _ = _read(f, threads=threads)
+        assert _same(got, ev), threads
+    got, _ = _read(f, chunk_bytes=5000, threads=2)  # packets cut by reads, and larger than a read
+    assert _same(got, ev)
+    monkeypatch.setattr(aedat4, "_RUN_EVENTS", 3000)  # many runs, each on up to 2 threads
+    got, _ = _read(f, threads=2)
+    assert _same(got, ev)
+
+
+def _packet_at(path: Path, k: int) -> tuple[int, int]:
+    """(offset of the header, payload size) of event packet ``k``."""
+    entries = [e for e in Aedat4Source(str(path)).packet_table() if e.stream == 0]
+    return entries[k].offset - 8, entries[k].size
+
+
+def _without(path: Path, ev: EventPacket, k: int) -> EventPacket:
+    """``ev`` without the events of packet ``k`` (of the file's packet table)."""
+    n = np.cumsum([0] + [e.elements for e in Aedat4Source(str(path)).packet_table() if e.stream == 0])
+    keep = np.ones(len(ev), bool)
+    keep[n[k]:n[k + 1]] = False
+    return ev.select(keep)
+
+
+def _corrupt_block(path: Path, k: int) -> int:
+    """Fill the LZ4 data of packet ``k``'s first block with 0xFF (literal
+    lengths running past the block): the frame still parses, the block does
+    not decompress."""
+    at, size = _packet_at(path, k)
+    raw = bytearray(path.read_bytes())
+    frame = at + 8
+    first = frame + 7 + (8 if raw[frame + 4] & 0x08 else 0)  # after the header (and content size)
+    n = int.from_bytes(raw[first:first + 4], "little") & 0x7FFFFFFF
+    raw[first + 4:first + 4 + n] = b"\xff" * n
+    path.write_bytes(bytes(raw))
+    return at
+
+
+def _garbage_payload(path: Path, k: int) -> int:
+    """Replace packet ``k``'s payload by a valid LZ4 frame of the same size
+    holding random bytes (stored raw): it decompresses, but is no FlatBuffer."""
+    import lz4.frame
+
+    at, size = _packet_at(path, k)
+    junk = np.random.default_rng(1).integers(0, 256, size - 15, dtype=np.uint8).tobytes()
+    frame = lz4.frame.compress(junk, store_size=False, content_checksum=False)
+    assert len(frame) == size
+    raw = bytearray(path.read_bytes())
+    raw[at + 8:at + 8 + size] = frame
+    path.write_bytes(bytes(raw))
+    return at
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_corrupt_block_is_named_or_skipped(tmp_path: Path, compiled: bool, threads: int) -> None:
+    ev = _events()
+    f = _write(tmp_path / "c.aedat4", ev, packet_events=PER_PACKET)
+    want = _without(f, ev, 40)
+    at = _corrupt_block(f, 40)
+    with pytest.raises(FormatError, match="does not decompress") as e:
+        _read(f, threads=threads)
+    assert e.value.offset == at
+    got, src = _read(f, threads=threads, skip_bad=True)
+    assert _same(got, want) and src.skipped_events == 1
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_packet_that_is_no_flatbuffer_is_named_or_skipped(tmp_path: Path, compiled: bool, threads: int) -> None:
+    ev = _events()
+    f = _write(tmp_path / "m.aedat4", ev, packet_events=PER_PACKET)
+    want = _without(f, ev, 40)
+    at = _garbage_payload(f, 40)
+    with pytest.raises(FormatError, match="malformed EventPacket") as e:
+        _read(f, threads=threads)
+    assert e.value.offset == at
+    got, src = _read(f, threads=threads, skip_bad=True)
+    assert _same(got, want) and src.skipped_events == 1
+
+
+def test_frame_kinds_found_by_the_scan(tmp_path: Path) -> None:
+    """What the packet scan calls a plain LZ4 frame (decoded in compiled
+    code): single and linked blocks, with or without the content size; not
+    frames with checksums (the Python decoder checks those)."""
+    import lz4.frame
+
+    from tectum.sources.files import _aedat4_kernels as AK
+
+    data = np.random.default_rng(0).integers(0, 4, 150_000).astype(np.uint8).tobytes()
+
+    def scan(**kw) -> tuple[int, ...]:
+        fr = np.frombuffer(lz4.frame.compress(data, **kw), np.uint8)
+        return AK.lz4_frame(fr, 0, fr.shape[0])
+
+    first, _, room, linked, content, blocks = scan(content_checksum=False)
+    assert first > 0 and linked == 1 and content == len(data) == room and blocks == 3
+    first, _, room, linked, content, blocks = scan(content_checksum=False, store_size=False, block_linked=False)
+    assert first > 0 and linked == 0 and content == -1 and room == 3 << 16
+    assert scan(content_checksum=True)[0] == -1
+    assert scan(content_checksum=False, block_checksum=True)[0] == -1
+
+
+def test_events_only_skips_frames_through_the_table(tmp_path: Path, compiled: bool) -> None:
+    """Asked for events only, a file with frames is read through its packet
+    table (frames seeked over), with the same result as reading every packet;
+    a table that does not cover the file is not trusted."""
+    from tectum import FramePacket
+
+    ev = _events(20_000)
+    rng = np.random.default_rng(2)
+    f = tmp_path / "f.aedat4"
+    parts: list = []
+    for k, chunk in enumerate(ev.batches(2000)):
+        parts.append(chunk)
+        t = int(chunk.t[-1])
+        parts.append(FramePacket(np.array([t]), t_start=t, t_end=t + 1,
+                                 images=rng.integers(0, 255, (1, 48, 64), np.uint8)))
+    write_all(SINK(str(f), packet_events=PER_PACKET), parts)
+    walked, _ = _read(f, streams="events", use_index=False)
+    indexed, src = _read(f, streams="events")
+    assert _same(walked, ev) and _same(indexed, ev)
+    part, _ = _read(f, streams="events", t_start_us=int(ev.t[5000]), t_end_us=int(ev.t[15000]))
+    assert _same(part, ev.slice_time(int(ev.t[5000]), int(ev.t[15000])))
+    # the table's last entry says one byte less: not trusted, every packet is read
+    tab = src.packet_table()
+    assert tab is not None
+    from tectum.sources.files import aedat4 as A
+
+    table = np.array([[e.offset, e.stream, e.size, e.elements, e.t_first, e.t_last] for e in tab], np.int64)
+    start = table[:, 0].min() - 8
+    end = int((table[:, 0] + table[:, 2]).max())
+    assert A._tiles(table, start, end)
+    table[-1, 2] -= 1
+    assert not A._tiles(table, start, end)
