@@ -12,10 +12,15 @@ readers.
 from __future__ import annotations
 
 import struct
+from collections import deque
+from concurrent.futures import Future
 from typing import Any
+
+import numpy as np
 
 from tectum import EventPacket, FramePacket, ImuPacket, Kind, Packet
 from tectum.sources.files import aedat4_codec as codec
+from tectum.sources.files._common import thread_count, workers
 from tectum.sources.files._flatbuf import build_table
 
 from ._common import FileSink
@@ -38,6 +43,9 @@ class Aedat4Sink(FileSink):
         ``lz4`` (default, as DV), ``lz4_high``, ``zstd``, ``zstd_high`` or ``none``.
     packet_events:
         Most events per stored packet.
+    threads:
+        Threads compressing event packets (0, the default: one per CPU, at
+        most 4; 1: this thread only). The file is the same either way.
     """
 
     name = "aedat4"
@@ -45,8 +53,11 @@ class Aedat4Sink(FileSink):
     extensions = (".aedat4",)
     consumes = (Kind.EVENTS, Kind.FRAMES, Kind.IMU)
 
-    def __init__(self, path: str, compression: str = "lz4", packet_events: int = 1 << 16) -> None:
+    def __init__(self, path: str, compression: str = "lz4", packet_events: int = 1 << 16, threads: int = 0) -> None:
         super().__init__(path)
+        self.threads = thread_count(threads)
+        #: event packets being compressed, in file order: (payload, count, first and last µs)
+        self._pending: deque[tuple[Future[Any], int, int, int]] = deque()
         self.comp = codec.compression_code(compression)
         self.comp_name = {v: k for k, v in codec.COMPRESSION.items()}[self.comp].upper()
         if packet_events < 1:
@@ -76,10 +87,21 @@ class Aedat4Sink(FileSink):
 
     def _events(self, packet: EventPacket) -> None:
         for ev in packet.batches(self.packet_events):
-            self._put("EVTS", codec.compress(codec.encode_events(ev), self.comp), len(ev),
-                      int(ev.t[0]), int(ev.t[-1]))
+            buf, n, t0, t1 = codec.events_buffer(ev), len(ev), int(ev.t[0]), int(ev.t[-1])
+            if self.threads == 1:
+                self._put("EVTS", codec.compress(buf, self.comp), n, t0, t1)
+                continue
+            self._pending.append((workers().submit(codec.compress, buf, self.comp), n, t0, t1))
+            self._drain(2 * self.threads)
+
+    def _drain(self, keep: int) -> None:
+        """Write compressed event packets, in order, until ``keep`` are left."""
+        while len(self._pending) > keep:
+            fu, n, t0, t1 = self._pending.popleft()
+            self._put("EVTS", fu.result(), n, t0, t1)
 
     def _other(self, packet: Packet) -> None:
+        self._drain(0)  # packets stay in the order they came
         if isinstance(packet, FramePacket):
             for i, buf in enumerate(codec.encode_frames(packet)):
                 img = packet.images[i]
@@ -90,7 +112,7 @@ class Aedat4Sink(FileSink):
             self._put("IMUS", codec.compress(codec.encode_imu(packet), self.comp), len(packet),
                       int(packet.t[0]), int(packet.t[-1]))
 
-    def _put(self, type_id: str, payload: bytes, n: int, t0: int, t1: int) -> None:
+    def _put(self, type_id: str, payload: bytes | np.ndarray, n: int, t0: int, t1: int) -> None:
         assert self.f is not None
         sid = _STREAMS[type_id][0]
         self.seen.add(type_id)
@@ -102,8 +124,15 @@ class Aedat4Sink(FileSink):
     def _empty(self) -> None:
         pass
 
+    def abort(self) -> None:
+        for fu, *_ in self._pending:
+            fu.cancel()
+        self._pending.clear()
+        super().abort()
+
     def _end(self) -> None:
         assert self.f is not None
+        self._drain(0)
         dtp = self.f.tell()
         self.f.write(codec.compress(_data_table(self.table), self.comp))
         xml = self._xml()

@@ -18,7 +18,7 @@ from numba import njit
 
 from . import _lz4 as LZ4
 
-__all__ = ["fill_events", "inflate_events", "lz4_frame", "scan_packets", "table_fields"]
+__all__ = ["fill_events", "inflate_events", "lz4_frame", "pack_events", "scan_packets", "table_fields"]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -103,6 +103,16 @@ def _split(b, o, t, x, y, p):  # pragma: no cover - numba
         xo[i] = _u16(b, 16 * i + 8)
         yo[i] = _u16(b, 16 * i + 10)
         po[i] = np.int8(1) if b[16 * i + 12] != 0 else np.int8(-1)
+
+
+@njit(cache=True, nogil=True)
+def pack_events(t, x, y, p, out):  # pragma: no cover - numba
+    """The columns as ``Event`` structs (int64 t, int16 x, int16 y, bool
+    polarity, 3 zero bytes) in ``out`` (16 bytes each, 8-aligned)."""
+    q = out.view(np.int64)
+    for i in range(t.shape[0]):  # little-endian: the second word is x, y, polarity, padding
+        q[2 * i] = t[i]
+        q[2 * i + 1] = np.int64(x[i]) | (np.int64(y[i]) << 16) | (np.int64(1 if p[i] > 0 else 0) << 32)
 
 
 @njit(cache=True, nogil=True)

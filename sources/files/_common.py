@@ -17,11 +17,13 @@ Conventions (all formats)
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 import sys
 import threading
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any, ClassVar
 
 import numpy as np
@@ -29,7 +31,7 @@ import numpy as np
 from tectum import EventPacket, FormatError, Kind, Packet, SamplePacket, Source
 
 __all__ = ["FileSource", "EventAssembler", "SampleTiler", "ColumnPool", "parse_size", "byte_buffer",
-           "read_prefixed_header", "sensor_from_header", "DEFAULT_CHUNK_BYTES"]
+           "read_prefixed_header", "sensor_from_header", "thread_count", "workers", "DEFAULT_CHUNK_BYTES"]
 
 DEFAULT_CHUNK_BYTES = 1 << 22
 
@@ -183,6 +185,21 @@ def byte_buffer(n: int) -> np.ndarray:
     """A uint8 array of ``n`` bytes to read or decompress into, taken from
     :data:`BUFFERS` (a fresh one would cost a page fault per 4 KiB)."""
     return BUFFERS.take(n)[0][:n]
+
+
+def thread_count(threads: int) -> int:
+    """A ``threads`` option: 0 is one per CPU, at most 4 (what :func:`workers`
+    serves, this thread included)."""
+    if threads < 0:
+        raise ValueError("threads must be >= 0 (0: one per CPU, at most 4)")
+    return min(threads or (os.cpu_count() or 1), 4)
+
+
+@functools.cache
+def workers() -> ThreadPoolExecutor:
+    """Threads the file formats share for work that releases the GIL
+    (compiled kernels, compression), made on first use."""
+    return ThreadPoolExecutor(3, thread_name_prefix="tectum-files")
 
 
 class EventAssembler:

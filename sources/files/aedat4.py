@@ -17,12 +17,9 @@ but never added again).
 
 from __future__ import annotations
 
-import functools
-import os
 import struct
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -33,7 +30,7 @@ from tectum import EventPacket, Kind, Packet, SamplePacket
 from . import _aedat4_kernels as AK
 from . import _lz4
 from . import aedat4_codec as codec
-from ._common import EventAssembler, FileSource, SampleTiler, byte_buffer
+from ._common import EventAssembler, FileSource, SampleTiler, byte_buffer, thread_count, workers
 from ._flatbuf import FlatError, root
 
 __all__ = ["Aedat4Source", "Stream", "PacketEntry", "read_io_header"]
@@ -152,10 +149,8 @@ class Aedat4Source(FileSource):
     def __init__(self, path: str, use_index: bool = True, streams: str = "events,frames,imu,triggers",
                  threads: int = 0, **kw: Any) -> None:
         super().__init__(path, **kw)
-        if threads < 0:
-            raise ValueError("threads must be >= 0")
         self.use_index = use_index
-        self.threads = min(threads or (os.cpu_count() or 1), 4)
+        self.threads = thread_count(threads)
         names = {"events": "EVTS", "frames": "FRME", "imu": "IMUS", "triggers": "TRIG"}
         wanted = [w.strip() for w in streams.split(",") if w.strip()]
         if not set(wanted) <= set(names):
@@ -465,7 +460,7 @@ class _Batch:
         the columns, which are then closed up."""
         assert self.asm is not None
         room = rows[:, 5] // 16
-        w = max(1, min(self.src.threads, rows.shape[0] // 16))
+        w = max(1, min(self.src.threads, rows.shape[0], int(rows[:, 5].sum()) >> 19))  # parts of 512 KiB or more
         cuts = [round(rows.shape[0] * i / w) for i in range(w + 1)]
         at = [int(room[:c].sum()) for c in cuts]
         cols = self.asm.reserve(at[-1])
@@ -477,7 +472,7 @@ class _Batch:
                                      *(c[at[i]:at[i + 1]] for c in cols), counts[cuts[i]:cuts[i + 1]])
             return n
 
-        futures = [_threads().submit(part, i) for i in range(1, w)]
+        futures = [workers().submit(part, i) for i in range(1, w)]
         n = part(0)
         for i, fu in enumerate(futures, 1):
             m = fu.result()
@@ -554,9 +549,3 @@ def _tiles(table: np.ndarray, start: int, end: int) -> bool:
     tab = table[np.argsort(table[:, 0], kind="stable")]
     heads, ends = tab[:, 0] - 8, tab[:, 0] + tab[:, 2]
     return bool(tab.shape[0] and heads[0] == start and ends[-1] == end and np.array_equal(heads[1:], ends[:-1]))
-
-
-@functools.cache
-def _threads() -> ThreadPoolExecutor:
-    """The threads that decode parts of LZ4 runs, made on first use."""
-    return ThreadPoolExecutor(3, thread_name_prefix="tectum-aedat4")

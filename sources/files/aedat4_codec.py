@@ -45,7 +45,7 @@ from ._flatbuf import FlatError, build_table, root
 
 __all__ = ["COMPRESSION", "EVENT_DTYPE", "FlatError", "compress", "decompress", "decode_packet", "decode_events",
            "imus_of", "triggers_of", "table_of",
-           "encode_events", "encode_frames", "encode_imu", "encode_packet", "compression_code"]
+           "encode_events", "encode_frames", "encode_imu", "encode_packet", "events_buffer", "compression_code"]
 
 #: AEDAT 4.0 compression codes (IOHeader ``compression``).
 COMPRESSION = {"none": 0, "lz4": 1, "lz4_high": 2, "zstd": 3, "zstd_high": 4}
@@ -124,7 +124,7 @@ def _lz4_block() -> Any:
     return lz4.block
 
 
-def compress(buf: bytes, compression: int | str) -> bytes:
+def compress(buf: bytes | np.ndarray, compression: int | str) -> bytes | np.ndarray:
     c = compression_code(compression)
     if c == 0:
         return buf
@@ -257,13 +257,18 @@ def decode_packet(type_id: str, payload: bytes | memoryview, compression: int | 
 # -- encoding ----------------------------------------------------------------------
 def encode_events(pkt: EventPacket) -> bytes:
     """An EventPacket FlatBuffer (size-prefixed, ``EVTS``) of ``pkt``'s events."""
+    return events_buffer(pkt).tobytes()
+
+
+def events_buffer(pkt: EventPacket) -> np.ndarray:
+    """:func:`encode_events` as a uint8 array, built in place (no copies)."""
     n = len(pkt)
-    rec = np.zeros(n, EVENT_DTYPE)
-    rec["t"] = pkt.t
-    rec["x"] = pkt.x.astype(np.int16)
-    rec["y"] = pkt.y.astype(np.int16)
-    rec["p"] = pkt.p > 0
-    return build_table([None], b"EVTS", size_prefixed=True, blob=rec.tobytes(), blob_field=0, blob_count=n)
+    head = bytearray(build_table([None], b"EVTS", size_prefixed=True, blob_field=0, blob_count=n))
+    struct.pack_into("<I", head, 0, len(head) + 16 * n - 4)  # the size prefix counts the events
+    out = np.empty(len(head) + 16 * n, np.uint8)
+    out[:len(head)] = np.frombuffer(head, np.uint8)
+    K.pack_events(pkt.t, pkt.x, pkt.y, pkt.p, out[len(head):])
+    return out
 
 
 def encode_frames(pkt: FramePacket) -> list[bytes]:

@@ -192,3 +192,25 @@ def test_events_only_skips_frames_through_the_table(tmp_path: Path, compiled: bo
     assert A._tiles(table, start, end)
     table[-1, 2] -= 1
     assert not A._tiles(table, start, end)
+
+
+def test_writer_threads_write_the_same_file(tmp_path: Path) -> None:
+    """Compression on threads keeps packets in order, frames included; an
+    abort with packets still compressing leaves no file."""
+    from tectum import FramePacket
+
+    ev = _events(50_000)
+    frame = FramePacket(np.array([int(ev.t[-1])]), t_start=int(ev.t[-1]), t_end=int(ev.t[-1]) + 1,
+                        images=np.zeros((1, 48, 64), np.uint8))
+    parts = [*ev.batches(20_000), frame]
+    files = []
+    for k in (1, 3):
+        f = tmp_path / f"w{k}.aedat4"
+        write_all(SINK(str(f), packet_events=PER_PACKET, threads=k), parts)
+        files.append(f)
+    assert files[0].read_bytes() == files[1].read_bytes()
+    sink = SINK(str(tmp_path / "gone.aedat4"), packet_events=PER_PACKET, threads=3)
+    sink.open()
+    sink.write(ev)
+    sink.abort()
+    assert not (tmp_path / "gone.aedat4").exists() and list(tmp_path.glob(".tectum-*")) == []
