@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import os
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -26,13 +26,27 @@ from numba import njit
 
 from tectum import ImuPacket, Kind, Packet, PosePacket, FramePacket
 
-from ._common import ColumnPool, EventAssembler, FileSource
+from ._common import POOL as _POOL
+from ._common import EventAssembler, FileSource
 
 __all__ = ["TextSource", "parse_lines"]
 
 _UNIT_DIGITS = {"s": 6, "ms": 3, "us": 0, "ns": -3}
 _HOLD = 1 << 21  # events held in memory while inferring the sensor size
-_POOL = ColumnPool(max_sets=3, dtypes=(np.int64,) * 5)  # parser outputs: t, x, y, p, line offsets
+_DTYPES = (np.int64, np.uint16, np.uint16, np.int8)  # t, x, y, p
+
+
+#: ``parse_lines`` reasons for a bad line
+_REASONS = {1: "line is not 4 numbers", 2: "negative coordinate", 3: "coordinate above 65535",
+            4: "polarity is not 0/1 or -1/+1 (or mixes the two)"}
+#: ``parse_lines`` state: polarity convention (0 not seen yet, 1 is 0/1, 2 is -1/+1), largest x, largest y
+_STATE = 3
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _at(buf, i):  # pragma: no cover - numba
+    """``buf[i]`` for ``i >= 0``: an unsigned index spares the negative-index check."""
+    return buf[np.uint64(i)]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -41,38 +55,42 @@ def _sep(c):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def parse_lines(buf, order, digits, t, x, y, p, where):  # pragma: no cover - numba
-    """Parse complete lines of ``buf`` (uint8) in one pass. ``order[k]`` is
-    the field (0 t, 1 x, 2 y, 3 p) of column k; ``digits`` the power of ten
-    from the time unit to µs. Time is built from its decimal digits in
-    integer arithmetic: digits below 1 µs round half up (on the first dropped
-    digit; away from zero for negative times). Returns (n_events, bytes
-    consumed, bad line offset or -1)."""
+def parse_lines(buf, order, digits, state, t, x, y, p, where):  # pragma: no cover - numba
+    """Parse complete lines of ``buf`` (uint8) in one pass into the columns
+    (t int64 µs, x and y uint16, p int8 ±1; ``where`` gets each line's
+    offset unless it is empty). ``order[k]`` is the field (0 t, 1 x, 2 y,
+    3 p) of column k; ``digits`` the power of ten from the time unit to µs.
+    Time is built from its decimal digits in integer arithmetic: digits below
+    1 µs round half up (on the first dropped digit; away from zero for
+    negative times). ``state`` (see ``_STATE``) carries the polarity
+    convention, set by the first 0 or -1, and the largest coordinates.
+    Returns (n_events, bytes consumed, bad line offset or -1, reason)."""
     n = 0
     i = 0
     m = buf.shape[0]
+    track = where.shape[0] > 0
     # the last complete line ends at the last newline
     last = m - 1
-    while last >= 0 and buf[last] != 10:
+    while last >= 0 and _at(buf, last) != 10:
         last -= 1
     while i <= last:
         start = i
-        c = buf[i]
+        c = _at(buf, i)
         if c == 35 or c == 37:  # '#' or '%': comment
-            while buf[i] != 10:
+            while _at(buf, i) != 10:
                 i += 1
             i += 1
             continue
         col = 0
-        ok = True
+        bad = 0
         tv = np.int64(0)
         xv = np.int64(0)
         yv = np.int64(0)
         pv = np.int64(0)
         while True:
-            while i < last and _sep(buf[i]):
+            while i < last and _sep(_at(buf, i)):
                 i += 1
-            c = buf[i]
+            c = _at(buf, i)
             if c == 10:
                 break
             neg = False
@@ -83,18 +101,18 @@ def parse_lines(buf, order, digits, t, x, y, p, where):  # pragma: no cover - nu
                 i += 1
             ip = np.int64(0)
             nd = 0
-            while 48 <= buf[i] <= 57:
-                ip = ip * 10 + (buf[i] - 48)
+            while 48 <= _at(buf, i) <= 57:
+                ip = ip * 10 + (_at(buf, i) - 48)
                 i += 1
                 nd += 1
             frac = np.int64(0)
             fd = 0
             up = 0
             nzfrac = False
-            if buf[i] == 46:
+            if _at(buf, i) == 46:
                 i += 1
-                while 48 <= buf[i] <= 57:
-                    d = buf[i] - 48
+                while 48 <= _at(buf, i) <= 57:
+                    d = _at(buf, i) - 48
                     if d:
                         nzfrac = True
                     if fd < digits:
@@ -105,9 +123,9 @@ def parse_lines(buf, order, digits, t, x, y, p, where):  # pragma: no cover - nu
                         fd += 1
                     i += 1
                     nd += 1
-            c = buf[i]
+            c = _at(buf, i)
             if nd == 0 or not (c == 10 or _sep(c)) or col >= 4:
-                ok = False
+                bad = 1
                 break
             f = order[col]
             if f == 0:
@@ -124,7 +142,7 @@ def parse_lines(buf, order, digits, t, x, y, p, where):  # pragma: no cover - nu
                 tv = -v if neg else v
             else:
                 if nzfrac:
-                    ok = False
+                    bad = 1
                     break
                 v = -ip if neg else ip
                 if f == 1:
@@ -134,18 +152,38 @@ def parse_lines(buf, order, digits, t, x, y, p, where):  # pragma: no cover - nu
                 else:
                     pv = v
             col += 1
-        if not ok or (col != 4 and col != 0):
-            return n, start, start
+        if bad == 0 and col != 4 and col != 0:
+            bad = 1
+        if bad == 0 and col == 4:
+            if xv < 0 or yv < 0:
+                bad = 2
+            elif xv > 65535 or yv > 65535:
+                bad = 3
+            elif pv == 0 or pv == -1:
+                conv = 1 if pv == 0 else 2
+                if state[0] == 0:
+                    state[0] = conv
+                elif state[0] != conv:
+                    bad = 4
+            elif pv != 1:
+                bad = 4
+        if bad:
+            return n, start, start, bad
         i += 1  # past the newline
         if col == 0:  # blank line
             continue
         t[n] = tv
         x[n] = xv
         y[n] = yv
-        p[n] = pv
-        where[n] = start
+        p[n] = 1 if pv == 1 else -1
+        if xv > state[1]:
+            state[1] = xv
+        if yv > state[2]:
+            state[2] = yv
+        if track:
+            where[n] = start
         n += 1
-    return n, last + 1, -1
+    return n, last + 1, -1, 0
 
 
 _NUM = rb"[+-]?(?:\d+\.?\d*|\.\d+)"
@@ -201,12 +239,16 @@ class TextSource(FileSource):
     def sniff(cls, head: bytes) -> bool:
         return looks_like_events_text(head)
 
-    def _chunks(self) -> Iterator[tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
-        """(byte offset, t, x, y, p, byte offset of each line) per chunk; x, y,
-        p and the offsets live in buffers reused by the next chunk."""
+    def _parse(self, columns: Callable[[int], tuple[np.ndarray, ...]],
+               state: np.ndarray) -> Iterator[tuple[int, int, tuple[np.ndarray, ...], Callable[[], np.ndarray]]]:
+        """(byte offset, events, columns, line offsets) per chunk: the events
+        are parsed into the columns ``columns(capacity)`` gives (t, x, y, p,
+        from index 0); the line offsets are a function, computed (by parsing
+        the chunk again) only when something is wrong."""
         f = self._open()
         order = np.array(["txyp".index(c) for c in self.columns], np.int64)
         digits = _UNIT_DIGITS[self.time_unit]
+        no_where = np.empty(0, np.int64)
         pos = 0
         rest = b""
         first = True
@@ -227,36 +269,29 @@ class TextSource(FileSource):
                     pos += nl + 1
                     buf = buf[nl + 1:]
             arr = np.frombuffer(buf, np.uint8)
-            cap = len(buf) // 8 + 2  # a line has at least 8 bytes ("0 0 0 0\n"); untouched pages cost nothing
-            # pooled: t may end in packets (the pool sees them), x, y, p and where are copied by the caller
-            t, x, y, p, where = (a[:cap] for a in _POOL.take(cap))
-            n, used, bad = parse_lines(arr, order, digits, t, x, y, p, where)
+            cols = columns(len(buf) // 8 + 2)  # a line has at least 8 bytes ("0 0 0 0\n")
+            before = state.copy()
+            n, used, bad, reason = parse_lines(arr, order, digits, state, *cols, no_where)
+
+            def where(arr: np.ndarray = arr, used: int = used, before: np.ndarray = before,
+                      pos: int = pos) -> np.ndarray:
+                out = [np.empty(used // 8 + 2, d) for d in (np.int64, np.uint16, np.uint16, np.int8, np.int64)]
+                k, *_ = parse_lines(arr[:used], order, digits, before.copy(), *out)
+                return pos + out[4][:k]
+
             if bad >= 0:
                 end = buf.find(b"\n", bad)
                 if not self.skip_bad:
-                    self._fail(f"line is not 4 numbers: {bytes(buf[bad:end])[:80]!r}", pos + bad)
+                    self._fail(f"{_REASONS[reason]}: {bytes(buf[bad:end])[:80]!r}", pos + bad)
                 self._note_skip(pos + bad, pos + end, 1)
                 used = end + 1
             elif used == 0 and len(buf) > self.chunk_bytes + (1 << 20):
                 self._fail("no line end in the last MiB: not a text event file", pos)
-            yield pos, t[:n], x[:n], y[:n], p[:n], pos + where[:n]
+            yield pos, n, cols, where
             rest = buf[used:]
             pos += used
             if eof and bad < 0:
                 return
-
-    def _polarity(self, p: np.ndarray, where: np.ndarray) -> np.ndarray:
-        bad = (p < -1) | (p > 1)
-        if self._pol_zero is None and p.size:
-            self._pol_zero = bool((p == 0).any()) if (p == 0).any() or (p == -1).any() else None
-        if self._pol_zero and (p == -1).any():
-            bad |= p == -1
-        elif self._pol_zero is False:
-            bad |= p == 0
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            self._fail(f"polarity {int(p[i])} is not 0/1 or -1/+1", int(where[i]))
-        return np.where(p > 0, 1, -1).astype(np.int8)
 
     def _sensor_guess(self) -> tuple[int, int] | None:
         imgs = self._images()
@@ -267,32 +302,6 @@ class TextSource(FileSource):
             if img is not None:
                 return int(img.shape[1]), int(img.shape[0])
         return None
-
-    def _extent(self, chunks: Any) -> tuple[int, int]:
-        w = h = 1
-        for _, t, x, y, p, _ in chunks:
-            if x.size:
-                w, h = max(w, int(x.max()) + 1), max(h, int(y.max()) + 1)
-        return w, h
-
-    def _sized_chunks(self) -> tuple[tuple[int, int], Any]:
-        """(sensor, chunks): without a size from the option or images, the
-        extent of the coordinates; a small file (up to ``_HOLD`` events) is
-        parsed once and held, a larger one is read twice (bounded memory)."""
-        sensor = self._sensor(None) or self._sensor_guess()
-        if sensor is not None:
-            return sensor, self._chunks()
-        held, n = [], 0
-        for c in self._chunks():
-            held.append((c[0], c[1], *(a.copy() for a in c[2:])))
-            n += c[1].shape[0]
-            if n > _HOLD:
-                self.close()
-                sensor = self._extent(self._chunks())
-                self.close()
-                return sensor, self._chunks()
-        self.close()
-        return self._extent(held), iter(held)
 
     def _beside(self, name: str) -> str | None:
         if not self.companions:
@@ -314,22 +323,36 @@ class TextSource(FileSource):
         return out
 
     def _packets(self) -> Iterator[Packet]:
-        self._pol_zero: bool | None = None
-        sensor, chunks = self._sized_chunks()
+        """Without a sensor size from the option or an image, the extent of
+        the coordinates: a small file (up to ``_HOLD`` events) is parsed once
+        and held, a larger one is read twice (bounded memory)."""
+        sensor = self._sensor(None) or self._sensor_guess()
+        state = np.zeros(_STATE, np.int64)
+        held: list[tuple[int, int, tuple[np.ndarray, ...], Callable[[], np.ndarray]]] = []
+        if sensor is None:
+            total = 0
+            for c in self._parse(lambda n: tuple(np.empty(n, d) for d in _DTYPES), state):
+                held.append(c)
+                total += c[1]
+                if total > _HOLD:  # too many to hold: a pass for the extent only
+                    held = []
+                    for _ in self._parse(lambda n: _POOL.take(n), state):
+                        pass
+                    break
+            self.close()
+            sensor = (int(state[1]) + 1, int(state[2]) + 1)
+            state[:] = 0
         asm = EventAssembler(self, sensor)
-        for pos, t, x, y, p, where in chunks:
-            if x.size and (x.min() < 0 or y.min() < 0):
-                i = int(np.flatnonzero((x < 0) | (y < 0))[0])
-                if not self.skip_bad:
-                    self._fail(f"negative coordinate ({int(x[i])}, {int(y[i])})", int(where[i]))
-                ok = (x >= 0) & (y >= 0)
-                self._note_skip(int(where[i]), int(where[i]), int((~ok).sum()))
-                t, x, y, p, where = t[ok], x[ok], y[ok], p[ok], where[ok]
-            pol = self._polarity(p, where)
-            yield from asm.push(t, np.minimum(x, 65535).astype(np.uint16), np.minimum(y, 65535).astype(np.uint16),
-                                pol, pos, where)
-            if self.t_end_us is not None and asm.last_t is not None and asm.last_t >= self.t_end_us:
-                break
+        if held:
+            for pos, n, cols, where in held:
+                for a, b in zip(asm.reserve(n), cols):
+                    a[:n] = b[:n]
+                yield from asm.commit(n, pos, where)
+        else:
+            for pos, n, _, where in self._parse(asm.reserve, state):
+                yield from asm.commit(n, pos, where)
+                if asm.past_end():
+                    break
         yield from asm.finish()
         yield from self._companions()
 
@@ -357,9 +380,9 @@ class TextSource(FileSource):
 
 
 def _to_us(s: bytes) -> int:
-    arr = np.frombuffer(s + b" 0 0 0\n", np.uint8)
-    out = [np.empty(1, np.int64) for _ in range(5)]
-    n, _, _ = parse_lines(arr, np.arange(4), 6, *out)
+    arr = np.frombuffer(s + b" 0 0 1\n", np.uint8)
+    out = [np.empty(1, d) for d in (*_DTYPES, np.int64)]
+    n, *_ = parse_lines(arr, np.arange(4), 6, np.zeros(_STATE, np.int64), *out)
     return int(out[0][0]) if n else 0
 
 
