@@ -112,26 +112,15 @@ def _garbage_payload(path: Path, k: int) -> int:
     return at
 
 
+@pytest.mark.parametrize("damage, why", [(_corrupt_block, "does not decompress"),
+                                         (_garbage_payload, "malformed EventPacket")], ids=["lz4", "flatbuffer"])
 @pytest.mark.parametrize("threads", [1, 2])
-def test_corrupt_block_is_named_or_skipped(tmp_path: Path, compiled: bool, threads: int) -> None:
+def test_bad_packet_is_named_or_skipped(tmp_path: Path, compiled: bool, threads: int, damage, why: str) -> None:
     ev = _events()
     f = _write(tmp_path / "c.aedat4", ev, packet_events=PER_PACKET)
     want = _without(f, ev, 40)
-    at = _corrupt_block(f, 40)
-    with pytest.raises(FormatError, match="does not decompress") as e:
-        _read(f, threads=threads)
-    assert e.value.offset == at
-    got, src = _read(f, threads=threads, skip_bad=True)
-    assert _same(got, want) and src.skipped_events == 1
-
-
-@pytest.mark.parametrize("threads", [1, 2])
-def test_packet_that_is_no_flatbuffer_is_named_or_skipped(tmp_path: Path, compiled: bool, threads: int) -> None:
-    ev = _events()
-    f = _write(tmp_path / "m.aedat4", ev, packet_events=PER_PACKET)
-    want = _without(f, ev, 40)
-    at = _garbage_payload(f, 40)
-    with pytest.raises(FormatError, match="malformed EventPacket") as e:
+    at = damage(f, 40)
+    with pytest.raises(FormatError, match=why) as e:
         _read(f, threads=threads)
     assert e.value.offset == at
     got, src = _read(f, threads=threads, skip_bad=True)
