@@ -220,8 +220,8 @@ class Aedat4Source(FileSource):
             if batch.ev_id in kinds:
                 batch.add_events(buf, rows[rows[:, 2] == batch.ev_id])
             mv = memoryview(buf)
-            for lo, hi, sid, *_, at in rows[np.isin(rows[:, 2], others)].tolist():
-                yield from batch.add(kinds[sid], sid, mv[lo:hi], at)
+            for a, b, sid, *_, at in rows[np.isin(rows[:, 2], others)].tolist():
+                yield from batch.add(kinds[sid], sid, mv[a:b], at)
             yield from batch.flush()  # while the chunk is still in cache
             if batch.done():
                 break
@@ -328,7 +328,7 @@ class Aedat4Source(FileSource):
         rows = np.empty((4096, 9), np.int64)
         found, at = [], 0
         while at < buf.shape[0]:
-            k, at, status = AK.scan_packets(buf, at, buf.shape[0], _MAX_PACKET, comp in (1, 2), rows)
+            k, at, _ = AK.scan_packets(buf, at, buf.shape[0], _MAX_PACKET, comp in (1, 2), rows)
             if not k:
                 break
             found.append(rows[:k].copy())
@@ -359,9 +359,10 @@ class Aedat4Source(FileSource):
 
 
 class _Batch:
-    """Packets waiting to be decoded together, per stream. Event packets are
-    kept compressed until the batch is full, then decompressed and decoded
-    into one set of columns."""
+    """The packets of a read, decoded together per stream when it is
+    flushed: event packets (kept compressed until then) into one set of
+    columns, IMU and trigger packets into one packet each; frames come out
+    as they are added."""
 
     _DECODERS = {"IMUS": codec.imus_of, "TRIG": codec.triggers_of}
 
