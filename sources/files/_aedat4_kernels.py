@@ -18,7 +18,8 @@ from numba import njit
 
 from . import _lz4 as LZ4
 
-__all__ = ["fill_events", "inflate_events", "lz4_frame", "pack_events", "scan_packets", "table_fields"]
+__all__ = ["fill_events", "inflate_events", "inflate_packets", "lz4_frame", "pack_events", "scan_packets",
+           "table_fields"]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -183,6 +184,30 @@ def inflate_events(buf, rows, k, scratch, t, x, y, p, counts):  # pragma: no cov
 
 
 @njit(cache=True, nogil=True)
+def inflate_packets(buf, rows, out, starts, ends):  # pragma: no cover - numba
+    """Decompress the packets ``rows`` (of :func:`scan_packets` in ``buf``)
+    one after the other into ``out`` (room: the sum of their room):
+    ``out[starts[k]:ends[k]]`` is packet k; ``ends[k]`` is -1 when it does
+    not decompress, -2 when it is not a plain LZ4 frame (the caller
+    decompresses those). Call only when
+    :data:`tectum.sources.files._lz4.AVAILABLE`."""
+    o = 0
+    for k in range(rows.shape[0]):
+        size = rows[k, 5]
+        starts[k] = o
+        if rows[k, 3] < 0 or o + size > out.shape[0]:
+            ends[k] = -2
+            continue
+        n = _inflate(buf, rows[k, 3], rows[k, 4], rows[k, 6], out[o:o + size], size)
+        if n < 0 or (rows[k, 7] >= 0 and n != rows[k, 7]):
+            ends[k] = -1
+            continue
+        o += n
+        ends[k] = o
+    return o
+
+
+@njit(cache=True, nogil=True)
 def lz4_frame(buf, lo, hi):  # pragma: no cover - numba
     """The blocks of the LZ4 frame ``buf[lo:hi]``, when it is one the
     kernels decode: version 01, no checksums, no dictionary, blocks then the
@@ -252,9 +277,10 @@ def scan_packets(buf, start, have, max_size, lz4, rows):  # pragma: no cover - n
         rows[k, 0] = lo
         rows[k, 1] = hi
         rows[k, 2] = sid
-        rows[k, 3] = -1
         if lz4:
             rows[k, 3], rows[k, 4], rows[k, 5], rows[k, 6], rows[k, 7], _ = lz4_frame(buf, lo, hi)
+        else:
+            rows[k, 3], rows[k, 4], rows[k, 5], rows[k, 6], rows[k, 7] = -1, 0, 0, 0, -1
         k += 1
         i = hi
     return k, i, 0

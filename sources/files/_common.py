@@ -411,10 +411,11 @@ class SampleTiler:
             keep &= ~late
         if not keep.any():
             return None
-        tk = t[keep]
-        start = prev if prev is not None else int(tk[0])
-        self.ends[key] = int(tk[-1]) + 1
-        return cls(tk, t_start=start, t_end=self.ends[key], **{k: np.asarray(v)[keep] for k, v in data.items()})
+        if not keep.all():
+            t, data = t[keep], {k: np.asarray(v)[keep] for k, v in data.items()}
+        start = prev if prev is not None else int(t[0])
+        self.ends[key] = int(t[-1]) + 1
+        return cls(t, t_start=start, t_end=self.ends[key], **data)
 
 
 class FileSource(Source):

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from tectum import EventPacket, Kind, Packet, SamplePacket
+from tectum import EventPacket, FramePacket, Kind, Packet, SamplePacket
 
 from . import _aedat4_kernels as AK
 from . import _lz4
@@ -213,15 +213,10 @@ class Aedat4Source(FileSource):
             chunks = self._indexed(f, entries[pick, 0] - 8, entries[pick, 0] + entries[pick, 2], comp)
         else:
             chunks = self._chunks(f, start, limit, comp)
-        batch = _Batch(self, comp, sensor, ev_ids[0] if ev_ids else None)
         kinds = {s.id: s.type_id for s in streams.values() if s.type_id in self._kinds}
-        others = np.array([sid for sid, k in kinds.items() if k != "EVTS"], np.int64)
+        batch = _Batch(self, comp, sensor, ev_ids[0] if ev_ids else None, kinds)
         for buf, rows in chunks:
-            if batch.ev_id in kinds:
-                batch.add_events(buf, rows[rows[:, 2] == batch.ev_id])
-            mv = memoryview(buf)
-            for a, b, sid, *_, at in rows[np.isin(rows[:, 2], others)].tolist():
-                yield from batch.add(kinds[sid], sid, mv[a:b], at)
+            batch.add(buf, rows)
             yield from batch.flush()  # while the chunk is still in cache
             if batch.done():
                 break
@@ -360,59 +355,65 @@ class Aedat4Source(FileSource):
 
 class _Batch:
     """The packets of a read, decoded together per stream when it is
-    flushed: event packets (kept compressed until then) into one set of
-    columns, IMU and trigger packets into one packet each; frames come out
-    as they are added."""
+    flushed: event packets into one set of columns, IMU, trigger and frame
+    packets into one packet each (LZ4 frames decompressed in compiled
+    code)."""
 
     _DECODERS = {"IMUS": codec.imus_of, "TRIG": codec.triggers_of}
 
-    def __init__(self, src: Aedat4Source, comp: int, sensor: tuple[int, int] | None, ev_id: int | None) -> None:
+    def __init__(self, src: Aedat4Source, comp: int, sensor: tuple[int, int] | None, ev_id: int | None,
+                 kinds: dict[int, str]) -> None:
         self.src = src
         self.comp = comp
         self.ev_id = ev_id
+        self.kinds = kinds  # stream id -> type of the streams asked for
         self.asm = EventAssembler(src, sensor) if sensor is not None else None
         self.tiler = SampleTiler(src)
         self.events: list[tuple[np.ndarray, np.ndarray]] = []
-        self.parts: dict[tuple[str, int], tuple[list[bytes], list[int]]] = {}
+        self.samples: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
 
-    def add_events(self, buf: np.ndarray, rows: np.ndarray) -> None:
-        """Event packets: ``rows`` of :meth:`Aedat4Source._chunks` in ``buf``."""
-        if rows.shape[0]:
-            self.events.append((buf, rows))
+    def add(self, buf: np.ndarray, rows: np.ndarray) -> None:
+        """The packets ``rows`` (of :meth:`Aedat4Source._chunks`) in ``buf``,
+        decoded by :meth:`flush`."""
+        for sid, type_id in self.kinds.items():
+            mine = rows[rows[:, 2] == sid]
+            if not mine.shape[0]:
+                continue
+            if sid == self.ev_id:
+                self.events.append((buf, mine))
+            elif type_id in self._DECODERS or type_id == "FRME":
+                self.samples.setdefault(sid, []).append((buf, mine))
 
-    def add(self, type_id: str, sid: int, payload: memoryview, pos: int) -> Iterator[Packet]:
-        """A packet of another stream: frames come out at once, IMU and
-        triggers with the batch."""
-        try:
-            buf = codec.decompress(payload, self.comp)
-        except ValueError as e:
-            if not self.src.skip_bad:
-                self.src._fail(f"packet of stream {sid} ({type_id}) does not decompress: {e}", pos)
-            self.src._note_skip(pos, pos + 8 + len(payload) - 1, 1)
-            return
-        if type_id == "FRME":
-            yield from self.frame(sid, buf, pos)
-            return
-        bufs, poss = self.parts.setdefault((type_id, sid), ([], []))
-        bufs.append(buf)
-        poss.append(pos)
+    def _decompressed(self, sid: int, payload: memoryview, pos: int) -> Any:
+        """A packet decompressed in Python; None when it does not decompress
+        (and ``skip_bad``)."""
+        d = _inflate(payload, self.comp)
+        if isinstance(d, ValueError):
+            self._bad(sid, f"does not decompress: {d}", pos, len(payload))
+            return None
+        return d
 
     def done(self) -> bool:
         end = self.src.t_end_us
         return end is not None and self.asm is not None and self.asm.last_t is not None and self.asm.last_t >= end
 
-    def frame(self, sid: int, buf: bytes, pos: int) -> Iterator[Packet]:
-        try:
-            pkt = codec.decode_packet("FRME", buf, 0)
-        except (ValueError, struct.error) as e:
-            if not self.src.skip_bad:
-                self.src._fail(f"packet of stream {sid} (FRME) does not decode: {e}", pos)
-            self.src._note_skip(pos, pos, 1)
-            return
-        assert isinstance(pkt, SamplePacket)
-        out = self.tiler.push(type(pkt), sid, pkt.t, pos, **pkt.data)
-        if out is not None:
-            yield out
+    def _frames(self, sid: int, bufs: list[Any], poss: list[int]) -> Iterator[Packet]:
+        """Frame packets decoded one by one, out as one packet per run of
+        frames of the same size."""
+        frames: list[tuple[SamplePacket, int]] = []
+        for buf, pos in zip(bufs, poss):
+            try:
+                frames.append((codec._frames(buf, copy=False), pos))  # copied once, by the concatenation
+            except (ValueError, struct.error) as e:
+                self._bad(sid, f"does not decode: {e}", pos, len(buf))
+        while frames:
+            shape = frames[0][0].images.shape[1:]
+            k = next((i for i, (q, _) in enumerate(frames) if q.images.shape[1:] != shape), len(frames))
+            run, frames = frames[:k], frames[k:]
+            data = {f: np.concatenate([q.data[f] for q, _ in run]) for f in run[0][0].data}
+            out = self.tiler.push(FramePacket, sid, np.concatenate([q.t for q, _ in run]), run[0][1], **data)
+            if out is not None:
+                yield out
 
     def _decode(self, type_id: str, bufs: list[bytes], poss: list[int]) -> tuple[Any, list[int]]:
         """Decode IMU or trigger packets together; a malformed one is dropped
@@ -429,10 +430,31 @@ class _Batch:
                 self.src._note_skip(poss[k], poss[k] + 8 + len(bufs[k]) - 1, 1)
                 bufs, poss = bufs[:k] + bufs[k + 1:], poss[:k] + poss[k + 1:]
 
-    def _bad(self, what: str, pos: int, size: int) -> None:
+    def _bad(self, sid: int | None, what: str, pos: int, size: int) -> None:
         if not self.src.skip_bad:
-            self.src._fail(f"packet of stream {self.ev_id} (EVTS) {what}", pos)
+            self.src._fail(f"packet of stream {sid} ({self.kinds.get(sid or 0, '?')}) {what}", pos)
         self.src._note_skip(pos, pos + 8 + size - 1, 1)
+
+    def _samples(self, sid: int, parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[list[Any], list[int]]:
+        """The decompressed packets of an IMU or trigger stream, and where
+        they are in the file."""
+        bufs: list[Any] = []
+        poss: list[int] = []
+        for buf, rows in parts:
+            starts = np.zeros(rows.shape[0], np.int64)
+            ends = np.full(rows.shape[0], -2, np.int64)
+            out = byte_buffer(int(rows[:, 5].sum()))
+            if _lz4.AVAILABLE:
+                AK.inflate_packets(buf, rows, out, starts, ends)
+            mv = memoryview(buf)
+            for (a, b, *_, at), s, e in zip(rows.tolist(), starts.tolist(), ends.tolist()):
+                d = out[s:e] if e >= 0 else self._decompressed(sid, mv[a:b], at) if e == -2 else None
+                if e == -1:
+                    self._bad(sid, f"does not decompress: {_why(mv[a:b], self.comp)}", at, b - a)
+                if d is not None:
+                    bufs.append(d)
+                    poss.append(at)
+        return bufs, poss
 
     def _flush_events(self) -> Iterator[Packet]:
         """Decode the batch's event packets: runs of plain LZ4 blocks in
@@ -484,33 +506,41 @@ class _Batch:
         for i in np.flatnonzero(counts < 0).tolist():
             size = int(rows[i, 1] - rows[i, 0])
             if counts[i] == -1:
-                self._bad("does not decode: malformed EventPacket FlatBuffer", int(pos[i]), size)
+                self._bad(self.ev_id, "does not decode: malformed EventPacket FlatBuffer", int(pos[i]), size)
             else:
                 why = _why(memoryview(buf)[rows[i, 0]:rows[i, 1]], self.comp)
-                self._bad(f"does not decompress: {why}", int(pos[i]), size)
+                self._bad(self.ev_id, f"does not decompress: {why}", int(pos[i]), size)
         good = counts > 0
         yield from self.asm.commit(n, int(pos[0]), lambda: np.repeat(pos[good], counts[good]))
 
     def _one(self, payload: memoryview, pos: int) -> Iterator[Packet]:
         """One event packet, decompressed in Python."""
         assert self.asm is not None
-        d = _inflate(payload, self.comp)
-        if isinstance(d, ValueError):
-            self._bad(f"does not decompress: {d}", pos, len(payload))
+        d = self._decompressed(self.ev_id, payload, pos)
+        if d is None:
             return
         t, x, y, p = self.asm.reserve(len(d) // 16)
         n = AK.fill_events(np.frombuffer(d, np.uint8), 0, t, x, y, p)
         if n < 0:
-            self._bad("does not decode: malformed EventPacket FlatBuffer", pos, len(payload))
+            self._bad(self.ev_id, "does not decode: malformed EventPacket FlatBuffer", pos, len(payload))
             n = 0
         yield from self.asm.commit(n, pos)
 
     def flush(self) -> Iterator[Packet]:
         if self.events:
             yield from self._flush_events()
-        parts, self.parts = self.parts, {}
-        for (type_id, sid), (bufs, poss) in parts.items():
+        samples, self.samples = self.samples, {}
+        for sid, parts in samples.items():
+            bufs, poss = self._samples(sid, parts)
+            if not bufs:
+                continue
+            type_id = self.kinds[sid]
+            if type_id == "FRME":
+                yield from self._frames(sid, bufs, poss)
+                continue
             out, poss = self._decode(type_id, bufs, poss)
+            if not poss:  # every packet was bad (and skipped)
+                continue
             q = self.tiler.push(type(out), sid, out.t, poss[0], **out.data)
             if q is not None:
                 yield q

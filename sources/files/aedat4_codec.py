@@ -186,7 +186,9 @@ def table_of(buf: bytes | bytearray) -> np.ndarray:
     return out
 
 
-def _frames(buf: bytes) -> FramePacket:
+def _frames(buf: bytes, copy: bool = True) -> FramePacket:
+    """The frame of a Frame FlatBuffer (``copy=False``: the image is a view
+    of ``buf``)."""
     tab = root(buf, size_prefixed=True)
     ts = tab.scalar(0, "q")
     fmt = tab.scalar(5, "b")
@@ -201,7 +203,7 @@ def _frames(buf: bytes) -> FramePacket:
     extra = {"exposure_start": np.array([tab.scalar(3, "q")], np.int64),
              "exposure_end": np.array([tab.scalar(4, "q")], np.int64),
              "position": np.array([[tab.scalar(8, "h"), tab.scalar(9, "h")]], np.int16)}
-    return FramePacket(np.array([ts], np.int64), images=img.copy(), **extra)
+    return FramePacket(np.array([ts], np.int64), images=img.copy() if copy else img, **extra)
 
 
 def imus_of(buf: bytes | bytearray, offs: np.ndarray | None = None, ends: np.ndarray | None = None) -> ImuPacket:
