@@ -8,9 +8,16 @@ capacity, int32 number, int32 valid; then ``capacity * size`` bytes.
 * Polarity (type 1, 8 bytes): uint32 data (bit 0 valid, bit 1 polarity
   1 = ON, bits 2-16 y, bits 17-31 x), int32 timestamp; time is
   ``overflow << 31 | timestamp``. libcaer's origin is top-left: kept as is.
+* Frame (type 2, event size ``36 + 2 * max pixels``): uint32 info (bit 0
+  valid, bits 1-3 colour channels), int32 start/end of frame, int32
+  start/end of exposure, int32 lengthX, lengthY, positionX, positionY, then
+  ``lengthX * lengthY * channels`` uint16 pixels (normalised to 16 bits,
+  top-left origin). A :class:`tectum.FramePacket` per packet (per run of
+  frames of one size): ``t`` mid-exposure, ``images`` uint16 (N, H, W) or
+  (N, H, W, C), ``exposure_start``/``exposure_end`` µs, ``position``.
 * IMU6 (type 3, 36 bytes): uint32 info, int32 timestamp, float32 accel x, y,
   z (g), gyro x, y, z (°/s), temperature (°C) -> m/s², rad/s.
-* Special (0), frame (2) and others are counted in
+* Special (0) and other types are counted in
   :attr:`Aedat31Source.other_events` and skipped.
 """
 
@@ -22,26 +29,28 @@ from typing import Any
 
 import numpy as np
 
-from tectum import ImuPacket, Kind, Packet
+from tectum import FramePacket, ImuPacket, Kind, Packet
 
-from ._common import EventAssembler, FileSource
+from ._common import EventAssembler, FileSource, SampleTiler
 
 __all__ = ["Aedat31Source"]
 
 _HDR = np.dtype([("type", "<i2"), ("source", "<i2"), ("size", "<i4"), ("tsoff", "<i4"), ("ovf", "<i4"),
                  ("cap", "<i4"), ("num", "<i4"), ("valid", "<i4")])
 _IMU = np.dtype([("info", "<u4"), ("t", "<i4"), ("v", "<f4", (7,))])
+_FRAME = np.dtype([("info", "<u4"), ("frame", "<i4", (2,)), ("exposure", "<i4", (2,)), ("size", "<i4", (2,)),
+                   ("position", "<i4", (2,))])
 _SIZES = {"dvs128": (128, 128), "edvs": (128, 128), "davis240": (240, 180), "davis346": (346, 260),
           "davis640": (640, 480), "dvxplorer": (640, 480), "davis128": (128, 128)}
 
 
 class Aedat31Source(FileSource):
-    """Polarity events and IMU6 samples from AEDAT 3.1 files."""
+    """Polarity events, frames and IMU6 samples from AEDAT 3.1 files."""
 
     name = "aedat31"
     format = "aedat31"
     extensions = (".aedat3", ".aedat31")
-    produces = (Kind.EVENTS, Kind.IMU)
+    produces = (Kind.EVENTS, Kind.FRAMES, Kind.IMU)
 
     @classmethod
     def sniff(cls, head: bytes) -> bool:
@@ -79,8 +88,8 @@ class Aedat31Source(FileSource):
         size = f.seek(0, 2)
         f.seek(start)
         asm = EventAssembler(self, sensor)
+        tiler = SampleTiler(self)
         self.other_events = 0
-        imu_next: int | None = None
         pos = start
         while pos < size:
             hb = f.read(28)
@@ -114,15 +123,54 @@ class Aedat31Source(FileSource):
                 rec = np.frombuffer(data, _IMU, count=num)
                 rec = rec[(rec["info"] & 1) == 1]
                 if rec.shape[0]:
-                    t = rec["t"].astype(np.int64) + ovf
                     v = rec["v"].astype(np.float64)
-                    s = imu_next if imu_next is not None else int(t[0])
-                    imu_next = max(s, int(t[-1]) + 1)
-                    yield ImuPacket(t, accel=v[:, 0:3] * 9.80665, gyro=np.deg2rad(v[:, 3:6]), temperature=v[:, 6],
-                                    t_start=s, t_end=imu_next)
+                    q = tiler.push(ImuPacket, "imu", rec["t"].astype(np.int64) + ovf, pos, accel=v[:, 0:3] * 9.80665,
+                                   gyro=np.deg2rad(v[:, 3:6]), temperature=v[:, 6])
+                    if q is not None:
+                        yield q
+            elif etype == 2 and esize >= _FRAME.itemsize:
+                yield from self._frames(tiler, data, esize, num, ovf, pos)
             else:
                 self.other_events += num
             pos += 28 + body
             if self.t_end_us is not None and asm.last_t is not None and asm.last_t >= self.t_end_us:
                 break
         yield from asm.finish()
+
+    def _frames(self, tiler: SampleTiler, data: bytes, esize: int, num: int, ovf: int, pos: int) -> Iterator[Packet]:
+        """The valid frames of a frame packet, one FramePacket per run of
+        frames of the same size and channels."""
+        heads = np.frombuffer(data, _FRAME, count=num, offset=0) if esize == _FRAME.itemsize else \
+            np.ndarray((num,), _FRAME, data, 0, (esize,))
+        run: list[tuple[int, np.ndarray, np.ndarray]] = []  # (mid-exposure µs, image, header)
+        for k in range(num):
+            h = heads[k]
+            if not h["info"] & 1:
+                continue
+            ch = int(h["info"] >> 1) & 7
+            w, hgt = int(h["size"][0]), int(h["size"][1])
+            if ch not in (1, 3, 4) or w < 0 or hgt < 0 or _FRAME.itemsize + 2 * w * hgt * ch > esize:
+                if not self.skip_bad:
+                    self._fail(f"frame {k} of a frame packet: {w}x{hgt}x{ch} pixels do not fit its {esize} bytes",
+                               pos + 28 + k * esize)
+                self._note_skip(pos + 28 + k * esize, pos + 28 + (k + 1) * esize - 1, 1)
+                continue
+            img = np.frombuffer(data, "<u2", count=w * hgt * ch, offset=k * esize + _FRAME.itemsize)
+            img = img.reshape((hgt, w) if ch == 1 else (hgt, w, ch))
+            if run and run[-1][1].shape != img.shape:
+                yield from self._frame_run(tiler, run, ovf, pos)
+                run = []
+            run.append((int(h["exposure"].astype(np.int64).sum()) // 2, img, h))
+        if run:
+            yield from self._frame_run(tiler, run, ovf, pos)
+
+    def _frame_run(self, tiler: SampleTiler, run: list[tuple[int, np.ndarray, Any]], ovf: int,
+                   pos: int) -> Iterator[Packet]:
+        hs = np.stack([h for _, _, h in run])
+        q = tiler.push(FramePacket, "frames", np.array([t for t, _, _ in run], np.int64) + ovf, pos,
+                       images=np.stack([img for _, img, _ in run]),
+                       exposure_start=hs["exposure"][:, 0].astype(np.int64) + ovf,
+                       exposure_end=hs["exposure"][:, 1].astype(np.int64) + ovf,
+                       position=hs["position"].astype(np.int16))
+        if q is not None:
+            yield q
