@@ -79,8 +79,8 @@ def decompress_safe(typingctx, src, src_start, src_len, dst, dst_start, dst_cap)
 
 
 @intrinsic
-def decompress_safe_dict(typingctx, src, src_start, src_len, dst, dst_start, dst_cap, dict_start,  # type: ignore[no-untyped-def]
-                         dict_len):
+def decompress_safe_dict(typingctx, src, src_start, src_len, dst, dst_start, dst_cap,  # type: ignore[no-untyped-def]
+                         dict_start, dict_len):
     """``LZ4_decompress_safe_usingDict``: as :func:`decompress_safe`, the
     block referring back to ``dst[dict_start:dict_start + dict_len]`` (the
     output of the blocks before it in a linked LZ4 frame)."""

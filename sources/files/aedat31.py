@@ -17,8 +17,13 @@ capacity, int32 number, int32 valid; then ``capacity * size`` bytes.
   (N, H, W, C), ``exposure_start``/``exposure_end`` µs, ``position``.
 * IMU6 (type 3, 36 bytes): uint32 info, int32 timestamp, float32 accel x, y,
   z (g), gyro x, y, z (°/s), temperature (°C) -> m/s², rad/s.
-* Special (0) and other types are counted in
-  :attr:`Aedat31Source.other_events` and skipped.
+* Special (type 0, 8 bytes): uint32 data (bit 0 valid, bits 1-7 type, bits
+  8-31 data), int32 timestamp: a :class:`tectum.TriggerPacket` with
+  ``channel`` = libcaer's special type (1 timestamp reset, 2/3/4 external
+  input rising/falling edge/pulse, ...) and ``value`` 0 for a falling edge
+  (type 3), else 1; timestamp wraps (0) and row-only events (5) are
+  bookkeeping and skipped.
+* Other types are counted in :attr:`Aedat31Source.other_events` and skipped.
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from tectum import FramePacket, ImuPacket, Kind, Packet
+from tectum import FramePacket, ImuPacket, Kind, Packet, TriggerPacket
 
 from ._common import EventAssembler, FileSource, SampleTiler
 
@@ -45,12 +50,13 @@ _SIZES = {"dvs128": (128, 128), "edvs": (128, 128), "davis240": (240, 180), "dav
 
 
 class Aedat31Source(FileSource):
-    """Polarity events, frames and IMU6 samples from AEDAT 3.1 files."""
+    """Polarity events, frames, IMU6 samples and special events (triggers)
+    from AEDAT 3.1 files."""
 
     name = "aedat31"
     format = "aedat31"
     extensions = (".aedat3", ".aedat31")
-    produces = (Kind.EVENTS, Kind.FRAMES, Kind.IMU)
+    produces = (Kind.EVENTS, Kind.FRAMES, Kind.IMU, Kind.TRIGGERS)
 
     @classmethod
     def sniff(cls, head: bytes) -> bool:
@@ -126,6 +132,16 @@ class Aedat31Source(FileSource):
                     v = rec["v"].astype(np.float64)
                     q = tiler.push(ImuPacket, "imu", rec["t"].astype(np.int64) + ovf, pos, accel=v[:, 0:3] * 9.80665,
                                    gyro=np.deg2rad(v[:, 3:6]), temperature=v[:, 6])
+                    if q is not None:
+                        yield q
+            elif etype == 0 and esize == 8:
+                w = np.frombuffer(data, "<u4", count=2 * num).reshape(-1, 2)
+                typ = (w[:, 0] >> 1) & 0x7F
+                keep = ((w[:, 0] & 1) == 1) & (typ != 0) & (typ != 5)
+                if keep.any():
+                    q = tiler.push(TriggerPacket, "triggers", w[keep, 1].astype(np.int64) + ovf, pos,
+                                   channel=typ[keep].astype(np.int16),
+                                   value=np.where(typ[keep] == 3, 0, 1).astype(np.int8))
                     if q is not None:
                         yield q
             elif etype == 2 and esize >= _FRAME.itemsize:

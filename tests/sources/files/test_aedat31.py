@@ -1,6 +1,6 @@
 """AEDAT 3.1 packets built byte by byte from libcaer's layouts: polarity
-events, frames (grey and RGB, an invalid one skipped, an oversized one named)
-and IMU6 samples, with the timestamp overflow applied."""
+events, special events, frames (grey and RGB, an invalid one skipped, an
+oversized one named) and IMU6 samples, with the timestamp overflow applied."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tectum import EventPacket, FormatError, FramePacket, ImuPacket, concat
+from tectum import EventPacket, FormatError, FramePacket, ImuPacket, TriggerPacket, concat
 from tectum.sources.files.aedat31 import Aedat31Source
 
 OVF = 3  # packets' timestamp overflow: times are offset by 3 << 31 µs
@@ -29,9 +29,12 @@ def _frame(valid: bool, channels: int, w: int, h: int, exposure: tuple[int, int]
 
 
 def _file(path: Path, frames: list[bytes], frame_size: int) -> Path:
-    pol = [struct.pack("<Ii", 1 | (1 << 1) | (2 << 2) | (3 << 17), 100), struct.pack("<Ii", 1 | (4 << 2) | (5 << 17), 200)]
+    pol = [struct.pack("<Ii", 1 | (1 << 1) | (2 << 2) | (3 << 17), 100),
+           struct.pack("<Ii", 1 | (4 << 2) | (5 << 17), 200)]
     imu = [struct.pack("<Ii7f", 1, 150, 0.0, 0.0, -1.0, 90.0, 0.0, 0.0, 25.0)]
-    path.write_bytes(HEADER + _packet(1, 8, pol)
+    special = [struct.pack("<Ii", 1 | (2 << 1) | (17 << 8), 110), struct.pack("<Ii", 1 | (0 << 1), 111),
+               struct.pack("<Ii", 1 | (3 << 1), 160)]  # rising edge, a timestamp wrap (skipped), falling edge
+    path.write_bytes(HEADER + _packet(1, 8, pol) + _packet(0, 8, special)
                      + _packet(2, frame_size, frames) + _packet(3, 36, imu))
     return path
 
@@ -58,6 +61,9 @@ def test_events_frames_and_imu(tmp_path: Path) -> None:
     assert grey_run.images.dtype == np.uint16 and np.array_equal(grey_run.images, np.stack([grey, grey + 1]))
     assert np.array_equal(rgb_run.images[0], rgb) and grey_run.data["position"].tolist() == [[7, 9], [7, 9]]
     assert grey_run.data["exposure_start"].tolist() == [base + 120, base + 170]
+    trig = got[TriggerPacket][0]
+    assert trig.t.tolist() == [base + 110, base + 160] and trig.data["channel"].tolist() == [2, 3]
+    assert trig.data["value"].tolist() == [1, 0]
     imu = got[ImuPacket][0]
     assert imu.t.tolist() == [base + 150] and np.allclose(imu.accel, [[0, 0, -9.80665]])
     assert np.allclose(imu.gyro, [[np.pi / 2, 0, 0]])
@@ -68,6 +74,6 @@ def test_frame_larger_than_its_event_is_named(tmp_path: Path) -> None:
     f = _file(tmp_path / "b.aedat", frames, 36 + 2 * 12)
     with pytest.raises(FormatError, match="do not fit") as e:
         _read(f)
-    assert e.value.offset == len(HEADER) + 28 + 16 + 28  # after the polarity packet and the frame packet's header
+    assert e.value.offset == len(HEADER) + 28 + 16 + 28 + 24 + 28  # the frame packet's first event
     got = _read(f, skip_bad=True)
     assert FramePacket not in got and len(concat(got[EventPacket])) == 2
