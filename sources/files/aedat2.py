@@ -74,32 +74,32 @@ class Aedat2Source(FileSource):
         return head.startswith(b"#!AER-DAT2.0")
 
     def _header(self, f: Any) -> tuple[int, tuple[int, int] | None, bool]:
-        pos = 0
         chip = self.chip
-        first = True
         f.seek(0)
-        while True:
-            c = f.read(1)
-            if c != b"#":
-                break
-            line = f.readline(1 << 16)
-            if first and not line.startswith(b"!AER-DAT2.0"):
-                self._fail("not an AEDAT 2.0 file (first line is not #!AER-DAT2.0)", 0)
-            first = False
-            if not line.endswith(b"\n"):
-                self._fail("header line not terminated (truncated header)", pos)
-            m = re.match(rb"\s*AEChip:\s*(\S+)", line)
-            if m and chip is None:
-                chip = m.group(1).decode("latin1").lower()
-            m = re.search(rb'ImuGyroScale" value="GyroFullScaleDegPerSec(\d+)"', line)
-            if m:
-                self.gyro_full_scale_dps = int(m.group(1))
-            m = re.search(rb'ImuAccelScale" value="ImuAccelScaleG(\d+)"', line)
-            if m:
-                self.accel_full_scale_g = int(m.group(1))
-            pos += 1 + len(line)
-        if first:
-            self._fail("not an AEDAT 2.0 file (no #!AER-DAT2.0 line)", 0)
+        data = f.read(1 << 16)
+        if not data.startswith(b"#!AER-DAT2.0"):
+            self._fail("not an AEDAT 2.0 file (first line is not #!AER-DAT2.0)", 0)
+        pos = 0  # the header is the lines starting with '#'
+        while data.startswith(b"#", pos):
+            nl = data.find(b"\n", pos)
+            while nl < 0:
+                more = f.read(1 << 16)
+                if not more or len(data) > 1 << 26:
+                    self._fail("header line not terminated (truncated header)", pos)
+                data += more
+                nl = data.find(b"\n", pos)
+            pos = nl + 1
+            if pos == len(data):
+                data += f.read(1 << 16)
+        head = data[:pos]
+        m = re.search(rb"^#\s*AEChip:\s*(\S+)", head, re.M)
+        if m and chip is None:
+            chip = m.group(1).decode("latin1").lower()
+        for name, attr in ((rb"ImuGyroScale\" value=\"GyroFullScaleDegPerSec(\d+)", "gyro_full_scale_dps"),
+                           (rb"ImuAccelScale\" value=\"ImuAccelScaleG(\d+)", "accel_full_scale_g")):
+            found = re.findall(name, head)
+            if found:
+                setattr(self, attr, int(found[-1]))
         f.seek(pos)
         self.chip_class = chip
         for frag, (w, h, davis) in CHIPS.items():
