@@ -97,6 +97,59 @@ def _stamp_us(stamp: Any) -> int:
     return int(stamp.sec) * 1_000_000 + int(stamp.nanosec) // 1000  # same field names in both typestores
 
 
+#: Events decoded into one set of columns before they are committed.
+_BATCH_EVENTS = 1 << 16
+_NO_WHERE = np.empty(0, np.int64)
+
+
+def event_packet_fields(raw: bytes, version: int) -> tuple[int, int, int, int, str, bool, np.ndarray]:
+    """(width, height, seq, time_base, encoding, is_bigendian, events) of a
+    serialized ``event_camera_msgs/EventPacket``, read directly (a generic
+    deserializer costs more than decoding the events). ROS 1: packed, the
+    header has a ``seq``, strings are length-prefixed. ROS 2 (CDR): a 4-byte
+    encapsulation (byte 1: 0 big-, 1 little-endian), each field aligned to
+    its size from there, strings counted with their terminating NUL.
+    ``events`` is a view of ``raw``. ValueError when ``raw`` is too short."""
+    cdr = version == 2
+    if cdr and len(raw) < 4:
+        raise ValueError("message shorter than its CDR encapsulation")
+    e = ">" if cdr and raw[1] == 0 else "<"
+    origin = 4 if cdr else 0
+    i = origin
+
+    def take(fmt: str, size: int) -> Any:
+        nonlocal i
+        if cdr:
+            i += (-(i - origin)) % size
+        if i + size > len(raw):
+            raise ValueError(f"message of {len(raw)} bytes ends inside a field at byte {i}")
+        v = struct.unpack_from(e + fmt, raw, i)[0]
+        i += size
+        return v
+
+    def text() -> str:
+        nonlocal i
+        n = take("I", 4)
+        if i + n > len(raw):
+            raise ValueError(f"string of {n} bytes runs past the message")
+        out = raw[i:i + n]
+        i += n
+        return out.rstrip(b"\0").decode("latin1")
+
+    if not cdr:
+        take("I", 4)  # header seq
+    take("I", 4), take("I", 4)  # stamp
+    text()  # frame_id
+    height, width = take("I", 4), take("I", 4)
+    seq, time_base = take("Q", 8), take("Q", 8)
+    enc = text()
+    big = bool(take("B", 1))
+    n = take("I", 4)
+    if i + n > len(raw):
+        raise ValueError(f"{n} event bytes run past the message")
+    return width, height, seq, time_base, enc, big, np.frombuffer(raw, np.uint8, n, i)
+
+
 def _fixed_metadata(root: Path, stack: list[Any]) -> Path:
     """``root``, or a temporary twin whose metadata names the storage plugin
     that the folder's data files imply (when ``storage_identifier`` is empty)."""
@@ -193,9 +246,11 @@ class RosbagSource(FileSource):
                 if not self.skip_bad:
                     self._fail(f"message {k} of {conn.topic} ({conn.msgtype}) does not decode: {e}")
                 self._note_skip(k, k, 1)
-            if (self.t_end_us is not None and decoder.asm is not None and decoder.asm.last_t is not None
-                    and decoder.asm.last_t >= self.t_end_us):
-                break
+            if self.t_end_us is not None and decoder.asm is not None and decoder.cols is not None:
+                yield from decoder.flush()
+                if decoder.asm.past_end():
+                    break
+        yield from decoder.flush()
         if decoder.asm is not None:
             yield from decoder.asm.finish()
 
@@ -231,6 +286,9 @@ class _Decoder:
         self.tiler = SampleTiler(src)
         self.evt3_state = np.zeros(K.EVT3_STATE, np.int64)
         self.cmp_state = np.zeros(R.LIBCAER_CMP_STATE, np.int64)
+        self.cols: tuple[np.ndarray, ...] | None = None  # reserved columns, self.n of them filled
+        self.n = 0
+        self.triggers: list[np.ndarray] = []  # rows (t, channel, value) waiting for the next flush
 
     def _assembler(self, w: int, h: int) -> EventAssembler:
         if self.asm is None:
@@ -245,7 +303,7 @@ class _Decoder:
         if typ == "dvs_msgs/msg/EventArray":
             yield from self._dvs(raw)
         elif typ == "event_camera_msgs/msg/EventPacket":
-            yield from self._event_packet(deser(raw, typ))
+            yield from self._event_packet(*event_packet_fields(raw, self.version))
         elif typ == "sensor_msgs/msg/Image":
             out = self._image(conn.topic, deser(raw, typ))
             if out is not None:
@@ -275,52 +333,74 @@ class _Decoder:
         i += 12
         if n > (len(raw) - i) // 9:
             raise ValueError(f"{n} events do not fit in {len(raw)} bytes")
-        t, x, y = np.empty(n, np.int64), np.empty(n, np.uint16), np.empty(n, np.uint16)
-        p = np.empty(n, np.int8)
+        yield from self._room(w, h, n)
+        t, x, y, p = self._free()
         if R.dvs_events(buf, i, n, cdr, origin, be, t, x, y, p) < 0:
             raise ValueError("events run past the message")
-        yield from self._assembler(w, h).push(t, x, y, p)
+        self.n += n
 
-    def _event_packet(self, m: Any) -> Iterator[Packet]:
-        enc = str(m.encoding)
-        data = np.asarray(m.events, np.uint8)
-        asm = self._assembler(m.width, m.height)
+    # -- events of many messages decoded into one set of columns ----------------
+    def _room(self, w: int, h: int, need: int) -> Iterator[Packet]:
+        """Make room for ``need`` more events (committing the batch when full)."""
+        asm = self._assembler(w, h)
+        if self.cols is not None and self.n + need <= self.cols[0].shape[0]:
+            return
+        yield from self.flush()
+        self.cols = asm.reserve(max(need, _BATCH_EVENTS))
+
+    def _free(self) -> tuple[np.ndarray, ...]:
+        assert self.cols is not None
+        return tuple(c[self.n:] for c in self.cols)
+
+    def flush(self) -> Iterator[Packet]:
+        """Commit the events decoded so far, and their triggers."""
+        if self.cols is not None:
+            assert self.asm is not None
+            n, self.cols, self.n = self.n, None, 0
+            yield from self.asm.commit(n)
+        if self.triggers:
+            trig = np.concatenate(self.triggers)
+            self.triggers = []
+            out = self.tiler.push(TriggerPacket, "triggers", trig[:, 0], channel=trig[:, 1].astype(np.int16),
+                                  value=trig[:, 2].astype(np.int8))
+            if out is not None:
+                yield out
+
+    def _event_packet(self, w: int, h: int, seq: int, time_base: int, enc: str, be: bool,
+                      data: np.ndarray) -> Iterator[Packet]:
         if enc == "evt3":
-            words = np.frombuffer(data.tobytes(), ">u2" if m.is_bigendian else "<u2", len(data) // 2)
-            n = words.shape[0] * 12
-            t, x, y = np.empty(n, np.int64), np.empty(n, np.uint16), np.empty(n, np.uint16)
-            p, where = np.empty(n, np.int8), np.empty(n, np.int64)
+            words = np.frombuffer(data, ">u2" if be else "<u2", len(data) // 2)
+            yield from self._room(w, h, words.shape[0] * 12 + 12)
             trig = np.empty((words.shape[0], 3), np.int64)
-            ne, nt, bad, nbad, _ = K.decode_evt3(words, self.evt3_state, not self.src.skip_bad, t, x, y, p, where, trig)
+            ne, nt, bad, nbad, _ = K.decode_evt3(words, self.evt3_state, not self.src.skip_bad, *self._free(),
+                                                 _NO_WHERE, trig)
+            self.n += ne
             if bad >= 0:
                 if not self.src.skip_bad:
                     raise ValueError(f"invalid EVT3 word 0x{int(words[bad]):04x} at byte {2 * bad}")
-                self.src._note_skip(int(m.seq), int(m.seq), int(nbad))
-            yield from asm.push(t[:ne], x[:ne], y[:ne], p[:ne])
+                self.src._note_skip(seq, seq, int(nbad))
             if nt:
-                out = self.tiler.push(TriggerPacket, "triggers", trig[:nt, 0], channel=trig[:nt, 1].astype(np.int16),
-                                      value=trig[:nt, 2].astype(np.int8))
-                if out is not None:
-                    yield out
+                self.triggers.append(trig[:nt])
         elif enc == "libcaer":
-            n = len(data) // 8
-            t, x, y = np.empty(n, np.int64), np.empty(n, np.uint16), np.empty(n, np.uint16)
-            p = np.empty(n, np.int8)
-            ne, _, rolls = R.libcaer_events(data, np.int64(m.time_base), t, x, y, p)
+            yield from self._room(w, h, len(data) // 8)
+            ne, _, rolls = R.libcaer_events(data, np.int64(time_base), *self._free())
+            self.n += ne
             self.src.rollovers += rolls
-            yield from asm.push(t[:ne], x[:ne], y[:ne], p[:ne])
         elif enc == "libcaer_cmp":
-            words = np.frombuffer(data.tobytes(), ">u2" if m.is_bigendian else "<u2", len(data) // 2)
+            words = np.frombuffer(data, ">u2" if be else "<u2", len(data) // 2)
             n = words.shape[0] * 12
             t, x, y = np.empty(n, np.int64), np.empty(n, np.uint16), np.empty(n, np.uint16)
             p = np.empty(n, np.int8)
-            ne, bad, nbad = R.libcaer_cmp_events(words, np.int64(int(m.time_base) // 1000), self.cmp_state, t, x, y, p)
+            ne, bad, nbad = R.libcaer_cmp_events(words, np.int64(time_base // 1000), self.cmp_state, t, x, y, p)
             if bad >= 0:
                 if not self.src.skip_bad:
                     raise ValueError(f"invalid libcaer_cmp word 0x{int(words[bad]):04x} at byte {2 * bad}")
-                self.src._note_skip(int(m.seq), int(m.seq), int(nbad))
+                self.src._note_skip(seq, seq, int(nbad))
             order = np.argsort(t[:ne], kind="stable")  # words are grouped by pixel column, not by time
-            yield from asm.push(t[order], x[order], y[order], p[order])
+            yield from self._room(w, h, ne)
+            for dst, src in zip(self._free(), (t, x, y, p)):
+                dst[:ne] = src[order]
+            self.n += ne
         else:
             self.src.undecoded_messages += 1
 

@@ -231,3 +231,29 @@ def test_fuzz_mutated_bag(tmp_path: Path, small_stream: EventPacket) -> None:
             if isinstance(q, EventPacket):
                 q.validate()
     run()
+
+
+@pytest.mark.parametrize("ros", [1, 2])
+@pytest.mark.parametrize("frame_id, encoding", [("", "evt3"), ("cam0", "libcaer_cmp"), ("a_longer_frame", "mono")])
+def test_event_packet_fields_read_directly(ros: int, frame_id: str, encoding: str) -> None:
+    """The hand parser of EventPacket gives what rosbags' deserializer gives,
+    whatever the string lengths do to the CDR alignment; a cut message is
+    a ValueError."""
+    from rosbags.typesys.stores.ros2_humble import builtin_interfaces__msg__Time as Time
+
+    from tectum.sources.files.rosbag import event_packet_fields
+
+    ts = typestore(ros)
+    T = ts.types
+    hdr = dict(stamp=Time(sec=12, nanosec=345), frame_id=frame_id)
+    header = T["std_msgs/msg/Header"](seq=7, **hdr) if ros == 1 else T["std_msgs/msg/Header"](**hdr)
+    events = np.arange(37, dtype=np.uint8)
+    msg = T["event_camera_msgs/msg/EventPacket"](header=header, height=480, width=640, seq=2**40 + 3,
+                                                  time_base=2**50 + 9, encoding=encoding, is_bigendian=True,
+                                                  events=events)
+    raw = bytes((ts.serialize_ros1 if ros == 1 else ts.serialize_cdr)(msg, "event_camera_msgs/msg/EventPacket"))
+    w, h, seq, time_base, enc, big, data = event_packet_fields(raw, ros)
+    assert (w, h, seq, time_base, enc, big) == (640, 480, 2**40 + 3, 2**50 + 9, encoding, True)
+    assert np.array_equal(data, events)
+    with pytest.raises(ValueError):
+        event_packet_fields(raw[:-5], ros)
