@@ -111,18 +111,25 @@ def parse_lines(buf, order, digits, state, t, x, y, p, where):  # pragma: no cov
             nzfrac = False
             if _at(buf, i) == 46:
                 i += 1
-                while 48 <= _at(buf, i) <= 57:
+                start_frac = i
+                while fd < digits and 48 <= _at(buf, i) <= 57:  # the digits down to 1 µs
                     d = _at(buf, i) - 48
-                    if d:
-                        nzfrac = True
-                    if fd < digits:
-                        frac = frac * 10 + d
-                        fd += 1
-                    elif fd == digits:
-                        up = 1 if d >= 5 else 0
-                        fd += 1
+                    frac = frac * 10 + d
+                    fd += 1
                     i += 1
-                    nd += 1
+                if 48 <= _at(buf, i) <= 57:  # the first digit below: rounds
+                    up = 1 if _at(buf, i) >= 53 else 0
+                    fd += 1
+                    i += 1
+                    while 48 <= _at(buf, i) <= 57:
+                        i += 1
+                nd += i - start_frac
+                nzfrac = frac != 0 or up != 0
+                if not nzfrac:
+                    for j in range(start_frac, i):
+                        if _at(buf, j) != 48:
+                            nzfrac = True
+                            break
             c = _at(buf, i)
             if nd == 0 or not (c == 10 or _sep(c)) or col >= 4:
                 bad = 1
