@@ -473,6 +473,15 @@ class SamplePacket(Packet):
         except KeyError:
             raise AttributeError(name) from None
 
+    def validate(self) -> "SamplePacket":
+        """Check the contract (times in order inside the interval, one row
+        per sample in every field); raises :class:`PacketError`, returns self."""
+        self._check_times()
+        for name, a in self.data.items():
+            if a.ndim == 0 or a.shape[0] != self.t.shape[0]:
+                raise PacketError(f"field {name!r} has shape {a.shape}, expected {self.t.shape[0]} rows")
+        return self
+
     @classmethod
     def empty(cls, t_start: int, t_end: int | None = None, *, like: "SamplePacket | None" = None,
               **shapes: tuple[int, ...]) -> "SamplePacket":

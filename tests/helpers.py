@@ -7,8 +7,9 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
-from tectum import EventPacket, concat
+from tectum import EventPacket, FormatError, concat
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -25,3 +26,34 @@ def bars(duration_us: int = 30_000, sensor: str = "64x48", **kw: object) -> Even
     from tectum.sources.pattern import PatternSource
 
     return concat(list(PatternSource(sensor=sensor, duration_us=duration_us, **kw).packets()))  # type: ignore[arg-type,return-value]
+
+
+def mutate(raw: bytes, data: Any) -> bytes:
+    """``raw`` damaged as hypothesis's ``data`` draws it: cut short, up to 8
+    bytes overwritten, or up to 64 bytes spliced in."""
+    from hypothesis import strategies as st
+
+    out = bytearray(raw)
+    op = data.draw(st.sampled_from(["truncate", "flip", "splice"]))
+    if op == "truncate":
+        return bytes(out[:data.draw(st.integers(0, len(out)))])
+    if op == "flip":
+        for _ in range(data.draw(st.integers(1, 8))):
+            out[data.draw(st.integers(0, len(out) - 1))] = data.draw(st.integers(0, 255))
+        return bytes(out)
+    i = data.draw(st.integers(0, len(out)))
+    out[i:i] = data.draw(st.binary(max_size=64))
+    return bytes(out)
+
+
+def decodes_or_names(source: Any, path: Path) -> None:
+    """Every packet of ``source`` obeys the packet contract, or reading it
+    raises a FormatError naming ``path``: never another error or a crash."""
+    try:
+        pkts = list(source.packets())
+    except FormatError as e:
+        assert e.path == str(path)
+        return
+    for q in pkts:
+        if isinstance(q, EventPacket):
+            q.validate()

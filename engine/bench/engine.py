@@ -9,7 +9,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import trio
 
 import tectum
 from tectum import EventPacket, Operator, Pipeline

@@ -41,7 +41,7 @@ def tcp_rate(n_events: int) -> dict[str, Any]:
     import tectum
     from tectum.sinks.net.sink import NetSink
     from tectum.sources.net.source import NetSource
-    from tectum.testing import ListSink, ListSource
+    from tectum.testing import ListSource
 
     pk = _packets(n_events)
     sent = sum(len(p) for p in pk)

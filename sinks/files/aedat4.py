@@ -21,7 +21,6 @@ import numpy as np
 from tectum import EventPacket, FramePacket, ImuPacket, Kind, Packet
 from tectum.sources.files import aedat4_codec as codec
 from tectum.sources.files._common import thread_count, workers
-from tectum.sources.files._flatbuf import build_table
 
 from ._common import FileSink
 

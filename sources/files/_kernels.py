@@ -222,14 +222,14 @@ def check_events(t, x, y, lo, hi, offset, prev, w, h):  # pragma: no cover - num
         b = t[i:j]
         xs = x[i:j]
         ys = y[i:j]
-        d = np.int64(0)
+        dec = np.int64(0)  # a count, not a difference: garbage times would overflow one
         mx = np.uint16(0)
         my = np.uint16(0)
         for k in range(j - i):
-            d = min(d, b[k] - a[k])
+            dec += np.int64(b[k] < a[k])
             mx = max(mx, xs[k])
             my = max(my, ys[k])
-        if d < 0 or (w <= 65535 and mx >= wu) or (h <= 65535 and my >= hu):
+        if dec or (w <= 65535 and mx >= wu) or (h <= 65535 and my >= hu):
             for k in range(i, j):
                 if t[k] < t[k - 1] or x[k] >= w or y[k] >= h:
                     return k

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from tectum import EventPacket, FramePacket, Kind, Packet, SamplePacket
+from tectum import FramePacket, Kind, Packet, SamplePacket
 
 from . import _aedat4_kernels as AK
 from . import _lz4

@@ -20,6 +20,7 @@ counted) within ``max_message`` bytes.
 
 from __future__ import annotations
 
+import re
 import struct
 import zlib
 from collections.abc import Iterator
@@ -36,6 +37,9 @@ KIND_CODES: dict[type[SamplePacket], int] = {ImuPacket: 1, FramePacket: 2, PoseP
 _CLASSES = {v: k for k, v in KIND_CODES.items()}
 _SPAN = (1 << 32) - 1
 MAX_DIMS, MAX_COLUMNS = 4, 32
+#: The column types a message may declare (numpy type strings): checked
+#: before numpy parses them (its parser raises SyntaxError on some junk).
+_DTYPE = re.compile(r"[<>|=]?(b1|[iu][1248]|f[248])")
 
 
 def _description(pkt: SamplePacket) -> bytes:
@@ -113,6 +117,8 @@ def decode_samples(msg: bytes | memoryview, schema: int, n: int, t_base: int, ma
                 return "schema"
             dims = struct.unpack_from(f"<{nd}I", body, pos + 1)
             pos += 1 + 4 * nd
+            if not _DTYPE.fullmatch(strs[1]):
+                return "schema"
             dt = np.dtype(strs[1])
             if dt.kind not in "biuf" or dt.itemsize > 8 or not strs[0].isidentifier() \
                     or strs[0] in [c[0] for c in cols] or strs[0] == "t":

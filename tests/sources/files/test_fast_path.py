@@ -173,6 +173,14 @@ def test_check_events_finds_one_bad_event_across_blocks(n, lo, frac, what, senso
     assert K.check_events(t, x, y, lo, n, 7, -1, w, h) == want
     assert np.array_equal(t[lo:], before[lo:] + 7 if want < 0 else before[lo:])
 
+
+def test_check_events_on_garbage_times() -> None:
+    """Times near the int64 limits (garbage read as times): a fall whose
+    difference would overflow is still a fall."""
+    t = np.array([0, 1, 2**62, -(2**62) - 5, 3] + [4] * 5000, np.int64)
+    x = np.zeros(t.shape[0], np.uint16)
+    assert K.check_events(t, x, x, 0, t.shape[0], 0, -1, 64, 48) == 3
+
 def test_lz4_fast_path_equals_the_frame_decoder() -> None:
     lz4f = pytest.importorskip("lz4.frame")
     from tectum.sources.files import aedat4_codec as codec

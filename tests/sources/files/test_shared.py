@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tectum import EventPacket, concat
+from tectum import concat
 from tectum.sources.files import open_file, source_class
 
 
