@@ -198,8 +198,22 @@ def thread_count(threads: int) -> int:
 @functools.cache
 def workers() -> ThreadPoolExecutor:
     """Threads the file formats share for work that releases the GIL
-    (compiled kernels, compression), made on first use."""
+    (compiled kernels, compression), made on first use (and again in a
+    forked child, where the parent's threads do not exist)."""
     return ThreadPoolExecutor(3, thread_name_prefix="tectum-files")
+
+
+def _after_fork_in_child() -> None:
+    """A forked child (e.g. a DataLoader worker) gets new worker threads and
+    new pool locks: the parent's threads are gone and a lock held by one of
+    them at the fork would never be released."""
+    workers.cache_clear()
+    for pool in (POOL, BUFFERS):
+        pool._lock = threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork_in_child)
 
 
 class EventAssembler:

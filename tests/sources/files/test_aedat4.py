@@ -268,3 +268,24 @@ def test_fuzz_compiled_path(many_packets: bytes, data, tmp_path_factory) -> None
     f.write_bytes(mutate(many_packets, data))
     for kw in ({}, {"skip_bad": True, "threads": 2}):
         decodes_or_names(Aedat4Source(str(f), **kw), f)
+
+
+def test_threads_work_in_a_forked_child(tmp_path: Path) -> None:
+    """After the parent used the worker threads, a forked child (as a
+    DataLoader worker is) reads with threads too instead of waiting forever
+    on the parent's threads."""
+    import multiprocessing as mp
+
+    if "fork" not in mp.get_all_start_methods():
+        pytest.skip("no fork on this platform")
+    f = _write(tmp_path / "k.aedat4", _events(200_000))  # 3 MB: decoded on 2 threads
+    n = len(_read(f, threads=2)[0])
+    ctx = mp.get_context("fork")
+    with ctx.Pool(1) as pool:
+        got = pool.apply_async(_count, (str(f),)).get(timeout=60)
+    assert got == n
+
+
+def _count(path: str) -> int:
+    return sum(len(q) for q in Aedat4Source(path, threads=2).packets()
+               if isinstance(q, EventPacket))
