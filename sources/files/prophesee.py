@@ -81,7 +81,8 @@ class RawSource(FileSource):
         return K.decode_evt2 if self.evt == "evt2" else K.decode_evt3
 
     def _decode(self, words: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, ...]:
-        """All events of ``words`` in fresh arrays (slow path: extent scans)."""
+        """All events of ``words`` in fresh arrays, with the index of each
+        one's word (slow path: extent scans, error offsets)."""
         n = words.shape[0] * self.fanout
         t = np.empty(n, np.int64)
         x = np.empty(n, np.uint16)
@@ -158,7 +159,7 @@ class RawSource(FileSource):
                     if strict:
                         self._fail(f"invalid {self.evt.upper()} word 0x{int(words[i + bad]):0{2 * size}x}", at)
                     self._note_skip(at, at + size - 1, nbad)
-                yield from asm.commit(ne, pos, self._where_of(kernel, words[i:i + used], before, pos + i * size))
+                yield from asm.commit(ne, pos, self._where_of(words[i:i + used], before, pos + i * size))
                 if nt:
                     tp = tiler.push(TriggerPacket, "triggers", trig[:nt, 0] + off, pos,
                                     channel=trig[:nt, 1].astype(np.int16), value=trig[:nt, 2].astype(np.int8))
@@ -170,15 +171,10 @@ class RawSource(FileSource):
         self.untimed_events = int(state[4] if self.evt == "evt2" else state[7])
         yield from asm.finish()
 
-    def _where_of(self, kernel: Any, words: np.ndarray, state: np.ndarray, at: int) -> Any:
+    def _where_of(self, words: np.ndarray, state: np.ndarray, at: int) -> Any:
         """A function giving each event's byte offset, by decoding ``words``
         again from ``state`` (called only when an event is bad)."""
-        def where() -> np.ndarray:
-            n = words.shape[0] * self.fanout
-            out = [np.empty(n, d) for d in (np.int64, np.uint16, np.uint16, np.int8, np.int64)]
-            ne, *_ = kernel(words, state.copy(), not self.skip_bad, *out, np.empty((words.shape[0], 3), np.int64))
-            return at + out[4][:ne] * np.dtype(self.word).itemsize
-        return where
+        return lambda: at + self._decode(words, state.copy())[4] * np.dtype(self.word).itemsize
 
 
 class Evt2Source(RawSource):

@@ -67,6 +67,34 @@ def _reset(state: np.ndarray) -> None:
 
 
 @njit(cache=True)
+def _imu_start(state: np.ndarray, imu_cur: np.ndarray) -> None:
+    """IMU start mark: a new sample begins."""
+    state[_IMU_ON] = 1
+    state[_IMU_N] = 0
+    state[_IMU_TYPE] = 0
+    imu_cur[:] = 0.0
+
+
+@njit(cache=True)
+def _imu_end(state: np.ndarray, imu_cur: np.ndarray, imu_t: np.ndarray, imu_v: np.ndarray, m: int, ok: bool,
+             acc_lsb: float, gyr_lsb: float, temp_lsb: float, temp_zero: float) -> int:
+    """IMU end mark: the sample (when all 14 bytes came and ``ok``) into row
+    ``m``, scaled by the LSB per g, per °/s and per °C above ``temp_zero``;
+    an incomplete one is counted. Returns the rows written so far."""
+    if state[_IMU_ON] != 1:
+        return m
+    if state[_IMU_N] != 14 or not ok:
+        state[_IMU_BAD] += 1
+        return m
+    imu_t[m] = _emit_time(state, state[_CUR])
+    for k in range(3):
+        imu_v[m, k] = imu_cur[k] / acc_lsb * G
+        imu_v[m, 4 + k] = imu_cur[4 + k] / gyr_lsb * np.pi / 180.0
+    imu_v[m, 3] = imu_cur[3] / temp_lsb + temp_zero
+    return m + 1
+
+
+@njit(cache=True)
 def _imu_skip(state: np.ndarray, c: np.int64) -> None:
     """After IMU byte ``c``: skip the counts of sensors not sent (type bits
     4 accel, 1 temperature, 2 gyro)."""
@@ -221,23 +249,10 @@ def davis_kernel(words: np.ndarray, start: int, state: np.ndarray, imu_cur: np.n
             elif data == 2 or data == 3 or data == 4:
                 state[_SPECIAL] += 1
             elif data == 5:  # IMU start
-                state[_IMU_ON] = 1
-                state[_IMU_N] = 0
-                state[_IMU_TYPE] = 0
-                imu_cur[:] = 0.0
+                _imu_start(state, imu_cur)
             elif data == 7:  # IMU end
-                if state[_IMU_ON] == 1:
-                    if state[_IMU_N] == 14:
-                        imu_t[m] = _emit_time(state, state[_CUR])
-                        acc = 65536.0 / (4 * (1 << state[_ACC_SC]))
-                        gyr = 65536.0 / (500 * (1 << state[_GYR_SC]))
-                        for k in range(3):
-                            imu_v[m, k] = imu_cur[k] / acc * G
-                            imu_v[m, 4 + k] = imu_cur[4 + k] / gyr * np.pi / 180.0
-                        imu_v[m, 3] = imu_cur[3] / 340.0 + 35.0
-                        m += 1
-                    else:
-                        state[_IMU_BAD] += 1
+                m = _imu_end(state, imu_cur, imu_t, imu_v, m, True, 65536.0 / (4 * (1 << state[_ACC_SC])),
+                             65536.0 / (500 * (1 << state[_GYR_SC])), 340.0, 35.0)
             elif data == 8 or data == 9:  # APS frame start, global / rolling shutter
                 state[_A_ON] = 1
                 state[_A_SOF] = state[_BASE] + state[_CUR]

@@ -30,8 +30,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._decode import _BAD, _CUR, _LAST, _IMU_BAD, _IMU_N, _IMU_ON, _IMU_TYPE, _SPECIAL, _WRAP, _WRAPS, G, \
-    Decoded, _Base, _emit_time, _imu_byte, _imu_type, _reset
+from ._decode import _BAD, _CUR, _IMU_BAD, _IMU_ON, _LAST, _SPECIAL, _WRAP, _WRAPS, \
+    Decoded, _Base, _emit_time, _imu_byte, _imu_end, _imu_start, _imu_type, _reset
 
 __all__ = ["DvxDecoder", "dvx_kernel"]
 
@@ -60,23 +60,11 @@ def dvx_kernel(words: np.ndarray, state: np.ndarray, imu_cur: np.ndarray, t: np.
             if data == 1:
                 _reset(state)
             elif data == 5:
-                state[_IMU_ON] = 1
-                state[_IMU_N] = 0
-                state[_IMU_TYPE] = 0
-                imu_cur[:] = 0.0
-            elif data == 7:
-                if state[_IMU_ON] == 1:
-                    if state[_IMU_N] == 14 and state[_GYR_SC] <= 4:
-                        imu_t[m] = _emit_time(state, state[_CUR])
-                        acc = 65536.0 / (4 * (1 << state[_ACC_SC]))  # LSB per g
-                        gyr = 65536.0 / (250 * (1 << (4 - state[_GYR_SC])))  # LSB per °/s
-                        for k in range(3):
-                            imu_v[m, k] = imu_cur[k] / acc * G
-                            imu_v[m, 4 + k] = imu_cur[4 + k] / gyr * np.pi / 180.0
-                        imu_v[m, 3] = imu_cur[3] / 512.0 + 23.0
-                        m += 1
-                    else:
-                        state[_IMU_BAD] += 1
+                _imu_start(state, imu_cur)
+            elif data == 7:  # gyro range codes above 4 are not defined: such a sample is counted bad
+                sc = min(state[_GYR_SC], 4)
+                m = _imu_end(state, imu_cur, imu_t, imu_v, m, state[_GYR_SC] <= 4,
+                             65536.0 / (4 * (1 << state[_ACC_SC])), 65536.0 / (250 * (1 << (4 - sc))), 512.0, 23.0)
             else:  # external input / generator, reserved: not events
                 state[_SPECIAL] += 1
         elif code == 1:
