@@ -166,7 +166,7 @@ class Aedat4Source(FileSource):
         comp, dtp, xml, start = read_io_header(f, self.path)
         try:
             streams = parse_info_node(xml)
-        except ET.ParseError as e:
+        except (ET.ParseError, ValueError) as e:  # ValueError: a number attribute (sizeX, tsOffset) is not one
             self._fail(f"infoNode XML does not parse: {e}", len(MAGIC) + 4)
         self.compression = comp
         self.streams = streams

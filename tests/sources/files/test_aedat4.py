@@ -289,3 +289,14 @@ def test_threads_work_in_a_forked_child(tmp_path: Path) -> None:
 def _count(path: str) -> int:
     return sum(len(q) for q in Aedat4Source(path, threads=2).packets()
                if isinstance(q, EventPacket))
+
+
+def test_number_in_the_info_node_that_is_not_one(tmp_path: Path) -> None:
+    """A sizeX that is no integer is a FormatError naming the file, as a
+    malformed infoNode is (the network reader already said so)."""
+    f = _write(tmp_path / "x.aedat4", _events(100))
+    raw = f.read_bytes()
+    assert raw.count(b'"sizeX" type="int">64<') == 1
+    f.write_bytes(raw.replace(b'"sizeX" type="int">64<', b'"sizeX" type="int">!4<'))
+    with pytest.raises(FormatError, match="infoNode"):
+        _read(f)
