@@ -14,13 +14,21 @@ def _scene():
                              jitter_us=200, noise_hz=30.0, seed=3).without_columns("vx", "vy")
 
 
-def _edge_speed_reference(pkt, window_us, tol, lo, hi):
+def _walk(pkt):
+    """(t, x, y, polarity index, surface of active events) per event, the
+    surface already holding the event (the references' shared first step)."""
     w, h = pkt.sensor
     sae = np.full((2, h, w), NEVER, np.int64)
-    out = []
     for t, x, y, p in zip(pkt.t.tolist(), pkt.x.tolist(), pkt.y.tolist(), pkt.p.tolist()):
         k = int(p > 0)
         sae[k, y, x] = t
+        yield t, x, y, k, sae
+
+
+def _edge_speed_reference(pkt, window_us, tol, lo, hi):
+    w, h = pkt.sensor
+    out = []
+    for t, x, y, k, sae in _walk(pkt):
         g = []
         for dx, dy in ((1, 0), (0, 1)):
             ages = []
@@ -71,12 +79,8 @@ def _window(sae, k, x, y, t, radius, window_us):
 
 def _plane_reference(pkt, radius, window_us, min_points):
     """Plain least squares (no rejection) with numpy.linalg.lstsq."""
-    w, h = pkt.sensor
-    sae = np.full((2, h, w), NEVER, np.int64)
     out = []
-    for t, x, y, p in zip(pkt.t.tolist(), pkt.x.tolist(), pkt.y.tolist(), pkt.p.tolist()):
-        k = int(p > 0)
-        sae[k, y, x] = t
+    for t, x, y, k, sae in _walk(pkt):
         pts = _window(sae, k, x, y, t, radius, window_us)
         if len(pts) < min_points:
             out.append(None)
@@ -139,12 +143,8 @@ def test_relative_surface_rebases_without_changing_results():
 
 def _benosman_reference(pkt, radius, window_us, n_iter, reject_us, min_points, max_rms, lo, hi):
     """Iterative outlier rejection (Benosman et al. 2014) with numpy.linalg.lstsq."""
-    w, h = pkt.sensor
-    sae = np.full((2, h, w), NEVER, np.int64)
     out = []
-    for t, x, y, p in zip(pkt.t.tolist(), pkt.x.tolist(), pkt.y.tolist(), pkt.p.tolist()):
-        k = int(p > 0)
-        sae[k, y, x] = t
+    for t, x, y, k, sae in _walk(pkt):
         pts = np.array(_window(sae, k, x, y, t, radius, window_us), np.float64).reshape(-1, 3)
         if len(pts) < min_points:
             out.append(None)
