@@ -57,3 +57,21 @@ def decodes_or_names(source: Any, path: Path) -> None:
     for q in pkts:
         if isinstance(q, EventPacket):
             q.validate()
+
+
+def run_camera(cam: Any, uri: str = "usb:", sinks: int = 1, **kw: Any) -> tuple[Any, list[Any]]:
+    """The emulated camera ``cam`` through a UsbSource (``uri``, options
+    ``kw``) into ``sinks`` ListSinks, to the end of its stream: (source, sinks)."""
+    import tectum
+    from tectum.sources.usb.emulated import EmulatedBackend
+    from tectum.sources.usb.source import UsbSource
+    from tectum.testing import ListSink
+
+    src = UsbSource(uri, backend=EmulatedBackend(cam), idle_s=0.1, **kw)
+    p = tectum.Pipeline()
+    s = p.source(src)
+    out = [ListSink() for _ in range(sinks)]
+    for k in out:
+        p.sink(k, s)
+    tectum.run(p)
+    return src, out

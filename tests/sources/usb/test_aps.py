@@ -5,14 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import run_camera
 
 import tectum
 from tectum import Kind
 from tectum.sources.usb import _protocol as P
 from tectum.sources.usb._decode import DavisDecoder
-from tectum.sources.usb.emulated import EmulatedBackend, EmulatedCamera
-from tectum.sources.usb.source import UsbSource
-from tectum.testing import ListSink
+from tectum.sources.usb.emulated import EmulatedCamera
 
 
 def ref_frame(reset: np.ndarray, signal: np.ndarray) -> np.ndarray:
@@ -69,20 +68,11 @@ def test_roi_info_gives_a_smaller_frame_at_its_position() -> None:
     assert f.position == (4, 1) and np.array_equal(f.image, ref_frame(reset, signal))
 
 
-def run_camera(cam: EmulatedCamera, **kw) -> tuple[UsbSource, ListSink]:
-    src = UsbSource("usb:", backend=EmulatedBackend(cam), idle_s=0.1, **kw)
-    p = tectum.Pipeline()
-    sink = ListSink()
-    p.sink(sink, p.source(src))
-    tectum.run(p)
-    return src, sink
-
-
 @pytest.mark.parametrize("model,orientation", [("davis346", 0), ("davis240", 4 | 2), ("davis346", 1)])
 def test_emulated_camera_frames_equal_what_it_saw(model: str, orientation: int) -> None:
     cam = EmulatedCamera(model, duration_us=85_000, speed=400.0, noise_hz=1.0, aps_orientation=orientation,
                          max_transfer=65_537)
-    src, sink = run_camera(cam, frame_interval_us=30_000, exposure_us=3000)
+    src, (sink,) = run_camera(cam, frame_interval_us=30_000, exposure_us=3000)
     fr = tectum.concat([q for q in sink.packets if q.kind == Kind.FRAMES])
     assert len(fr) == len(cam.truth.frames) == 3
     assert fr.images.shape[1:] == cam.sensor[::-1] and fr.images.dtype == np.uint8
@@ -100,7 +90,7 @@ def test_emulated_camera_frames_equal_what_it_saw(model: str, orientation: int) 
 
 def test_frames_off_and_default_timing() -> None:
     cam = EmulatedCamera("davis346", duration_us=50_000, speed=400.0, noise_hz=1.0)
-    src, sink = run_camera(cam, frames=False)
+    src, (sink,) = run_camera(cam, frames=False)
     assert not [q for q in sink.packets if q.kind == Kind.FRAMES and len(q)]
     assert cam.config[(P.MOD_APS, P.APS_FRAME_INTERVAL)] == P.APS_DEFAULT_INTERVAL_US * cam.adc_clock_mhz
     assert src.decoder.counts["aps_words_skipped"] > 0  # stray APS words without a frame start

@@ -6,12 +6,10 @@ from __future__ import annotations
 import struct
 
 import pytest
+from helpers import run_camera
 
-import tectum
 from tectum.sources.usb import _protocol as P
-from tectum.sources.usb.emulated import EmulatedBackend, EmulatedCamera
-from tectum.sources.usb.source import UsbSource
-from tectum.testing import ListSink
+from tectum.sources.usb.emulated import EmulatedCamera
 
 
 def written(cam: EmulatedCamera) -> list[tuple[int, int, int]]:
@@ -21,9 +19,7 @@ def written(cam: EmulatedCamera) -> list[tuple[int, int, int]]:
 
 
 def run(cam: EmulatedCamera) -> list[tuple[int, int, int]]:
-    p = tectum.Pipeline()
-    p.sink(ListSink(), p.source(UsbSource("usb:", backend=EmulatedBackend(cam), idle_s=0.1)))
-    tectum.run(p)
+    run_camera(cam)
     return written(cam)
 
 

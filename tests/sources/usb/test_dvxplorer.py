@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
+from helpers import run_camera
 
 import tectum
 from tectum import Kind
@@ -144,11 +145,7 @@ RESET = 35_000  # past one timestamp wrap (2^15 µs)
 
 
 def run(cam: EmulatedCamera, **kw) -> tuple[UsbSource, ListSink]:
-    src = UsbSource("usb:dvxplorer", backend=EmulatedBackend(cam), idle_s=0.1, **kw)
-    p = tectum.Pipeline()
-    sink = ListSink()
-    p.sink(sink, p.source(src))
-    tectum.run(p)
+    src, (sink,) = run_camera(cam, "usb:dvxplorer", **kw)
     return src, sink
 
 

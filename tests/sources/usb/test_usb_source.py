@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from helpers import run_camera
 
 import tectum
 from tectum import Kind
@@ -20,15 +21,9 @@ SMALL = dict(duration_us=110_000, speed=400.0, noise_hz=1.0)
 
 
 def run(cam: EmulatedCamera, **kw) -> tuple[UsbSource, ListSink, ListSink]:
-    src = UsbSource("usb:", backend=EmulatedBackend(cam), idle_s=0.1, **kw)
-    p = tectum.Pipeline()
-    s = p.source(src)
-    ev, imu = ListSink(), ListSink()
-    p.sink(ev, s)
-    if cam.model != "dvs128":
-        p.sink(imu, s)
-    tectum.run(p)
-    return src, ev, imu
+    """(source, events sink, IMU sink: none is attached for a DVS128)."""
+    src, sinks = run_camera(cam, sinks=1 if cam.model == "dvs128" else 2, **kw)
+    return src, sinks[0], sinks[1] if len(sinks) > 1 else ListSink()
 
 
 @pytest.mark.parametrize("model", ["davis346", "davis240", "dvs128"])
