@@ -31,7 +31,8 @@ import numpy as np
 from tectum import EventPacket, FormatError, Kind, Packet, SamplePacket, Source
 
 __all__ = ["FileSource", "EventAssembler", "SampleTiler", "ColumnPool", "parse_size", "byte_buffer",
-           "read_prefixed_header", "sensor_from_header", "thread_count", "workers", "DEFAULT_CHUNK_BYTES"]
+           "read_full", "read_prefixed_header", "sensor_from_header", "thread_count", "workers",
+           "DEFAULT_CHUNK_BYTES"]
 
 DEFAULT_CHUNK_BYTES = 1 << 22
 
@@ -185,6 +186,18 @@ def byte_buffer(n: int) -> np.ndarray:
     """A uint8 array of ``n`` bytes to read or decompress into, taken from
     :data:`BUFFERS` (a fresh one would cost a page fault per 4 KiB)."""
     return BUFFERS.take(n)[0][:n]
+
+
+def read_full(f: Any, view: np.ndarray) -> int:
+    """Fill ``view`` from ``f``, reading again while the OS returns less:
+    the bytes read, fewer than asked only at the end of the file."""
+    have = 0
+    while have < view.shape[0]:
+        got = f.readinto(view[have:])
+        if not got:
+            break
+        have += got
+    return have
 
 
 def thread_count(threads: int) -> int:

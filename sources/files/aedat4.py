@@ -30,7 +30,7 @@ from tectum import FramePacket, Kind, Packet, SamplePacket
 from . import _aedat4_kernels as AK
 from . import _lz4
 from . import aedat4_codec as codec
-from ._common import EventAssembler, FileSource, SampleTiler, byte_buffer, thread_count, workers
+from ._common import EventAssembler, FileSource, SampleTiler, byte_buffer, read_full, thread_count, workers
 from ._flatbuf import FlatError, root
 
 __all__ = ["Aedat4Source", "Stream", "PacketEntry", "read_io_header"]
@@ -242,12 +242,7 @@ class Aedat4Source(FileSource):
                 return
             buf = byte_buffer(n)
             buf[:carry.shape[0]] = carry
-            have = carry.shape[0]
-            while have < n:
-                got = f.readinto(buf[have:n])
-                if not got:
-                    break
-                have += got
+            have = carry.shape[0] + read_full(f, buf[carry.shape[0]:n])
             pos = base + have
             i, status = 0, 0
             while True:
@@ -302,11 +297,10 @@ class Aedat4Source(FileSource):
             for k, (a, b, _) in enumerate(spans[i:j]):
                 at[k] = o
                 f.seek(a)
-                while o < at[k] + b - a:
-                    got = f.readinto(buf[o:at[k] + b - a])
-                    if not got:
-                        self._fail("file ends inside a packet (truncated)", a + o - int(at[k]))
-                    o += got
+                got = read_full(f, buf[o:o + b - a])
+                if got < b - a:
+                    self._fail("file ends inside a packet (truncated)", a + got)
+                o += got
             rows = self._scan_all(buf, comp)
             span = np.searchsorted(at, rows[:, 0] - 8, side="right") - 1
             rows[:, 8] = np.array([s[0] for s in spans[i:j]], np.int64)[span] + rows[:, 0] - 8 - at[span]
