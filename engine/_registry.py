@@ -11,7 +11,7 @@ import pluggy
 
 from . import hookspecs
 from ._operator import Operator, Sink, Source
-from .errors import DuplicateNameError, RegistryError
+from .errors import DuplicateNameError, FormatError, RegistryError
 
 __all__ = ["Registry", "RegistryView", "get_registry", "FAMILIES"]
 
@@ -74,7 +74,10 @@ class Registry:
 
     def source_for(self, arg: str) -> type[Source]:
         """The source class that opens ``arg``: by URL scheme, else by file
-        content, else by extension."""
+        content, else by extension. The one way tectum chooses a source (the
+        CLI's ``info``, ``convert`` and ``run`` and the Python API all come
+        here). Raises :class:`RegistryError` for a missing file or unknown
+        scheme, :class:`FormatError` for a file nothing recognises."""
         return self._resolve(arg, self.sources, "source")  # type: ignore[return-value]
 
     def sink_for(self, arg: str) -> type[Sink]:
@@ -97,9 +100,13 @@ class Registry:
                 if e.cls.sniff_dir(arg):
                     return e.cls
             raise RegistryError(f"{arg!r} is a folder that no source recognises")
-        if role == "source" and os.path.isfile(arg):
-            with open(arg, "rb") as f:
-                head = f.read(4096)
+        head = b""
+        if role == "source":
+            try:
+                with open(arg, "rb") as f:
+                    head = f.read(4096)
+            except OSError as e:
+                raise FormatError(f"cannot open: {e.strerror}", path=arg) from None
             for e in table.values():
                 if e.cls.sniff(head):
                     return e.cls
@@ -111,8 +118,11 @@ class Registry:
                     best = (len(ext), e.cls)
         if best:
             return best[1]
-        exts = sorted({x for e in table.values() for x in e.cls.extensions})
-        raise RegistryError(f"no {role} recognises {arg!r} (known extensions: {', '.join(exts)})")
+        exts = ", ".join(sorted({x for e in table.values() for x in e.cls.extensions}))
+        if role == "source":
+            raise FormatError(f"unrecognised event file format (first bytes {head[:16]!r}; known extensions: "
+                              f"{exts})", path=arg, offset=0)
+        raise RegistryError(f"no {role} recognises {arg!r} (known extensions: {exts})")
 
 
 def _scheme(arg: str) -> str | None:

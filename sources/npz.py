@@ -133,10 +133,26 @@ class NpzSource(Source):
         return max(w, 1), max(h, 1)
 
     def info(self) -> dict[str, Any]:
+        """The keys of :meth:`tectum.sources.files.FileSource.info` (what
+        ``tectum info`` prints), plus ``interval`` and ``columns``; reads
+        only the ``t`` column."""
         cols, sensor, interval, n = self._open()
-        self.close()
-        return {"format": "npz", "sensor": sensor, "events": n, "interval": interval,
-                "columns": sorted(cols)}
+        try:
+            first = last = None
+            left = n
+            while left:
+                k = min(left, self.chunk_events)
+                left -= k
+                t = _to_us(cols["t"].read(k), _UNITS[self.time_unit])
+                first = int(t[0]) if first is None else first
+                last = int(t[-1])
+        finally:
+            self.close()
+        dur = last - first if first is not None and last is not None else 0
+        return {"format": "npz", "path": self.path, "sensor": sensor, "events": n, "t_first_us": first,
+                "t_last_us": last, "duration_us": dur, "rate_mev_s": n / dur if dur > 0 else 0.0,
+                "streams": {"events": n}, "t0_offset_us": 0, "skipped_events": 0,
+                "interval": interval, "columns": sorted(cols)}
 
     def packets(self) -> Iterator[EventPacket]:
         cols, sensor, interval, n = self._open()

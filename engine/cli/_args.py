@@ -7,6 +7,8 @@ from urllib.parse import parse_qsl
 
 from tectum.errors import PipelineError
 
+__all__ = ["split_query", "split_op", "open_source"]
+
 
 def split_query(arg: str) -> tuple[str, dict[str, str]]:
     """``"out.npz?compress=true"`` -> ``("out.npz", {"compress": "true"})``.
@@ -34,3 +36,28 @@ def split_op(arg: str) -> tuple[str, dict[str, Any]]:
         k, v = kv.split("=", 1)
         params[k.strip()] = v.strip()
     return name, params
+
+
+def open_source(arg: str, sink: str | None = None, **flags: Any) -> tuple[Any, Any]:
+    """The source for ``arg`` (a path or URL, parameters after ``?``) and the
+    sink for ``sink`` fed from it, made as ``tectum run`` makes them: chosen
+    by the registry, ``?k=v`` parameters checked and converted by pipeline
+    validation. ``flags`` (typed values from the command line's options) go
+    to the source as they are; those that are None are left out. Returns
+    ``(source, sink or None)``, not yet opened."""
+    from tectum import Pipeline
+
+    p = Pipeline()
+    uri, params = split_query(arg)
+    p.source(uri, id="input", **params)
+    if sink is not None:
+        out, sparams = split_query(sink)
+        p.sink(out, "input", id="output", **sparams)
+    plan = p.validate()
+    node = plan.nodes["input"]
+    given = {k: v for k, v in flags.items() if v is not None}
+    try:
+        src = node.cls(uri, **node.params, **given)
+    except TypeError as e:  # a flag this format has no option for
+        raise PipelineError(f"{node.cls.name} source ({uri}): {e}") from None
+    return src, plan.nodes["output"].instantiate() if sink is not None else None

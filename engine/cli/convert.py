@@ -9,7 +9,7 @@ HELP = "convert an event file to another format, streaming (e.g. in.raw out.aeda
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("input", help="event file to read (format detected from its content)")
+    p.add_argument("input", help="event file to read (format detected from its content); IN?k=v passes source options")
     p.add_argument("output", help="file to write (format from its extension: .txt .csv .aedat4 .raw "
                                   ".evt3.raw .dat .h5 .npy .npz); OUT?k=v passes sink options")
     p.add_argument("--sensor", default=None, help="WIDTHxHEIGHT for inputs that do not say")
@@ -19,15 +19,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from tectum import EventPacket, get_registry
-    from tectum.cli._args import split_query
-    from tectum.sources.files import open_file
+    from tectum import EventPacket
 
-    kw = {"sensor": args.sensor, "skip_bad": args.skip_bad, "t_start_us": args.start_us,
-          "t_end_us": args.end_us}
-    src = open_file(args.input, **{k: v for k, v in kw.items() if v not in (None, False)})
-    out, params = split_query(args.output)
-    sink = get_registry().sink_for(out)(out, **params)
+    from ._args import open_source, split_query
+
+    src, sink = open_source(args.input, args.output, sensor=args.sensor, skip_bad=args.skip_bad or None,
+                            t_start_us=args.start_us, t_end_us=args.end_us)
+    out = split_query(args.output)[0]
     n = 0
     sink.open()
     try:
@@ -39,6 +37,7 @@ def main(args: argparse.Namespace) -> int:
         sink.abort()
         raise
     sink.close()
-    extra = f", skipped {src.skipped_events}" if src.skipped_events else ""
+    skipped = getattr(src, "skipped_events", 0)
+    extra = f", skipped {skipped}" if skipped else ""
     print(f"{n:,} events -> {out}{extra}")
     return 0

@@ -9,16 +9,20 @@ HELP = "describe an event file: format, sensor size, duration, events, rate, str
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("file", help="an event file (format detected from its content)")
+    p.add_argument("file", help="an event file (format detected from its content); FILE?k=v passes source options")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument("--sensor", default=None, help="WIDTHxHEIGHT for files that do not say")
 
 
 def main(args: argparse.Namespace) -> int:
-    from tectum.sources.files import open_file
+    from tectum.errors import PipelineError
 
-    kw = {"sensor": args.sensor} if args.sensor else {}
-    info = open_file(args.file, **kw).info()
+    from ._args import open_source
+
+    src, _ = open_source(args.file, sensor=args.sensor)
+    if not hasattr(src, "info"):
+        raise PipelineError(f"{args.file!r} opens as a {src.name!r} source, which is no file to describe")
+    info = src.info()
     if args.json:
         print(json.dumps(info, indent=1, default=str))
         return 0

@@ -34,34 +34,13 @@ def _classes() -> list[type]:
 SOURCES = _classes()
 
 
-def source_class(path: str) -> type:
-    """The source class for ``path``: by content, then by extension."""
-    import os
-
-    from tectum import FormatError
-
-    if os.path.isdir(path):
-        if os.path.isfile(os.path.join(path, "metadata.yaml")):
-            from .rosbag import RosbagSource
-
-            return RosbagSource
-        raise FormatError("a folder that is not a ROS 2 bag (no metadata.yaml)", path=os.fspath(path), offset=0)
-    with open(path, "rb") as f:
-        head = f.read(4096)
-    for cls in SOURCES:
-        if cls.sniff(head):
-            return cls
-    low = path.lower()
-    for cls in SOURCES:
-        if any(low.endswith(e) for e in cls.extensions):
-            return cls
-    raise FormatError(f"unrecognised event file format (first bytes {head[:16]!r})", path=os.fspath(path),
-                      offset=0)
-
-
 def open_file(path: str, **kw: Any) -> Any:
-    """A source for ``path``, its format detected from the content."""
-    return source_class(path)(path, **kw)
+    """A source for ``path``, chosen as everywhere else in tectum by
+    :meth:`tectum.Registry.source_for` (URL scheme, file content, then
+    extension), so this also opens tectum's own ``.npz``."""
+    from tectum import get_registry
+
+    return get_registry().source_for(path)(path, **kw)
 
 
 @hookimpl

@@ -13,8 +13,8 @@ import pytest
 pytest.importorskip("rosbags")
 
 from helpers import decodes_or_names  # noqa: E402
-from tectum import EventPacket, FormatError, concat  # noqa: E402
-from tectum.sources.files import open_file, source_class  # noqa: E402
+from tectum import EventPacket, FormatError, concat, get_registry  # noqa: E402
+from tectum.sources.files import open_file  # noqa: E402
 from tectum.sources.files import _ros_kernels as R  # noqa: E402
 from tectum.sources.files.rosbag import RosbagSource, typestore  # noqa: E402
 
@@ -34,7 +34,7 @@ def read(path, **kw):
     ("bags/libcaer_rollover_ros2_sqlite", 334_331, None, (640, 480), 0),
 ])
 def test_manifest_counts(shared: Path, rel: str, n: int, on, sensor, triggers) -> None:
-    assert source_class(str(shared / rel)) is RosbagSource
+    assert get_registry().source_for(str(shared / rel)) is RosbagSource
     got, src = read(shared / rel)
     ev = got["events"]
     ev.validate()

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tectum import concat
-from tectum.sources.files import open_file, source_class
+from tectum import concat, get_registry
+from tectum.sources.files import open_file
 
 
 def read(path: Path, **kw):  # -> (events, {kind: n}, source)
@@ -108,10 +108,10 @@ def test_detection_by_content_not_name(shared: Path, tmp_path: Path) -> None:
     src = shared / "ecd/unnamed_excerpt/events.txt"
     renamed = tmp_path / "mystery.bin"
     renamed.write_bytes(src.read_bytes()[:20000])
-    assert source_class(str(renamed)).name == "text"
+    assert get_registry().source_for(str(renamed)).name == "text"
     raw = tmp_path / "noext"
     raw.write_bytes((shared / "prophesee/imx636_evt3.raw").read_bytes()[:5000])
-    assert source_class(str(raw)).name == "evt3"
+    assert get_registry().source_for(str(raw)).name == "evt3"
 
 
 def test_aedat4_against_dv_processing(shared: Path) -> None:
