@@ -10,7 +10,8 @@ import zipfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-MAPPING = {"engine": "tectum", "plugins": "tectum.plugins", "sources": "tectum.sources", "sinks": "tectum.sinks"}
+MAPPING = {"engine": "tectum", "plugins": "tectum.plugins", "sources": "tectum.sources", "sinks": "tectum.sinks",
+           "evaluation": "tectum.evaluation"}
 
 
 def _config() -> dict:
@@ -46,7 +47,7 @@ def test_a_plain_wheel_install_imports(tmp_path):
     site = tmp_path / "site"
     subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(site), str(wheel)],
                    check=True, capture_output=True)
-    code = ("import tectum, tectum.plugins, tectum.sources, tectum.sinks, tectum.cli, tectum.bench;"
+    code = ("import tectum, tectum.plugins, tectum.sources, tectum.sinks, tectum.cli, tectum.evaluation.harness;"
             "print(tectum.__file__); print(sorted(tectum.get_registry().operators))")
     env = dict(os.environ, PYTHONPATH=str(site))
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, cwd=tmp_path)

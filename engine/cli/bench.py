@@ -6,6 +6,7 @@ import argparse
 import importlib
 from pathlib import Path
 
+SUITES = ("engine", "io", "filters", "flow", "simulate", "net")
 HELP = "run benchmark suites (engine, io, filters, flow, simulate, net) and write JSON/PNG results"
 
 
@@ -16,9 +17,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from tectum.bench import available_suites, write_results
+    from tectum.evaluation.harness import write_results
 
-    have = available_suites()
+    have = list(SUITES)
     suites = args.suite or have
     unknown = [s for s in suites if s not in have]
     if unknown:
@@ -27,7 +28,7 @@ def main(args: argparse.Namespace) -> int:
     out = Path(args.out)
     for s in suites:
         print(f"== {s}")
-        mod = importlib.import_module(f"tectum.bench.{s}")
+        mod = importlib.import_module(f"tectum.evaluation.suites.{s}")
         res = mod.run(out, args.quick)
         print(f"-> {write_results(out, s, res)}")
     return 0

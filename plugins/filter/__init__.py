@@ -11,7 +11,6 @@ from .calibration import Camera, read_calibration, read_uzh_calib
 from .geometry import Downsample, Flip, Roi, Rotate
 from .hot_pixel import HotPixel
 from .mask import Mask
-from .metrics import binomial_pass, denoise_rates, roc_auc
 from .polarity import Polarity
 from .rate_limit import RateLimit
 from .refractory import Refractory, refractory_kernel
@@ -23,8 +22,7 @@ __all__ = [
     "BackgroundActivity", "SpatioTemporalCorrelation", "Refractory", "HotPixel", "Mask", "Polarity",
     "Roi", "Flip", "Rotate", "Downsample", "TimeWindow", "RateLimit", "Undistort",
     "Camera", "read_calibration", "read_uzh_calib", "undistort_lut",
-    "background_activity_kernel", "stcf_kernel", "refractory_kernel",
-    "denoise_rates", "roc_auc", "binomial_pass", "OPERATORS",
+    "background_activity_kernel", "stcf_kernel", "refractory_kernel", "OPERATORS",
 ]
 
 OPERATORS = (

@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from tectum.plugins.filter import BackgroundActivity, background_activity_kernel, binomial_pass
+from tectum.evaluation.metrics import binomial_pass
+from tectum.plugins.filter import BackgroundActivity, background_activity_kernel
 from tectum.plugins.filter._state import padded_timestamps
 from tectum.testing import assert_batch_invariant, feed
 

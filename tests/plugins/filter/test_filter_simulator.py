@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from tectum import EventPacket
+from tectum.evaluation.metrics import denoise_rates, noise_passed_by_label, roc_auc
 from tectum.plugins.filter import BackgroundActivity, SpatioTemporalCorrelation
-from tectum.plugins.filter.metrics import denoise_rates, noise_passed_by_label, roc_auc
 from tectum.sources.simulate import load_scene, simulate
 from tectum.testing import feed
 

@@ -18,9 +18,8 @@ import pytest
 from helpers import shared_data
 
 from tectum import concat
+from tectum.evaluation.imu_truth import gyro_flow, imu_full_scale_factor, normal_flow_vs_rotation, read_events_and_imu
 from tectum.plugins.flow import PlaneFit
-from tectum.plugins.flow.imu_truth import (gyro_flow, imu_full_scale_factor, normal_flow_vs_rotation,
-                                           read_events_and_imu)
 from tectum.testing import feed
 
 AXES = np.diag([1.0, 1.0, -1.0])  # camera = AXES @ imu

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from tectum.evaluation.scenes import translating_edges
 from tectum.plugins.flow import EdgeSpeed, PlaneFit
 from tectum.plugins.flow._common import NEVER
-from tectum.plugins.flow.scenes import translating_edges
 
 
 def _scene():

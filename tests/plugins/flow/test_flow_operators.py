@@ -8,9 +8,9 @@ import pytest
 
 import tectum
 from tectum import concat
+from tectum.evaluation.metrics import flow_errors
+from tectum.evaluation.scenes import translating_edges
 from tectum.plugins.flow import ContrastMax, EdgeSpeed, LucasKanade, PlaneFit
-from tectum.plugins.flow.metrics import flow_errors
-from tectum.plugins.flow.scenes import translating_edges
 from tectum.testing import ListSink, ListSource, assert_batch_invariant, feed
 
 

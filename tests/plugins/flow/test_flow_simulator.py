@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from tectum import concat
+from tectum.evaluation.metrics import flow_errors, simulator_normal_truth
 from tectum.plugins.flow import PlaneFit
-from tectum.plugins.flow.metrics import flow_errors, simulator_normal_truth
 from tectum.testing import feed
 
 simulate_mod = pytest.importorskip("tectum.sources.simulate")

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from tectum import FramePacket, concat
-from tectum.plugins.flow.metrics import lifetime_errors
-from tectum.plugins.flow.scenes import translating_edges
+from tectum.evaluation.metrics import lifetime_errors
+from tectum.evaluation.scenes import translating_edges
 from tectum.plugins.lifetime import PlaneFitLifetime
 from tectum.testing import assert_batch_invariant, feed
 

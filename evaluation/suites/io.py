@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from tectum import EventPacket
-from tectum.bench import peer, table, throughput
+from tectum.evaluation.harness import peer, shared_data, table, throughput
 
 FILES = {"rosbag": "bags/evt3_eventpacket_ros2_sqlite",
          "evt2": "prophesee/gen31_evt2.raw", "evt3": "prophesee/imx636_evt3.raw", "dat": "prophesee/gen4.dat",
@@ -23,13 +23,6 @@ FILES = {"rosbag": "bags/evt3_eventpacket_ros2_sqlite",
          "text": "ecd/slider_depth/events.txt"}
 EXT = {"text": ".txt", "aedat4": ".aedat4", "evt2": ".raw", "evt3": ".evt3.raw", "dat": ".dat", "hdf5": ".h5",
        "npy": ".npy"}
-
-
-def _shared() -> Path | None:
-    env = os.environ.get("TECTUM_SHARED_DATA")
-    cands = [Path(env)] if env else []
-    cands.append(Path(__file__).resolve().parents[2] / ".." / "shared" / "data")
-    return next((c for c in cands if c.is_dir()), None)
 
 
 #: Like-for-like options: peers read only the events (loadtxt no companion
@@ -69,7 +62,7 @@ def _peers(fmt: str, path: str) -> dict[str, Any]:
 
 def run(out: Path, quick: bool) -> dict:
     rows: list[dict[str, Any]] = []
-    shared = _shared()
+    shared = shared_data()
     repeat = 2 if quick else 5
     for fmt, rel in FILES.items():
         if shared is None or not (shared / rel).exists():

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from tectum import EventPacket
-from tectum.plugins.filter import binomial_pass, denoise_rates, roc_auc
+from tectum.evaluation.metrics import binomial_pass, denoise_rates, roc_auc
 
 
 def test_denoise_rates():

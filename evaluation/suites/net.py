@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from tectum.bench import table
+from tectum.evaluation.harness import table
 
 __all__ = ["run"]
 

@@ -14,7 +14,7 @@ import tectum
 from tectum import EventPacket, Operator, Pipeline
 from tectum.testing import ListSource
 
-from . import table
+from tectum.evaluation.harness import table
 
 
 class Identity(Operator):

@@ -19,7 +19,6 @@
 from __future__ import annotations
 
 import datetime
-import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -27,9 +26,10 @@ from typing import Any
 import numpy as np
 
 from tectum import EventPacket, concat
-from tectum.bench import peer, table, throughput
+from tectum.evaluation.harness import peer, shared_data, table, throughput
+from tectum.evaluation.metrics import denoise_rates, roc_auc
 from tectum.plugins.filter import (
-    BackgroundActivity, Camera, HotPixel, Refractory, SpatioTemporalCorrelation, Undistort, denoise_rates, roc_auc,
+    BackgroundActivity, Camera, HotPixel, Refractory, SpatioTemporalCorrelation, Undistort,
 )
 from tectum.plugins.filter._state import padded_timestamps
 from tectum.plugins.filter.background_activity import background_activity_kernel
@@ -446,12 +446,6 @@ def setting_speeds(ev: EventPacket, quick: bool) -> list[dict[str, Any]]:
 
 
 # -- real recordings -------------------------------------------------------------
-def _shared_data() -> Path | None:
-    env = os.environ.get("TECTUM_SHARED_DATA")
-    p = Path(env) if env else Path(__file__).resolve().parents[2] / ".." / "shared" / "data"
-    return p if p.is_dir() else None
-
-
 def read_ecd_events(path: Path, sensor: tuple[int, int] = (240, 180)) -> EventPacket:
     """An ECD ``events.txt`` (``t x y p``, t in seconds) as a packet."""
     a = np.loadtxt(path, ndmin=2)
@@ -459,7 +453,7 @@ def read_ecd_events(path: Path, sensor: tuple[int, int] = (240, 180)) -> EventPa
 
 
 def real_recordings(out: Path) -> dict[str, Any]:
-    root = _shared_data()
+    root = shared_data()
     if root is None:
         return {"skipped": "../shared/data is absent (set TECTUM_SHARED_DATA)"}
     res: dict[str, Any] = {}

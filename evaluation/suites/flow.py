@@ -27,10 +27,10 @@ from typing import Any
 import numpy as np
 
 from tectum import EventPacket, concat
-from tectum.bench import table, throughput
+from tectum.evaluation.harness import shared_data, table, throughput
+from tectum.evaluation.metrics import flow_errors, lifetime_errors, simulator_normal_truth
+from tectum.evaluation.scenes import translating_edges
 from tectum.plugins.flow import ContrastMax, EdgeSpeed, LucasKanade, PlaneFit
-from tectum.plugins.flow.metrics import flow_errors, lifetime_errors, simulator_normal_truth
-from tectum.plugins.flow.scenes import translating_edges
 from tectum.plugins.lifetime import PlaneFitLifetime
 from tectum.testing import feed
 
@@ -141,7 +141,7 @@ SIM_SCENES = ("translation_edges", "moving_texture", "rotation")
 
 def simulated_scene(scene: str, duration_us: int, sensor: str = "160x120", seed: int = 1) -> EventPacket:
     """A simulator run with the normal-flow truth added as ``nvx``/``nvy``
-    (see :func:`tectum.plugins.flow.metrics.simulator_normal_truth`)."""
+    (see :func:`tectum.evaluation.metrics.simulator_normal_truth`)."""
     from tectum.sources.simulate import simulate
 
     ev, truth = simulate(scene, duration_us=duration_us, seed=seed, preset="realistic", sensor=sensor,
@@ -171,24 +171,16 @@ def _simulated(quick: bool) -> list[dict[str, Any]]:
     return rows
 
 
-def _shared_data() -> Path | None:
-    import os
-
-    env = os.environ.get("TECTUM_SHARED_DATA")
-    p = Path(env) if env else Path(__file__).resolve().parents[2] / ".." / "shared" / "data"
-    return p if p.is_dir() else None
-
-
 def _imu_rotation(quick: bool) -> list[dict[str, Any]]:
     """Real DAVIS240 recording, camera rolling at about 0.5 rad/s: flow from
     the gyro (focal 200 px assumed, principal point at the centre, camera z =
     -IMU z, gyro full scale fixed from gravity) as ground truth."""
-    data = _shared_data()
+    data = shared_data()
     path = data / "aedat" / "davis240_imu_rotdisk.aedat" if data else None
     if path is None or not path.exists():
         return []
-    from tectum.plugins.flow.imu_truth import (full_flow_vs_rotation, gyro_flow, imu_full_scale_factor,
-                                               normal_flow_vs_rotation, read_events_and_imu)
+    from tectum.evaluation.imu_truth import (full_flow_vs_rotation, gyro_flow, imu_full_scale_factor,
+                                             normal_flow_vs_rotation, read_events_and_imu)
 
     ev, imu = read_events_and_imu(str(path))
     if quick:

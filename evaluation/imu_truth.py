@@ -2,7 +2,7 @@
 Rueckauer & Delbruck, 2016), and the scores used against it.
 
 Under pure camera rotation the flow at every pixel follows from the angular
-velocity and the intrinsics alone (:func:`tectum.plugins.flow.metrics.rotational_flow`).
+velocity and the intrinsics alone (:func:`tectum.evaluation.metrics.rotational_flow`).
 The gyro (rad/s, IMU frame) is interpolated at each event's time and
 mapped to the camera frame by ``axes`` (a 3x3 matrix, camera = axes @ imu).
 

@@ -9,7 +9,7 @@
 * lifetime: relative error of the estimated lifetime to ``1e6/|normal speed|``.
 
 Normal-flow methods are scored against the *normal component* of the truth
-(the ``nvx``/``nvy`` columns of :mod:`tectum.plugins.flow.scenes`). On the
+(the ``nvx``/``nvy`` columns of :mod:`tectum.evaluation.scenes`). On the
 simulator, which gives per event the full flow ``vx``/``vy`` and the
 ``lifetime`` (= 1e6 / |normal speed| along its log-intensity gradient) but
 not the gradient direction, :func:`simulator_normal_truth` rebuilds the

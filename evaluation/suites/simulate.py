@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from tectum.bench import table
+from tectum.evaluation.harness import table
 
 SCENES = ("moving_texture", "rotation", "plane_6dof")
 

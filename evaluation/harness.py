@@ -1,0 +1,112 @@
+"""The benchmark harness shared by the suites of ``tectum bench``.
+
+A suite is a function ``run(out: Path, quick: bool) -> dict`` registered
+through the ``tectum_register_bench_suites`` hook (the six built-in ones in
+:mod:`tectum.evaluation.suites`): it measures, prints its tables and returns
+the numbers, which the CLI writes to ``OUT/bench-SUITE.json``. A suite that
+states a target (say 200k events/s) records it with :func:`target`, shows it
+with :func:`target_row` / :func:`targets_table` (``met`` or ``MISSED``) and
+returns the records under ``"targets"``. Peers (dv-processing, tonic, faery,
+evlib) are measured side by side where they import. Benchmarks are never
+part of the test suite: tests do not depend on wall-clock speed.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import math
+import os
+import platform
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["throughput", "peer", "table", "target", "target_row", "targets_table", "write_results", "shared_data"]
+
+#: columns of :func:`targets_table`
+TARGET_COLUMNS = ["measure", "value", "unit", "target", "met"]
+
+
+def throughput(fn: Callable[[], Any], n_events: int, *, repeat: int = 5, warmup: int = 1) -> dict[str, float]:
+    """Run ``fn`` (which processes ``n_events`` events) ``repeat`` times after
+    ``warmup`` calls; returns the best and median Mev/s and seconds (wall
+    clock), and the best Mev/s per CPU second (all threads of the process)."""
+    for _ in range(warmup):
+        fn()
+    times, cpu = [], []
+    for _ in range(repeat):
+        c0, t0 = time.process_time(), time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    best, med = min(times), float(np.median(times))
+    return {"mev_s": n_events / best / 1e6, "mev_s_median": n_events / med / 1e6, "seconds": best,
+            "cpu_mev_s": n_events / max(min(cpu), 1e-9) / 1e6, "events": n_events}
+
+
+def peer(module: str) -> Any | None:
+    """Import a peer library, or None when it is not installed."""
+    try:
+        return importlib.import_module(module)
+    except Exception:
+        return None
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.3g}" if abs(v) < 1000 else f"{v:.0f}"
+    return str(v)
+
+
+def table(rows: list[dict[str, Any]], cols: list[str]) -> str:
+    """Format rows as a fixed-width text table (a missing cell is blank)."""
+    cells = [[_fmt(r.get(c, "")) for c in cols] for r in rows]
+    widths = [max(len(c), *(len(x[i]) for x in cells)) if cells else len(c) for i, c in enumerate(cols)]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(cols, widths))]
+    lines += ["  ".join(x.ljust(w) for x, w in zip(r, widths)) for r in cells]
+    return "\n".join(lines)
+
+
+def target(name: str, value: float, goal: float, unit: str, higher_is_better: bool = True) -> dict[str, Any]:
+    """A target a suite states, and whether this run met it: ``value`` at
+    least ``goal`` (or at most, with ``higher_is_better=False``), both in
+    ``unit``. A NaN value misses. The record goes into the suite's JSON
+    under ``"targets"``."""
+    value = float(value)
+    met = not math.isnan(value) and (value >= goal if higher_is_better else value <= goal)
+    return {"name": name, "value": value, "goal": goal, "unit": unit, "higher_is_better": higher_is_better, "met": met}
+
+
+def target_row(rec: dict[str, Any]) -> dict[str, Any]:
+    """A :func:`target` record as a row of :data:`TARGET_COLUMNS`: the goal
+    as ``>= 200000`` / ``<= 5``, and ``met`` or ``MISSED``."""
+    goal = (">= " if rec["higher_is_better"] else "<= ") + _fmt(float(rec["goal"]))
+    return {"measure": rec["name"], "value": rec["value"], "unit": rec["unit"], "target": goal,
+            "met": "met" if rec["met"] else "MISSED"}
+
+
+def targets_table(records: Sequence[dict[str, Any]]) -> str:
+    """:func:`target` records as a text table, one line each with met/MISSED."""
+    return table([target_row(r) for r in records], TARGET_COLUMNS)
+
+
+def write_results(out: Path, suite: str, results: dict[str, Any]) -> Path:
+    """Write ``results`` with the machine's description to ``out/bench-SUITE.json``."""
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"bench-{suite}.json"
+    meta = {"python": platform.python_version(), "machine": platform.machine(), "processor": platform.processor(),
+            "numpy": np.__version__, "time": time.strftime("%Y-%m-%dT%H:%M:%S")}
+    path.write_text(json.dumps({"suite": suite, "meta": meta, "results": results}, indent=1, default=float))
+    return path
+
+
+def shared_data() -> Path | None:
+    """The folder of shared recordings: ``TECTUM_SHARED_DATA``, else
+    ``../shared/data`` beside the source tree; None when absent."""
+    env = os.environ.get("TECTUM_SHARED_DATA")
+    p = Path(env) if env else Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+    return p if p.is_dir() else None
