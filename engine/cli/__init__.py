@@ -1,15 +1,19 @@
 """The ``tectum`` command line: one module per verb.
 
 Each verb module defines ``HELP`` (one line), ``add_arguments(parser)`` and
-``main(args) -> int``.
+``main(args) -> int``. Errors a user can cause (bad arguments, missing or
+damaged files, invalid pipelines) end the command with one line on stderr,
+``tectum VERB: error: ...``, and a non-zero exit status, never a traceback.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
 __all__ = ["main"]
 
@@ -17,8 +21,15 @@ __all__ = ["main"]
 VERBS = ("demo", "run", "info", "convert", "simulate", "devices", "plugins", "bench")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with usage errors on one line (the usage is in ``--help``)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="tectum", description="Event-camera streaming engine.")
+    parser = _Parser(prog="tectum", description="Event-camera streaming engine.")
     parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(dest="verb", metavar="VERB")
     for verb in VERBS:
@@ -50,12 +61,26 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args._main(args) or 0)
-    except TectumError as e:
-        print(f"tectum {args.verb}: error: {e}", file=sys.stderr)
+        status = int(args._main(args) or 0)
+        sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
+        return status
+    except BrokenPipeError:  # `tectum ... | head`: the reader has gone, so stop quietly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141  # 128 + SIGPIPE, as a shell reports a command killed by a closed pipe
+    except (TectumError, OSError, ValueError) as e:
+        print(f"tectum {args.verb}: error: {_one_line(e)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         return 130
+
+
+def _one_line(e: BaseException) -> str:
+    """The message of ``e`` on one line (an OSError as ``file: reason``)."""
+    if isinstance(e, OSError) and e.strerror:
+        text = f"{e.filename}: {e.strerror}" if e.filename is not None else e.strerror
+    else:
+        text = str(e) or type(e).__name__
+    return "; ".join(line.strip() for line in text.splitlines() if line.strip())
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -59,7 +59,7 @@ def build(args: argparse.Namespace) -> Pipeline:
 
 def main(args: argparse.Namespace) -> int:
     p = build(args)
-    if not any(n.role == "sink" for n in p.nodes):
+    if p.nodes and not any(n.role == "sink" for n in p.nodes):
         from tectum.sinks.null import NullSink
 
         p.sink(NullSink(), p.nodes[-1].id, id="count")
