@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal
 
 import pluggy
@@ -13,7 +15,7 @@ from . import hookspecs
 from ._operator import Operator, Sink, Source
 from .errors import DuplicateNameError, FormatError, RegistryError
 
-__all__ = ["Registry", "RegistryView", "get_registry", "FAMILIES"]
+__all__ = ["Registry", "RegistryView", "BenchSuite", "get_registry", "FAMILIES"]
 
 FAMILIES = ("filter", "flow", "lifetime", "map", "tracker", "repr")
 _OP_NAME = re.compile(r"^([a-z]+)\.([a-z][a-z0-9_]*)$")
@@ -32,12 +34,25 @@ class Entry:
 
 
 @dataclass
+class BenchSuite:
+    """A suite of ``tectum bench`` and the plugin that owns it (see the
+    ``tectum_register_bench_suites`` hook): ``run(out, quick)`` returns the
+    suite's numbers, ``description`` is one line for ``--list``."""
+
+    name: str
+    run: Callable[[Path, bool], dict[str, Any]]
+    description: str
+    owner: str
+
+
+@dataclass
 class Registry:
-    """Operators, sources and sinks by name, each with its owning plugin."""
+    """Operators, sources, sinks and bench suites by name, each with its owning plugin."""
 
     operators: dict[str, Entry] = field(default_factory=dict)
     sources: dict[str, Entry] = field(default_factory=dict)
     sinks: dict[str, Entry] = field(default_factory=dict)
+    bench_suites: dict[str, BenchSuite] = field(default_factory=dict)
     plugins: dict[str, str] = field(default_factory=dict)  # plugin name -> distribution/module
 
     def _table(self, role: Role) -> dict[str, Entry]:
@@ -64,6 +79,20 @@ class Registry:
                 f"{prev.cls.__qualname__}) and by plugin {owner!r} ({cls.__module__}.{cls.__qualname__})"
             )
         table[name] = Entry(role, name, cls, owner)
+
+    def add_bench_suite(self, name: str, run: Callable[[Path, bool], dict[str, Any]], description: str,
+                        owner: str) -> None:
+        if not _COMP_NAME.match(name or ""):
+            raise RegistryError(f"plugin {owner!r}: bench suite name {name!r} is not a lower-case identifier")
+        if not callable(run):
+            raise RegistryError(f"plugin {owner!r} registered bench suite {name!r} with {run!r}, which is not callable")
+        if name in self.bench_suites:
+            prev = self.bench_suites[name]
+            raise DuplicateNameError(
+                f"bench suite {name!r} is registered twice: by plugin {prev.owner!r} ({_qualname(prev.run)}) "
+                f"and by plugin {owner!r} ({_qualname(run)})"
+            )
+        self.bench_suites[name] = BenchSuite(name, run, description, owner)
 
     # -- look-ups -------------------------------------------------------------
     def operator(self, name: str) -> type[Operator]:
@@ -132,6 +161,10 @@ def _scheme(arg: str) -> str | None:
     return m.group(1).lower()
 
 
+def _qualname(fn: Any) -> str:
+    return f"{getattr(fn, '__module__', '?')}.{getattr(fn, '__qualname__', type(fn).__qualname__)}"
+
+
 def _unknown(role: str, name: str, table: dict[str, Entry]) -> str:
     import difflib
 
@@ -156,6 +189,11 @@ class RegistryView:
     def add_sink(self, cls: type[Sink]) -> None:
         self._registry.add("sink", cls, self.owner)
 
+    def add_bench_suite(self, name: str, run: Callable[[Path, bool], dict[str, Any]], description: str) -> None:
+        """Add the ``tectum bench`` suite ``name``: ``run(out, quick)``
+        returns its numbers; ``description`` is one line for ``--list``."""
+        self._registry.add_bench_suite(name, run, description, self.owner)
+
 
 def plugin_manager(load_entry_points: bool = True) -> pluggy.PluginManager:
     """A plugin manager with tectum's hook specifications and every plugin
@@ -177,7 +215,8 @@ def build_registry(pm: pluggy.PluginManager) -> Registry:
     reg = Registry()
     for name, plugin in pm.list_name_plugin():
         reg.plugins[name] = getattr(plugin, "__name__", repr(plugin))
-    for hook in ("tectum_register_sources", "tectum_register_sinks", "tectum_register_operators"):
+    for hook in ("tectum_register_sources", "tectum_register_sinks", "tectum_register_operators",
+                 "tectum_register_bench_suites"):
         caller = getattr(pm.hook, hook)
         for impl in caller.get_hookimpls():  # registration order
             impl.function(registry=RegistryView(reg, impl.plugin_name))

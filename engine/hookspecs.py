@@ -2,7 +2,7 @@
 
 Plugins are found through the ``tectum`` entry-point group (built-ins go
 through the same group). Each hook receives a *registry* object and calls its
-``add_operator`` / ``add_source`` / ``add_sink`` methods; hooks run once, when
+``add_operator`` / ``add_source`` / ``add_sink`` / ``add_bench_suite`` methods; hooks run once, when
 the registry is built, never per event. A name registered twice fails at
 start-up with both owners named.
 """
@@ -44,3 +44,21 @@ def tectum_register_sources(registry: "RegistryView") -> None:
 def tectum_register_sinks(registry: "RegistryView") -> None:
     """Register sink classes with ``registry.add_sink(cls)``, chosen the same
     way as sources (scheme, then extension)."""
+
+
+@hookspec
+def tectum_register_bench_suites(registry: "RegistryView") -> None:
+    """Register suites of ``tectum bench`` with
+    ``registry.add_bench_suite(name, run, description)``.
+
+    ``name`` is the word on the command line (``tectum bench NAME``) and
+    ``description`` the line ``tectum bench --list`` shows beside it.
+    ``run(out: Path, quick: bool) -> dict`` measures on this machine, prints
+    its tables, may write charts into the folder ``out`` and returns the
+    numbers (JSON-serialisable), which ``tectum bench`` writes to
+    ``out/bench-NAME.json``; ``quick`` asks for smaller inputs and fewer
+    repeats. A suite that states targets returns them under ``"targets"`` as
+    :func:`tectum.evaluation.harness.target` records, which the command
+    reports as met or MISSED. Import heavy modules inside ``run``, not at
+    registration: the hook runs every time the registry is built.
+    """

@@ -141,3 +141,40 @@ def test_folders_are_recognised_by_their_content(tmp_path):
         reg.source_for(str(tmp_path))
     (tmp_path / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
     assert reg.source_for(str(tmp_path)).name == "rosbag"
+
+
+def _another_engine_suite(out, quick):
+    return {}
+
+
+def test_duplicate_bench_suites_fail_naming_both_owners():
+    class Again:
+        @hookimpl
+        def tectum_register_bench_suites(self, registry):
+            registry.add_bench_suite("engine", _another_engine_suite, "a second engine suite")
+
+    pm = plugin_manager()
+    pm.register(Again(), name="again")
+    with pytest.raises(DuplicateNameError, match=r"bench suite 'engine' is registered twice: by plugin 'evaluation' "
+                                                 r"\(tectum\.evaluation\.suites\.engine\.run\) and by plugin 'again' "
+                                                 r"\(.*_another_engine_suite\)"):
+        build_registry(pm)
+
+
+def test_sample_plugin_bench_suite_is_listed_and_runs(sample_plugin_path, tmp_path):
+    import re
+
+    env = _env(sample_plugin_path)
+    listed = subprocess.run([sys.executable, "-m", "tectum", "bench", "--list"], env=env, capture_output=True,
+                            text=True, check=True).stdout
+    assert re.search(r"^sample\s+speed of filter\.every_nth \(the sample plugin\)\s+\(plugin sample\)$", listed, re.M)
+    assert re.search(r"^engine\s+scheduler overhead .*\(plugin evaluation\)$", listed, re.M)
+    r = subprocess.run([sys.executable, "-m", "tectum", "bench", "sample", "--quick", "--out", str(tmp_path)],
+                       env=env, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    data = json.loads((tmp_path / "bench-sample.json").read_text())
+    assert data["suite"] == "sample" and data["results"]["throughput"]["events"] == 100_000
+    (rec,) = data["results"]["targets"]
+    assert rec["met"] == (rec["value"] >= rec["goal"] == 1.0)
+    verdict = "met" if rec["met"] else "MISSED"
+    assert re.search(rf"^every_nth, n = 2\s+\S+\s+Mev/s\s+>= 1\s+{verdict}\s*$", r.stdout, re.M)

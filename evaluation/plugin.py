@@ -1,0 +1,45 @@
+"""The built-in suites of ``tectum bench`` as a plugin (entry point
+``evaluation``), registered like any third-party suite. Each suite module is
+imported only when the suite runs: building the registry stays cheap."""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from tectum.hookspecs import hookimpl
+
+if TYPE_CHECKING:
+    from tectum._registry import RegistryView
+
+__all__ = ["SUITES"]
+
+#: suite -> the line ``tectum bench --list`` shows
+SUITES = {
+    "engine": "scheduler overhead per packet and operator, event-by-event and micro-batch rates, paced latency",
+    "io": "decode and encode Mev/s per file format, beside dv-processing, expelliarmus, faery, numpy.loadtxt",
+    "filters": "filter and representation speed beside peers; denoising ROC and AUC on labelled noise",
+    "flow": "flow and lifetime speed and accuracy (analytic edges, simulator, gyro truth), failure maps",
+    "simulate": "simulator generation speed (Mev/s at 346x260)",
+    "net": "TCP rate and UDP loss and latency on loopback",
+}
+
+
+def _lazy(suite: str) -> Callable[[Path, bool], dict[str, Any]]:
+    """The suite's ``run``, importing ``tectum.evaluation.suites.SUITE`` on the first call."""
+    module = f"tectum.evaluation.suites.{suite}"
+
+    def run(out: Path, quick: bool) -> dict[str, Any]:
+        result: dict[str, Any] = importlib.import_module(module).run(out, quick)
+        return result
+
+    run.__module__, run.__qualname__ = module, "run"  # messages name the function that really runs
+    return run
+
+
+@hookimpl
+def tectum_register_bench_suites(registry: RegistryView) -> None:
+    for name, description in SUITES.items():
+        registry.add_bench_suite(name, _lazy(name), description)
