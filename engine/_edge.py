@@ -37,6 +37,10 @@ class Edge:
     def __len__(self) -> int:
         return len(self._q)
 
+    def has_room(self, n: int) -> bool:
+        """True when ``n`` items can be sent without waiting."""
+        return self.policy != "block" or len(self._q) + n <= self.capacity
+
     async def send(self, item: Any) -> None:
         """Put an item; may wait (``block``) or drop (other policies)."""
         await self.send_all((item,))

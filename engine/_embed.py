@@ -36,7 +36,7 @@ class Stepper:
         plan = pipeline if isinstance(pipeline, Plan) else pipeline.validate(registry)
         self.plan = plan
         self.outputs = tuple(outputs)
-        self.graph = Graph(plan, taps=self.outputs)
+        self.graph = Graph(plan, taps=self.outputs, offload=False)
         self._sinks = {n.id: n.instantiate() for n in plan.of_role("sink")}
         for s in self._sinks.values():
             s.bind_stats(self.graph.stats)

@@ -2,26 +2,33 @@
 
 The trio scheduler, the thread runner and the direct :class:`Stepper` all
 drive this one code path: a packet pushed at a node runs through every
-operator below it, and what reaches a sink (or a tap) is returned, so that
-the caller decides how to deliver it. Nodes with several inputs merge them
-by timestamp, releasing samples once every input's watermark has passed.
+operator below it, and what reaches a sink (or a tap, or the edge in front
+of an offloaded operator) is returned, so that the caller decides how to
+deliver it.
+
+Joins. Streams meeting at a node are joined by watermark (:class:`PortJoin`):
+data are released up to the smallest watermark of the streams still open,
+in one batch per release that covers the same interval on every stream.
+An operator with named ports gets each batch whole (one packet per port);
+a one-input operator fed by several nodes gets the batch's packets merged
+kind by kind, samples (poses, IMU, ...) before the events of the same
+interval, so an operator never sees a kind run ahead of another.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping, Sequence
 from time import perf_counter_ns
-from collections.abc import Iterable, Sequence
 from typing import Any
 
-import numpy as np
-
 from ._operator import Operator, as_packets
-from ._packet import EventPacket, Kind, Packet, ResultPacket, SamplePacket
+from ._packet import Kind, Packet, accepts
 from ._pipeline import Plan
 from ._stats import Stats
-from .errors import NodeError, PacketError, TectumError
+from ._stream import concat, empty_like, merge
+from .errors import NodeError, TectumError
 
-__all__ = ["Graph", "END", "Merger"]
+__all__ = ["Graph", "END", "PortJoin", "Merger"]
 
 
 class _End:
@@ -29,127 +36,193 @@ class _End:
         return "END"
 
 
-#: Marker delivered to a sink when all of its input has ended.
+#: Marker delivered to a sink (or an offloaded node) when all of its input has ended.
 END: Any = _End()
-Delivery = tuple[str, Any]  # (sink or tap id, packet or END)
-_OP, _SINK, _MERGE = 0, 1, 2
+Delivery = tuple[str, Any]  # (sink id, "tap:" + id or "offload:" + id; packet, port batch or END)
+Batch = dict[str, Packet]
+_OP, _SINK, _MERGE, _PORT = 0, 1, 2, 3
+
+
+class PortJoin:
+    """Join named streams (ports) by watermark.
+
+    Each port's watermark is the ``t_end`` of the last packet pushed on it.
+    Data are released up to ``W``, the smallest watermark of the ports still
+    open (once all have ended: the largest seen), as one batch per release:
+    a packet per port, all covering ``[previous W, W)`` (empty where a port
+    had nothing; a port that has never delivered a packet is absent).
+    Memory: what a port holds beyond the slowest open port's watermark.
+    """
+
+    def __init__(self, ports: Iterable[str]) -> None:
+        self.ports = tuple(ports)
+        self.pending: dict[str, list[Packet]] = {p: [] for p in self.ports}
+        self.marks: dict[str, int | None] = {p: None for p in self.ports}
+        self.proto: dict[str, Packet | None] = {p: None for p in self.ports}
+        self.ended: dict[str, bool] = {p: False for p in self.ports}
+        self.released: int | None = None
+
+    def push(self, port: str, pkt: Packet) -> list[Batch]:
+        if self.ended[port]:
+            raise TectumError(f"port {port!r} received a packet after its end")
+        mark = self.marks[port]
+        if mark is not None and pkt.t_start < mark:
+            raise TectumError(f"port {port!r}: packet [{pkt.t_start}, {pkt.t_end}) starts before the "
+                              f"stream's watermark {mark} µs")
+        self.pending[port].append(pkt)
+        self.marks[port] = pkt.t_end
+        self.proto[port] = pkt
+        return self._release()
+
+    def end(self, port: str) -> list[Batch]:
+        self.ended[port] = True
+        return self._release()
+
+    @property
+    def done(self) -> bool:
+        return all(self.ended.values())
+
+    def _watermark(self) -> int | None:
+        open_marks = [self.marks[p] for p in self.ports if not self.ended[p]]
+        if open_marks:
+            return None if any(m is None for m in open_marks) else min(open_marks)  # type: ignore[type-var]
+        seen = [m for m in self.marks.values() if m is not None]
+        return max(seen) if seen else None
+
+    def _release(self) -> list[Batch]:
+        w = self._watermark()
+        if w is None:
+            return []
+        start = self.released
+        if start is None:
+            starts = [q.t_start for qs in self.pending.values() for q in qs]
+            if not starts:
+                return []
+            start = min(starts)
+        if w <= start:
+            return []
+        batch: Batch = {}
+        for port in self.ports:
+            proto = self.proto[port]
+            if proto is None:
+                continue
+            batch[port] = self._take(port, start, w, proto)
+        self.released = w
+        return [batch]
+
+    def _take(self, port: str, t0: int, t1: int, proto: Packet) -> Packet:
+        """The port's data in ``[t0, t1)`` as one packet with that interval."""
+        pieces: list[Packet] = []
+        keep: list[Packet] = []
+        for q in self.pending[port]:
+            if q.t_end <= t1:
+                pieces.append(q)
+            elif q.t_start < t1:
+                a, b = q.split_at(t1)
+                pieces.append(a)
+                keep.append(b)
+            else:
+                keep.append(q)
+        self.pending[port] = keep
+        pieces = [q for q in pieces if len(q)]
+        if not pieces:
+            return empty_like(proto, t0, t1)
+        if len(pieces) == 1:
+            return pieces[0].with_interval(t0, t1)  # type: ignore[attr-defined,no-any-return]
+        return concat(pieces).with_interval(t0, t1)  # type: ignore[attr-defined,no-any-return]
 
 
 class Merger:
-    """Merge k timestamp-ordered streams into one, per kind.
+    """Merge k timestamp-ordered streams into one (a one-input operator fed
+    by several nodes). ``carries[i]`` is the set of kinds input ``i`` can
+    deliver; ``consumes`` the kinds the operator takes. The consumed kinds
+    are joined together (one watermark across inputs and kinds, samples
+    released before the events of the same interval); each other kind,
+    which only passes by, is joined on its own. Equal timestamps keep
+    input order."""
 
-    ``carries[i]`` is the set of kinds input ``i`` can deliver. Samples of a
-    kind are released once every input carrying that kind has a watermark
-    (``t_end``) past them; equal timestamps keep input order.
-    """
-
-    def __init__(self, carries: Sequence[frozenset[Kind]]) -> None:
-        self.carries = list(carries)
-        self.pending: list[dict[Kind, list[Packet]]] = [dict() for _ in carries]
-        self.marks: list[dict[Kind, float]] = [dict() for _ in carries]
-        self.ended = [False] * len(carries)
-        self.released: dict[Kind, int] = {}
+    def __init__(self, carries: Sequence[frozenset[Kind]], consumes: Iterable[Kind]) -> None:
+        consumed = frozenset(consumes)
+        self.lanes: dict[tuple[int, Kind], PortJoin] = {}
+        groups: dict[Kind | None, list[str]] = {}
+        for i, kinds in enumerate(carries):
+            for k in sorted(kinds):
+                groups.setdefault(None if accepts(consumed, k) else k, []).append(_lane(i, k))
+        self.joins = {g: PortJoin(lanes) for g, lanes in groups.items()}
+        for g, j in self.joins.items():
+            for lane in j.ports:
+                self.lanes[_unlane(lane)] = j
 
     def push(self, i: int, pkt: Packet) -> list[Packet]:
-        k = pkt.kind
-        self.pending[i].setdefault(k, []).append(pkt)
-        self.marks[i][k] = pkt.t_end
-        return self._release(k)
+        join = self.lanes.get((i, pkt.kind))
+        if join is None:
+            raise TectumError(f"input {i} delivered {pkt.kind}, which it does not declare")
+        return self._merged(join.push(_lane(i, pkt.kind), pkt))
 
     def end(self, i: int) -> list[Packet]:
-        self.ended[i] = True
         out: list[Packet] = []
-        for k in sorted({k for c in self.carries for k in c}, key=str):
-            out += self._release(k)
+        for (j, k), join in self.lanes.items():
+            if j == i:
+                out += self._merged(join.end(_lane(i, k)))
         return out
 
-    def _watermark(self, k: Kind) -> float:
-        w = float("inf")
-        for i, c in enumerate(self.carries):
-            if k in c and not self.ended[i]:
-                w = min(w, self.marks[i].get(k, -np.inf))
-        if w == float("inf"):  # all ended: flush up to the last mark seen
-            seen = [m[k] for m in self.marks if k in m]
-            w = max(seen) if seen else -np.inf
-        return w
-
-    def _release(self, k: Kind) -> list[Packet]:
-        w = self._watermark(k)
-        if w == -np.inf:
-            return []
-        w = int(w)
-        parts: list[Packet] = []
-        for pend in self.pending:
-            keep: list[Packet] = []
-            for q in pend.get(k, ()):
-                if q.t_end <= w:
-                    parts.append(q)
-                elif q.t_start < w:
-                    a, b = q.split_at(w)
-                    parts.append(a)
-                    keep.append(b)
-                else:
-                    keep.append(q)
-            if k in pend:
-                pend[k] = keep
-        start = self.released.get(k)
-        if start is None:
-            if not parts:
-                return []
-            start = min(q.t_start for q in parts)
-        if w <= start:
-            return []
-        self.released[k] = w
-        return [_merge_parts(parts, start, w)] if parts else []
+    @staticmethod
+    def _merged(batches: list[Batch]) -> list[Packet]:
+        out: list[Packet] = []
+        for batch in batches:
+            by_kind: dict[Kind, list[Packet]] = {}
+            for lane, pkt in batch.items():
+                by_kind.setdefault(pkt.kind, []).append(pkt)
+            for kind in sorted(by_kind, key=lambda k: (k == Kind.EVENTS, k)):
+                parts = by_kind[kind]
+                first = parts[0]
+                out.append(first if len(parts) == 1 else merge(parts, first.t_start, first.t_end))
+        return out
 
 
-def _merge_parts(parts: list[Packet], t0: int, t1: int) -> Packet:
-    """Merge packets of one kind from several inputs into one packet covering
-    ``[t0, t1)``, sorted by time; equal timestamps keep input order."""
-    first = parts[0]
-    if isinstance(first, EventPacket):
-        sensors = {q.sensor for q in parts}  # type: ignore[attr-defined]
-        if len(sensors) > 1:
-            raise PacketError(f"cannot merge event streams of different sensor sizes {sorted(sensors)}")
-        names = {frozenset(q.columns) for q in parts}  # type: ignore[attr-defined]
-        if len(names) > 1:
-            raise PacketError(f"cannot merge event streams with different extra columns {[sorted(c) for c in names]}")
-        fields = ("t", "x", "y", "p", *first.columns)
-        cat = {k: np.concatenate([q[k] for q in parts]) for k in fields}  # type: ignore[index]
-        order = np.argsort(cat["t"], kind="stable")
-        cat = {k: v[order] for k, v in cat.items()}
-        return EventPacket(cat.pop("t"), cat.pop("x"), cat.pop("y"), cat.pop("p"),
-                           sensor=first.sensor, t_start=t0, t_end=t1, columns=cat)
-    assert isinstance(first, SamplePacket)
-    t = np.concatenate([q.t for q in parts])
-    order = np.argsort(t, kind="stable")
-    data = {k: np.concatenate([q.data[k] for q in parts])[order] for k in first.data}  # type: ignore[attr-defined]
-    if isinstance(first, ResultPacket):
-        return ResultPacket(t[order], data["items"], t_start=t0, t_end=t1)
-    return type(first)(t[order], t_start=t0, t_end=t1, **data)
+def _lane(i: int, k: Kind) -> str:
+    return f"{i}:{k}"
+
+
+def _unlane(lane: str) -> tuple[int, Kind]:
+    i, k = lane.split(":", 1)
+    return int(i), Kind(k)
 
 
 class _Node:
     """A node's wiring for the hot path (one attribute load per field)."""
 
-    __slots__ = ("id", "op", "consumes", "st", "routes", "tapped")
+    __slots__ = ("id", "op", "consumes", "st", "routes", "tapped", "join", "ports", "offload", "ticks")
 
     def __init__(self, nid: str) -> None:
         self.id = nid
+        self.op: Operator | None = None
+        self.consumes: tuple[Kind, ...] = ()
+        self.routes: tuple[tuple[int, Any, Any], ...] = ()
+        self.tapped = False
+        self.join: PortJoin | Merger | None = None
+        self.ports: Mapping[str, str] = {}
+        self.offload = False
+        self.ticks = False
 
 
 class Graph:
     """Operators of a plan, wired for synchronous execution.
 
-    ``outputs`` are the ids whose deliveries are returned to the caller:
-    every sink, plus any tapped node (returned under ``"tap:" + id``).
+    Deliveries returned to the caller go to every sink, to any tapped node
+    (under ``"tap:" + id``) and, with ``offload`` (the scheduler), to the
+    edge in front of each offloaded operator (``"offload:" + id``): the
+    caller runs :meth:`call` for those in a worker thread and hands the
+    result back to :meth:`forward`. Without ``offload`` (:class:`Stepper`)
+    every operator runs inline. Each operator's :meth:`~Operator.warmup`
+    runs when the graph is built.
     """
 
-    def __init__(self, plan: Plan, *, taps: Iterable[str] = (), stats: Stats | None = None) -> None:
+    def __init__(self, plan: Plan, *, taps: Iterable[str] = (), stats: Stats | None = None,
+                 offload: bool = True) -> None:
         self.plan = plan
         self.stats = stats or Stats()
         self.ops: dict[str, Operator] = {}
-        self.mergers: dict[str, Merger] = {}
         self.open_inputs: dict[str, int] = {}
         self.taps = set(taps)
         for t in self.taps:
@@ -161,10 +234,11 @@ class Graph:
             if node.role == "operator":
                 self.ops[nid] = node.instantiate()
             if node.role != "source":
-                self.open_inputs[nid] = len(node.spec.inputs)
-            if node.role == "operator" and len(node.spec.inputs) > 1:
-                self.mergers[nid] = Merger([plan.nodes[i].provides for i in node.spec.inputs])
+                self.open_inputs[nid] = len(node.inputs)
+        self.offloaded = frozenset(n for n in self.ops if offload and self.plan.nodes[n].offload)
         self._wire()
+        for op in self.ops.values():
+            op.warmup()
 
     def collect_counters(self) -> None:
         """Copy operators' own counters into the stats: an int ``dropped``
@@ -190,72 +264,134 @@ class Graph:
         self._end(node_id, out)
         return out
 
+    def call(self, node_id: str, item: Packet | Batch) -> list[Packet]:
+        """Run operator ``node_id`` on one delivered item (a packet, or a
+        port batch); thread-safe with respect to every other node."""
+        return self._call(self._recs[node_id], item)
+
+    def call_finish(self, node_id: str) -> list[Packet]:
+        """End of stream for operator ``node_id``: its ``finish()`` output."""
+        return self._finish(self._recs[node_id])
+
+    def forward(self, node_id: str, outputs: Sequence[Packet], *, ended: bool = False) -> list[Delivery]:
+        """Hand an offloaded operator's outputs on (and, with ``ended``, its end of stream)."""
+        out: list[Delivery] = []
+        self._forward(self._recs[node_id], outputs, out)
+        if ended:
+            self._end(node_id, out)
+        return out
+
     # -- internals ----------------------------------------------------------------
     # The hot path: plain calls over routes precomputed in _wire(); kinds are
     # tested against tuples (identity first), lengths read from t.shape.
     def _wire(self) -> None:
-        recs = {nid: _Node(nid) for nid in self.plan.order}
+        plan = self.plan
+        recs = {nid: _Node(nid) for nid in plan.order}
         for nid, rec in recs.items():
+            node = plan.nodes[nid]
             op = self.ops.get(nid)
             rec.op = op
             rec.consumes = tuple(op.consumes) if op is not None else ()
             rec.st = self.stats.nodes[nid]
             rec.tapped = nid in self.taps
-            routes: list[tuple[int, Any, tuple[Kind, ...]]] = []
-            for child in self.plan.nodes[nid].children:
-                node = self.plan.nodes[child]
+            rec.offload = nid in self.offloaded
+            rec.ticks = op is not None and type(op).on_tick is not Operator.on_tick
+            if op is not None and node.ports:
+                rec.ports = node.ports
+                rec.join = PortJoin(node.ports)
+            elif op is not None and len(node.inputs) > 1:
+                rec.join = Merger([plan.nodes[i].provides for i in node.inputs], op.consumes)
+        for nid, rec in recs.items():
+            routes: list[tuple[int, Any, Any]] = []
+            for child in plan.nodes[nid].children:
+                node = plan.nodes[child]
+                crec = recs[child]
                 if node.role == "sink":
                     routes.append((_SINK, child, tuple(node.cls.consumes)))
-                elif child in self.mergers:
-                    routes.append((_MERGE, recs[child], ()))
+                elif crec.ports:
+                    for port, up in crec.ports.items():
+                        if up == nid:
+                            routes.append((_PORT, crec, (port, crec.op.inputs[port].kind)))  # type: ignore[union-attr,index]
+                elif isinstance(crec.join, Merger):
+                    routes.append((_MERGE, crec, node.inputs.index(nid)))
                 else:
-                    routes.append((_OP, recs[child], ()))
+                    routes.append((_OP, crec, None))
             rec.routes = tuple(routes)
         self._recs = recs
 
-    def _emit(self, rec: "_Node", pkt: Packet, out: list[Delivery]) -> None:
+    def _emit(self, rec: _Node, pkt: Packet, out: list[Delivery]) -> None:
         if rec.tapped:
             out.append(("tap:" + rec.id, pkt))
-        for how, child, kinds in rec.routes:
+        for how, child, extra in rec.routes:
             if how == _OP:
                 self._run(child, pkt, out)
             elif how == _SINK:
-                if pkt.kind in kinds:
+                if pkt.kind in extra or Kind.ANY in extra:
                     out.append((child, pkt))
-            else:
-                node = self.plan.nodes[child.id]
+            elif how == _MERGE:
                 try:
-                    merged = self.mergers[child.id].push(node.spec.inputs.index(rec.id), pkt)
+                    merged = child.join.push(extra, pkt)
                 except Exception as e:
                     raise NodeError(child.id, e) from e
                 for q in merged:
                     self._run(child, q, out)
+            elif pkt.kind == extra[1]:  # a port
+                try:
+                    batches = child.join.push(extra[0], pkt)
+                except Exception as e:
+                    raise NodeError(child.id, e) from e
+                for b in batches:
+                    self._dispatch(child, b, out)
 
-    def _run(self, rec: "_Node", pkt: Packet, out: list[Delivery]) -> None:
+    def _run(self, rec: _Node, pkt: Packet, out: list[Delivery]) -> None:
         if pkt.kind not in rec.consumes:
             self._emit(rec, pkt, out)  # passes by
             return
+        self._dispatch(rec, pkt, out)
+
+    def _dispatch(self, rec: _Node, item: Packet | Batch, out: list[Delivery]) -> None:
+        if rec.offload:
+            out.append(("offload:" + rec.id, item))
+            return
+        self._forward(rec, self._call(rec, item), out)
+
+    def _call(self, rec: _Node, item: Packet | Batch) -> list[Packet]:
         st = rec.st
+        op: Any = rec.op
         st.packets_in += 1
-        st.events_in += pkt.t.shape[0]
         t0 = perf_counter_ns()
         try:
-            res = rec.op.process(pkt)
+            if isinstance(item, dict):
+                st.events_in += sum(q.t.shape[0] for q in item.values())
+                res = op.process_ports(item)
+                mark = next(iter(item.values())).t_end
+            else:
+                st.events_in += item.t.shape[0]
+                res = op.process(item)
+                mark = item.t_end
+            res = res if type(res) is list else list(as_packets(res))
+            if rec.ticks:
+                res = res + list(as_packets(op.on_tick(mark)))
         except NodeError:
             raise
         except Exception as e:
             raise NodeError(rec.id, e) from e
         st.busy_ns += perf_counter_ns() - t0
-        for q in res if type(res) is list else as_packets(res):
+        return res  # type: ignore[no-any-return]
+
+    def _finish(self, rec: _Node) -> list[Packet]:
+        try:
+            return list(as_packets(rec.op.finish()))  # type: ignore[union-attr]
+        except NodeError:
+            raise
+        except Exception as e:
+            raise NodeError(rec.id, e) from e
+
+    def _forward(self, rec: _Node, res: Sequence[Packet], out: list[Delivery]) -> None:
+        st = rec.st
+        for q in res:
             st.packets_out += 1
             st.events_out += q.t.shape[0]
-            self._emit(rec, q, out)
-
-    def _forward(self, nid: str, res: Sequence[Packet], out: list[Delivery]) -> None:
-        rec = self._recs[nid]
-        for q in res:
-            rec.st.packets_out += 1
-            rec.st.events_out += q.t.shape[0]
             self._emit(rec, q, out)
 
     def _end(self, nid: str, out: list[Delivery]) -> None:
@@ -268,20 +404,24 @@ class Graph:
                 if self.open_inputs[child] == 0:
                     out.append((child, END))
                 continue
-            m = self.mergers.get(child)
-            if m is not None:
-                try:
-                    flushed = m.end(node.spec.inputs.index(nid))
-                except Exception as e:
-                    raise NodeError(child, e) from e
-                for q in flushed:
-                    self._run(self._recs[child], q, out)
+            crec = self._recs[child]
+            try:
+                if isinstance(crec.join, Merger):
+                    for q in crec.join.end(node.inputs.index(nid)):
+                        self._run(crec, q, out)
+                elif isinstance(crec.join, PortJoin):
+                    for port, up in crec.ports.items():
+                        if up == nid:
+                            for b in crec.join.end(port):
+                                self._dispatch(crec, b, out)
+            except NodeError:
+                raise
+            except Exception as e:
+                raise NodeError(child, e) from e
             if self.open_inputs[child] == 0:
-                try:
-                    res = as_packets(self.ops[child].finish())
-                except NodeError:
-                    raise
-                except Exception as e:
-                    raise NodeError(child, e) from e
-                self._forward(child, res, out)
+                if crec.offload:
+                    out.append(("offload:" + child, END))  # the offload task finishes it
+                    continue
+                self._forward(crec, self._finish(crec), out)
                 self._end(child, out)
+

@@ -6,17 +6,44 @@ each packet into zero or more packets. Ticks (time advancing with nothing to
 report) arrive as empty packets; :meth:`Operator.finish` is called once at
 end of stream. Packets of kinds an operator does not consume pass by it
 untouched to its downstream nodes.
+
+An operator with several inputs that keep their identity (events and poses,
+a stereo pair) declares **named ports** in :attr:`Operator.inputs` and
+implements :meth:`Operator.process_ports`: the engine joins the ports by
+watermark and calls it with one packet per port, all covering the same
+interval ``[t0, t1)``, released only once every port's stream has passed
+``t1`` (so the poses up to the events' time are always there with the
+events). Packets of other kinds on a port's edge are not passed by.
+
+The life cycle: :meth:`Operator.warmup` once before the first packet
+(compile kernels), then :meth:`Operator.process` (or ``process_ports``) per
+packet, :meth:`Operator.on_tick` after each with the input watermark (for
+time-driven output), and :meth:`Operator.finish` at end of stream.
 """
 
 from __future__ import annotations
 
+import copy
 import inspect
-from collections.abc import AsyncIterator, Iterable, Iterator, Sequence
+from collections.abc import AsyncIterator, Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from ._packet import Kind, Packet
+import numpy as np
 
-__all__ = ["Operator", "Source", "Sink", "component_params"]
+from ._packet import EventPacket, Kind, Packet
+
+__all__ = ["Operator", "Port", "Source", "Sink", "component_params"]
+
+
+@dataclass(frozen=True)
+class Port:
+    """A named input of an operator: the kind it takes, whether it must be
+    connected, and what it is for (shown by ``tectum plugins NAME``)."""
+
+    kind: Kind
+    required: bool = True
+    doc: str = ""
 
 
 class Operator:
@@ -33,14 +60,60 @@ class Operator:
     consumes: ClassVar[tuple[Kind, ...]] = (Kind.EVENTS,)
     #: Kinds of packet this operator emits.
     produces: ClassVar[tuple[Kind, ...]] = (Kind.EVENTS,)
+    #: Named input ports (``{"events": Port(Kind.EVENTS), "poses": Port(Kind.POSES)}``);
+    #: None for a one-input operator (its inputs merged, see :attr:`consumes`).
+    inputs: ClassVar[Mapping[str, Port] | None] = None
+    #: Heavy operators (optimisers, solvers) run off the event loop by
+    #: default: a bounded edge in front and the work in a worker thread
+    #: (a node's ``offload=`` overrides this).
+    heavy: ClassVar[bool] = False
 
     def process(self, packet: Packet) -> Sequence[Packet]:
         """Handle one packet (possibly empty: a tick); return the outputs."""
         raise NotImplementedError
 
+    def process_ports(self, ports: Mapping[str, Packet]) -> Sequence[Packet]:
+        """Operators with :attr:`inputs`: handle one joined batch, one packet
+        per port (possibly empty), all covering the same interval. A port
+        whose stream has not yet delivered any packet is absent."""
+        raise NotImplementedError
+
+    def on_tick(self, watermark: int) -> Sequence[Packet]:
+        """Called after each input with the input watermark (µs: nothing
+        earlier will come); return time-driven output (default none)."""
+        return ()
+
     def finish(self) -> Sequence[Packet]:
         """End of stream: return whatever is still buffered (default none)."""
         return ()
+
+    @classmethod
+    def check_ports(cls, connected: frozenset[str]) -> str | None:
+        """Operators with :attr:`inputs`: say what is wrong with this set of
+        connected ports (e.g. "needs imu or poses"), or None when it is fine."""
+        return None
+
+    def warmup(self) -> None:
+        """Compile kernels before the first packet, so the first packet of a
+        control loop is not slowed by compilation. The default runs a copy
+        of the operator on a few synthetic events (one-input event
+        operators) and discards it; override it where that is not right."""
+        if self.inputs is not None or Kind.EVENTS not in self.consumes:
+            return
+        try:
+            twin = copy.deepcopy(self)
+        except Exception:  # state that cannot be copied (locks, files): no warm-up
+            return
+        n = 16
+        t = np.arange(n, dtype=np.int64) * 10
+        xy = (np.arange(n) % 8).astype(np.uint16)
+        pol = np.where(np.arange(n) % 2 == 0, 1, -1).astype(np.int8)
+        pkt = EventPacket(t, xy, xy[::-1].copy(), pol, sensor=(8, 8), t_start=0, t_end=int(t[-1]) + 1)
+        try:
+            twin.process(pkt)
+            twin.finish()
+        except Exception:  # warming up is best effort: the real run reports real errors
+            pass
 
     def __repr__(self) -> str:
         return f"<{self.name or type(self).__name__}>"

@@ -22,7 +22,7 @@ The packet contract
 
 from __future__ import annotations
 
-import enum
+import re
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from types import MappingProxyType
 from typing import Any, ClassVar
@@ -31,36 +31,91 @@ import numpy as np
 
 from .errors import PacketError
 
-__all__ = [
-    "Kind",
-    "Packet",
-    "EventPacket",
-    "SamplePacket",
-    "FramePacket",
-    "ImuPacket",
-    "PosePacket",
-    "TriggerPacket",
-    "ResultPacket",
-    "concat",
-]
+__all__ = ["Kind", "Packet", "EventPacket", "accepts", "register_kind", "packet_class"]
 
 _BASE = ("t", "x", "y", "p")
 _NO_COLUMNS: Mapping[str, np.ndarray] = MappingProxyType({})
 _DTYPES = {"t": np.dtype(np.int64), "x": np.dtype(np.uint16), "y": np.dtype(np.uint16), "p": np.dtype(np.int8)}
 
 
-class Kind(str, enum.Enum):
-    """The kinds of stream a pipeline edge can carry."""
+class _KindMeta(type):
+    def __iter__(cls) -> Iterator["Kind"]:
+        """Every registered kind (built-in and plugin), in registration order."""
+        return iter(tuple(_KIND_CLASSES))
 
-    EVENTS = "events"
-    FRAMES = "frames"
-    IMU = "imu"
-    POSES = "poses"
-    TRIGGERS = "triggers"
-    RESULTS = "results"
+
+class Kind(str, metaclass=_KindMeta):
+    """The name of a kind of stream a pipeline edge can carry (``events``,
+    ``imu``, ``poses``, ...): a plain string with the built-in kinds as
+    attributes. Plugins add kinds by registering a packet class
+    (:func:`tectum.register_kind`, or the ``tectum_register_kinds`` hook);
+    ``iter(Kind)`` gives every registered kind. :attr:`ANY` in a sink's or
+    operator's ``consumes`` accepts every kind."""
+
+    __slots__ = ()
+
+    EVENTS: ClassVar["Kind"]
+    FRAMES: ClassVar["Kind"]
+    IMU: ClassVar["Kind"]
+    POSES: ClassVar["Kind"]
+    TRIGGERS: ClassVar["Kind"]
+    RESULTS: ClassVar["Kind"]
+    ANGULAR_VELOCITY: ClassVar["Kind"]
+    TRACKS: ClassVar["Kind"]
+    CLUSTERS: ClassVar["Kind"]
+    MAPS: ClassVar["Kind"]
+    POINTS: ClassVar["Kind"]
+    ANY: ClassVar["Kind"]
+
+    def __new__(cls, name: str) -> "Kind":
+        if not isinstance(name, str) or not _KIND_NAME.match(name):
+            raise ValueError(f"a stream kind is a lower-case identifier, got {name!r}")
+        return super().__new__(cls, name)
+
+    def __repr__(self) -> str:
+        return f"Kind({str.__repr__(self)})"
 
     def __str__(self) -> str:
-        return self.value
+        return str.__str__(self)
+
+
+_KIND_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
+#: Packet class of every registered kind (filled by ``register_kind``).
+_KIND_CLASSES: dict[Kind, type["Packet"]] = {}
+for _name in ("events", "frames", "imu", "poses", "triggers", "results", "angular_velocity", "tracks",
+              "clusters", "maps", "points", "any"):
+    setattr(Kind, _name.upper(), Kind(_name))
+
+
+def accepts(consumes: Iterable[Kind], kind: Kind) -> bool:
+    """True when a component consuming ``consumes`` takes packets of ``kind``."""
+    return kind in consumes or Kind.ANY in consumes
+
+
+def register_kind(cls: type["Packet"]) -> type["Packet"]:
+    """Register a packet class as the class of its ``kind`` (usable as a
+    class decorator). A kind registered twice by different classes raises
+    :class:`tectum.DuplicateNameError` naming both."""
+    from .errors import DuplicateNameError
+
+    kind = getattr(cls, "kind", None)
+    if not isinstance(kind, Kind) or kind == Kind.ANY:
+        raise ValueError(f"{cls.__name__}.kind must be a tectum.Kind (not ANY), got {kind!r}")
+    prev = _KIND_CLASSES.get(kind)
+    if prev is not None and prev is not cls:
+        raise DuplicateNameError(
+            f"kind {str(kind)!r} is registered twice: by {prev.__module__}.{prev.__qualname__} "
+            f"and by {cls.__module__}.{cls.__qualname__}")
+    _KIND_CLASSES[kind] = cls
+    return cls
+
+
+def packet_class(kind: Kind | str) -> type["Packet"]:
+    """The packet class registered for ``kind``; raises KeyError naming the known kinds."""
+    try:
+        return _KIND_CLASSES[Kind(kind)]
+    except KeyError:
+        raise KeyError(f"unknown stream kind {str(kind)!r} (known: {', '.join(_KIND_CLASSES)})") from None
 
 
 class Packet:
@@ -435,169 +490,5 @@ def _polarity(p: np.ndarray) -> np.ndarray:
     raise PacketError(f"polarity values {vals[:5].tolist()} are not 0/1 or -1/+1")
 
 
-class SamplePacket(Packet):
-    """Timestamped samples of one kind: ``t`` plus named arrays whose first
-    axis runs over the samples. Subclasses name their fields."""
 
-    __slots__ = ("t", "data")
-    fields: ClassVar[tuple[str, ...]] = ()
-
-    def __init__(
-        self,
-        t: Any,
-        *,
-        t_start: int | None = None,
-        t_end: int | None = None,
-        **data: Any,
-    ) -> None:
-        t = np.ascontiguousarray(t, dtype=np.int64)
-        if t.ndim != 1:
-            raise PacketError("'t' must be 1-D")
-        missing = set(self.fields) - set(data)
-        if missing:
-            raise PacketError(f"{type(self).__name__} needs fields {sorted(missing)}")
-        cols = {}
-        for name, a in data.items():
-            arr = a if isinstance(a, np.ndarray) else np.asarray(a)
-            if arr.ndim == 0 or arr.shape[0] != t.shape[0]:
-                raise PacketError(f"field {name!r} has shape {arr.shape}, expected {t.shape[0]} rows")
-            cols[name] = arr
-        object.__setattr__(self, "t", t)
-        object.__setattr__(self, "data", MappingProxyType(cols))
-        self._init_interval(t, t_start, t_end)
-        self._check_times()
-
-    def __getattr__(self, name: str) -> np.ndarray:
-        try:
-            return object.__getattribute__(self, "data")[name]
-        except KeyError:
-            raise AttributeError(name) from None
-
-    def validate(self) -> "SamplePacket":
-        """Check the contract (times in order inside the interval, one row
-        per sample in every field); raises :class:`PacketError`, returns self."""
-        self._check_times()
-        for name, a in self.data.items():
-            if a.ndim == 0 or a.shape[0] != self.t.shape[0]:
-                raise PacketError(f"field {name!r} has shape {a.shape}, expected {self.t.shape[0]} rows")
-        return self
-
-    @classmethod
-    def empty(cls, t_start: int, t_end: int | None = None, *, like: "SamplePacket | None" = None,
-              **shapes: tuple[int, ...]) -> "SamplePacket":
-        """An empty packet (a tick) of this kind covering ``[t_start, t_end)``
-        µs. Its fields have no rows and the trailing shape and dtype of
-        ``like`` (another packet of the stream), else float64 with the shapes
-        given by name (``images=(260, 346)``)."""
-        if like is not None:
-            data = {f: a[:0] for f, a in like.data.items()}
-        else:
-            data = {f: np.empty((0, *shapes.get(f, ())), dtype=np.float64) for f in cls.fields}
-        return cls(np.empty(0, np.int64), t_start=t_start, t_end=t_start if t_end is None else t_end, **data)
-
-    def _take_slice(self, i: int, j: int, t_start: int, t_end: int) -> "SamplePacket":
-        return type(self)(
-            self.t[i:j], t_start=t_start, t_end=t_end, **{k: v[i:j] for k, v in self.data.items()}
-        )
-
-    def __repr__(self) -> str:
-        return f"{type(self).__name__}({len(self)} samples, [{self.t_start}, {self.t_end}) µs)"
-
-
-class FramePacket(SamplePacket):
-    """Intensity frames (e.g. DAVIS APS): ``images`` is (N, H, W) or (N, H, W, C);
-    ``t`` is each frame's timestamp in µs (mid-exposure unless said otherwise);
-    optional ``exposure_start``/``exposure_end`` in µs."""
-
-    kind = Kind.FRAMES
-    fields = ("images",)
-
-
-class ImuPacket(SamplePacket):
-    """IMU samples: ``accel`` (N, 3) in m/s², ``gyro`` (N, 3) in rad/s,
-    camera frame; optional ``temperature`` in °C."""
-
-    kind = Kind.IMU
-    fields = ("accel", "gyro")
-
-
-class PosePacket(SamplePacket):
-    """Poses: ``position`` (N, 3) in metres, ``orientation`` (N, 4) as unit
-    quaternions (x, y, z, w); world-from-camera."""
-
-    kind = Kind.POSES
-    fields = ("position", "orientation")
-
-
-class TriggerPacket(SamplePacket):
-    """External trigger / special events: ``channel`` (int, the input or
-    trigger id of the format) and ``value`` (1 rising edge, 0 falling edge,
-    or the format's own code), one per timestamp in µs."""
-
-    kind = Kind.TRIGGERS
-    fields = ("channel", "value")
-
-
-class ResultPacket(SamplePacket):
-    """Generic results (tracks, maps, reports): ``items`` is an object array,
-    one item per timestamp."""
-
-    kind = Kind.RESULTS
-    fields = ("items",)
-
-    def __init__(self, t: Any, items: Sequence[Any] | np.ndarray = (), **kw: Any) -> None:
-        if not isinstance(items, np.ndarray) or items.dtype != object:
-            arr = np.empty(len(items), dtype=object)
-            for i, it in enumerate(items):
-                arr[i] = it
-            items = arr
-        super().__init__(t, items=items, **kw)
-
-    @classmethod
-    def empty(cls, t_start: int, t_end: int | None = None, **_: Any) -> "ResultPacket":
-        return cls(np.empty(0, np.int64), (), t_start=t_start, t_end=t_start if t_end is None else t_end)
-
-    def _take_slice(self, i: int, j: int, t_start: int, t_end: int) -> "ResultPacket":
-        return ResultPacket(self.t[i:j], self.items[i:j], t_start=t_start, t_end=t_end)
-
-
-def concat(packets: Iterable[Packet]) -> Packet:
-    """Concatenate consecutive packets of one stream into one packet.
-
-    The packets must be of one kind, in order (``next.t_start >= prev.t_end``)
-    and, for events, of one sensor size with the same extra columns. The
-    result covers ``[first.t_start, last.t_end)``. One packet is returned as is.
-    """
-    pkts = list(packets)
-    if not pkts:
-        raise ValueError("concat needs at least one packet")
-    first = pkts[0]
-    if len(pkts) == 1:
-        return first
-    for a, b in zip(pkts, pkts[1:]):
-        if type(b) is not type(first):
-            raise PacketError(f"cannot concatenate {type(first).__name__} with {type(b).__name__}")
-        if b.t_start < a.t_end:
-            raise PacketError(f"packets overlap: [{a.t_start}, {a.t_end}) then [{b.t_start}, {b.t_end})")
-    t0, t1 = first.t_start, pkts[-1].t_end
-    if isinstance(first, EventPacket):
-        names = set(first.columns)
-        for q in pkts:
-            if q.sensor != first.sensor:
-                raise PacketError(f"sensor sizes differ: {first.sensor} vs {q.sensor}")
-            if set(q.columns) != names:
-                raise PacketError(f"extra columns differ: {sorted(names)} vs {sorted(q.columns)}")
-        cat = {k: np.concatenate([getattr(q, k) for q in pkts]) for k in _BASE}
-        cols = {k: np.concatenate([q.columns[k] for q in pkts]) for k in first.columns}
-        return EventPacket(
-            cat["t"], cat["x"], cat["y"], cat["p"], sensor=first.sensor, t_start=t0, t_end=t1, columns=cols
-        )
-    assert isinstance(first, SamplePacket)
-    data = {}
-    for k in first.data:
-        parts = [q.data[k] for q in pkts if len(q)]
-        data[k] = np.concatenate(parts) if parts else first.data[k]
-    t = np.concatenate([q.t for q in pkts])
-    if isinstance(first, ResultPacket):
-        return ResultPacket(t, data["items"], t_start=t0, t_end=t1)
-    return type(first)(t, t_start=t0, t_end=t1, **data)
+register_kind(EventPacket)

@@ -4,8 +4,10 @@ A :class:`Pipeline` is a list of frozen :class:`NodeSpec` (sources, operators,
 sinks, each with a unique id and its inputs). :meth:`Pipeline.validate` checks
 it against a registry and returns a :class:`Plan`: topologically ordered,
 names resolved to classes, parameters converted to their declared types and
-stream kinds checked along every edge. Errors name the node and say what is
-wrong; nothing is opened or started by validation.
+stream kinds checked along every edge, and the named ports of multi-input
+operators wired (by name, or by kind where that is unambiguous). Errors name
+the node (and port) and say what is wrong; nothing is opened or started by
+validation.
 """
 
 from __future__ import annotations
@@ -17,8 +19,8 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Literal
 
-from ._operator import Operator, Sink, Source, coerce_param, component_params
-from ._packet import Kind
+from ._operator import Operator, Port, Sink, Source, coerce_param, component_params
+from ._packet import Kind, accepts
 from ._registry import Registry, get_registry
 from .errors import PipelineError, RegistryError
 
@@ -61,7 +63,10 @@ class BatchPolicy:
 class NodeSpec:
     """One declared node. ``name`` is the operator's registry name, or the
     source/sink argument (a path or URL); ``component`` holds an instance
-    given directly through the Python API instead."""
+    given directly through the Python API instead. ``ports`` wires named
+    input ports (port name to node id); ``offload`` runs an operator in a
+    worker thread behind an edge of ``buffer`` packets (None: the operator's
+    own ``heavy`` default)."""
 
     id: str
     role: Role
@@ -72,6 +77,8 @@ class NodeSpec:
     buffer: int = 64
     component: Any = None
     repair: int | None = None
+    ports: Mapping[str, str] = field(default_factory=lambda: MappingProxyType({}))
+    offload: bool | None = None
 
 
 class Pipeline:
@@ -135,15 +142,35 @@ class Pipeline:
         return self._add(NodeSpec(id or self._auto_id("source" if comp else name), "source", name,
                                   MappingProxyType(dict(params)), (), component=comp, repair=repair))
 
-    def op(self, name: str | Operator, input: str | Sequence[str], *, id: str | None = None,
-           **params: Any) -> str:
+    def op(self, name: str | Operator, input: str | Sequence[str] | Mapping[str, str] | None = None, *,
+           id: str | None = None, offload: bool | None = None, buffer: int = 64, **params: Any) -> str:
         """Add an operator by registry name (``filter.refractory``) or instance.
-        ``input`` is one node id, or several to merge by timestamp."""
+
+        ``input`` is one node id, or several to merge by timestamp. An
+        operator with named ports takes them by name, as a mapping or as
+        keywords (``p.op("map.emvs", events=cam, poses=gt)``); given plain
+        node ids instead, each port is filled by kind where exactly one
+        input provides it. ``offload=True`` runs the operator in a worker
+        thread behind an edge of ``buffer`` packets (the default for
+        operators that declare themselves heavy), so sources and sinks keep
+        pace while it works."""
         comp = name if isinstance(name, Operator) else None
         nm = comp.name if comp is not None else str(name)
-        inputs = (input,) if isinstance(input, str) else tuple(input)
+        ports: dict[str, str] = {}
+        if input is None:
+            inputs: tuple[str, ...] = ()
+        elif isinstance(input, str):
+            inputs = (input,)
+        elif isinstance(input, Mapping):
+            ports = {str(k): str(v) for k, v in input.items()}
+            inputs = ()
+        else:
+            inputs = tuple(input)
+        if buffer < 1:
+            raise PipelineError("buffer must be >= 1 packet")
         return self._add(NodeSpec(id or self._auto_id(nm or "op", "operator"), "operator", nm,
-                                  MappingProxyType(dict(params)), inputs, component=comp))
+                                  MappingProxyType(dict(params)), inputs, buffer=buffer, component=comp,
+                                  ports=MappingProxyType(ports), offload=offload))
 
     def sink(self, arg: str | Sink, input: str, *, id: str | None = None,
              policy: EdgePolicy = "block", buffer: int = 64, **params: Any) -> str:
@@ -180,8 +207,10 @@ class Pipeline:
             [[op]]
             id = "rf"
             name = "filter.refractory"
-            input = "cam"         # or a list, merged by timestamp
+            input = "cam"         # or a list, merged by timestamp,
+                                  # or named ports: { events = "cam", poses = "gt" }
             params = { period_us = 1000 }
+            offload = false       # true: run in a worker thread
             [[sink]]
             uri = "out.npz"
             input = "rf"
@@ -216,10 +245,11 @@ class Pipeline:
             p.source(path_arg(d["uri"]), id=d.get("id"), repair=d.get("repair"), **d.get("params", {}))
         for i, d in enumerate(data.get("op", [])):
             w = where("op", i, d)
-            check_keys(d, {"id", "name", "input", "params"}, w)
+            check_keys(d, {"id", "name", "input", "params", "offload", "buffer"}, w)
             if "name" not in d or "input" not in d:
                 raise PipelineError(f"{w}: needs 'name' and 'input'")
-            p.op(d["name"], d["input"], id=d.get("id"), **d.get("params", {}))
+            p.op(d["name"], d["input"], id=d.get("id"), offload=d.get("offload"), buffer=d.get("buffer", 64),
+                 **d.get("params", {}))
         for i, d in enumerate(data.get("sink", [])):
             w = where("sink", i, d)
             check_keys(d, {"id", "uri", "input", "params", "policy", "buffer"}, w)
@@ -236,14 +266,19 @@ class Pipeline:
 
 @dataclass(frozen=True)
 class PlanNode:
-    """A validated node: its class, converted parameters, inputs, children
-    and the kinds of stream it provides downstream."""
+    """A validated node: its class, converted parameters, inputs (node ids,
+    each once), children, the kinds of stream it provides downstream, its
+    wired ports (port name to node id, for operators with named ports) and
+    whether it runs offloaded."""
 
     spec: NodeSpec
     cls: type
     params: Mapping[str, Any]
     children: tuple[str, ...]
     provides: frozenset[Kind]
+    inputs: tuple[str, ...] = ()
+    ports: Mapping[str, str] = field(default_factory=lambda: MappingProxyType({}))
+    offload: bool = False
 
     @property
     def id(self) -> str:
@@ -281,53 +316,127 @@ def _validate(p: Pipeline, reg: Registry) -> Plan:
     specs = {s.id: s for s in p.nodes}
     if not any(s.role == "source" for s in specs.values()):
         raise PipelineError("the pipeline has no source")
+    classes = {nid: _resolve(s, reg) for nid, s in specs.items()}
+    named: dict[str, dict[str, str]] = {}  # operator id -> port -> node id, as given by name
+    params_of: dict[str, dict[str, Any]] = {}
+    inputs_of: dict[str, tuple[str, ...]] = {}
+    for nid, s in specs.items():
+        ports = _ports_of(s, classes[nid])
+        given = dict(s.ports)
+        params = dict(s.params)
+        if ports is None:
+            if given:
+                raise PipelineError(f"node {nid!r} ({s.name}) has no named ports; give its input as node ids")
+        else:
+            for k in list(params):
+                if k in ports:
+                    given[k] = str(params.pop(k))
+            unknown = sorted(set(given) - set(ports))
+            if unknown:
+                raise PipelineError(f"node {nid!r} ({s.name}) has no port(s) {unknown}; ports: {sorted(ports)}")
+            named[nid] = given
+        params_of[nid] = params
+        inputs_of[nid] = tuple(dict.fromkeys((*s.inputs, *given.values())))
     children: dict[str, list[str]] = {i: [] for i in specs}
     for s in specs.values():
-        if s.role == "source" and s.inputs:
+        inputs = inputs_of[s.id]
+        if s.role == "source" and inputs:
             raise PipelineError(f"source {s.id!r} cannot have inputs")
-        if s.role != "source" and not s.inputs:
+        if s.role != "source" and not inputs:
             raise PipelineError(f"{s.role} {s.id!r} has no input")
-        if s.role == "sink" and len(s.inputs) != 1:
+        if s.role == "sink" and len(inputs) != 1:
             raise PipelineError(f"sink {s.id!r} takes one input; merge with an operator first")
         if len(set(s.inputs)) != len(s.inputs):
             raise PipelineError(f"node {s.id!r} lists an input twice")
         if s.role == "sink" and s.policy not in _POLICIES:
             raise PipelineError(f"sink {s.id!r}: policy {s.policy!r} is not one of {_POLICIES}")
-        if s.role == "sink" and s.buffer < 1:
-            raise PipelineError(f"sink {s.id!r}: buffer must be >= 1")
-        for i in s.inputs:
+        if s.buffer < 1:
+            raise PipelineError(f"{s.role} {s.id!r}: buffer must be >= 1")
+        for i in inputs:
             if i not in specs:
                 raise PipelineError(f"node {s.id!r} reads from unknown node {i!r} (known: {sorted(specs)})")
             if specs[i].role == "sink":
                 raise PipelineError(f"node {s.id!r} reads from sink {i!r}; sinks have no output")
             children[i].append(s.id)
-    order = _toposort(specs)
+    order = _toposort(specs, inputs_of)
     nodes: dict[str, PlanNode] = {}
     for nid in order:
         s = specs[nid]
-        cls = _resolve(s, reg)
-        params = _check_params(s, cls)
+        cls = classes[nid]
+        params = _check_params(s, cls, params_of[nid])
         decl = s.component if s.component is not None else cls  # instances may narrow their kinds
+        inputs = inputs_of[nid]
+        wired: dict[str, str] = {}
         if s.role == "source":
             provides = frozenset(decl.produces)
+        elif nid in named:
+            wired = _wire_ports(s, _ports_of(s, cls) or {}, named[nid], s.inputs, nodes)
+            problem = decl.check_ports(frozenset(wired))
+            if problem:
+                raise PipelineError(f"node {nid!r} ({s.name}): {problem}")
+            provides = frozenset(decl.produces)
         else:
-            upstream = frozenset().union(*(nodes[i].provides for i in s.inputs))
+            upstream = frozenset().union(*(nodes[i].provides for i in inputs))
             consumes = frozenset(decl.consumes)
-            if not consumes & upstream:
+            if not any(accepts(consumes, k) for k in upstream):
                 raise PipelineError(
                     f"{s.role} {s.id!r} ({s.name}) consumes {_kinds(consumes)} but its input(s) "
-                    f"{', '.join(repr(i) for i in s.inputs)} provide only {_kinds(upstream)}"
+                    f"{', '.join(repr(i) for i in inputs)} provide only {_kinds(upstream)}"
                 )
             provides = (upstream - consumes) | frozenset(decl.produces) if s.role == "operator" else frozenset()
-        nodes[nid] = PlanNode(s, cls, MappingProxyType(params), tuple(children[nid]), provides)
+        offload = s.role == "operator" and (bool(getattr(decl, "heavy", False)) if s.offload is None else s.offload)
+        nodes[nid] = PlanNode(s, cls, MappingProxyType(params), tuple(children[nid]), provides, inputs,
+                              MappingProxyType(wired), offload)
     return Plan(MappingProxyType(nodes), tuple(order), p.batch)
+
+
+def _ports_of(s: NodeSpec, cls: type) -> Mapping[str, Port] | None:
+    if s.role != "operator":
+        return None
+    decl = s.component if s.component is not None else cls
+    return getattr(decl, "inputs", None)
+
+
+def _wire_ports(s: NodeSpec, ports: Mapping[str, Port], given: Mapping[str, str], positional: Sequence[str],
+                nodes: Mapping[str, PlanNode]) -> dict[str, str]:
+    """Port name -> upstream node id: the ports given by name, then the
+    others filled by kind from the positional inputs where exactly one of
+    them provides the port's kind (and no other port of that kind is open)."""
+    where = f"node {s.id!r} ({s.name})"
+    wired = dict(given)
+    for port, up in given.items():
+        kind = ports[port].kind
+        if kind not in nodes[up].provides:
+            raise PipelineError(f"{where}: port {port!r} takes {kind} but {up!r} provides only "
+                                f"{_kinds(nodes[up].provides)}")
+    for port, spec in ports.items():
+        if port in wired:
+            continue
+        candidates = [i for i in positional if spec.kind in nodes[i].provides]
+        same_kind = [q for q, ps in ports.items() if ps.kind == spec.kind and q not in given]
+        if len(candidates) == 1 and len(same_kind) == 1:
+            wired[port] = candidates[0]
+        elif len(candidates) > 1 or (candidates and len(same_kind) > 1):
+            raise PipelineError(
+                f"{where}: port {port!r} ({spec.kind}) could take {', '.join(repr(c) for c in candidates)}"
+                + (f", and ports {same_kind} all take {spec.kind}" if len(same_kind) > 1 else "")
+                + f"; name it: {port}=NODE")
+    missing = [q for q, ps in ports.items() if ps.required and q not in wired]
+    if missing:
+        raise PipelineError(f"{where}: required port(s) {', '.join(f'{q!r} ({ports[q].kind})' for q in missing)} "
+                            "not connected")
+    unused = [i for i in positional if i not in wired.values()]
+    if unused:
+        raise PipelineError(f"{where}: input(s) {unused} fill none of its ports "
+                            f"({', '.join(f'{q}: {ps.kind}' for q, ps in ports.items())})")
+    return wired
 
 
 def _kinds(ks: frozenset[Kind]) -> str:
     return "{" + ", ".join(sorted(str(k) for k in ks)) + "}"
 
 
-def _toposort(specs: Mapping[str, NodeSpec]) -> list[str]:
+def _toposort(specs: Mapping[str, NodeSpec], inputs_of: Mapping[str, tuple[str, ...]]) -> list[str]:
     state: dict[str, int] = {}
     order: list[str] = []
 
@@ -339,7 +448,7 @@ def _toposort(specs: Mapping[str, NodeSpec]) -> list[str]:
             cyc = path[path.index(n):] + [n]
             raise PipelineError(f"the pipeline has a cycle: {' -> '.join(cyc)}")
         state[n] = 1
-        for i in specs[n].inputs:
+        for i in inputs_of[n]:
             visit(i, path + [n])
         state[n] = 2
         order.append(n)
@@ -362,16 +471,16 @@ def _resolve(s: NodeSpec, reg: Registry) -> type:
         raise PipelineError(f"node {s.id!r}: {e}") from None
 
 
-def _check_params(s: NodeSpec, cls: type) -> dict[str, Any]:
+def _check_params(s: NodeSpec, cls: type, params: Mapping[str, Any]) -> dict[str, Any]:
     if s.component is not None:
-        if s.params:
+        if params:
             raise PipelineError(f"node {s.id!r}: parameters go to the instance, not to the pipeline")
         return {}
     accepted = component_params(cls)
     if s.role != "operator":
         accepted = dict(list(accepted.items())[1:])  # the first is the path/URL
     out = {}
-    for k, v in s.params.items():
+    for k, v in params.items():
         if k not in accepted:
             raise PipelineError(
                 f"node {s.id!r} ({s.name}): unknown parameter {k!r}; "

@@ -97,6 +97,8 @@ async def open_pipeline(
     tap_edges = {t: Edge(tap_buffer, tap_policy) for t in taps}
     for t, e in tap_edges.items():
         edges["tap:" + t] = e
+    for nid in graph.offloaded:
+        edges["offload:" + nid] = Edge(plan.nodes[nid].spec.buffer, "block")
     t_wall = time.perf_counter()
     failure: list[BaseException] = []
     try:
@@ -150,13 +152,16 @@ async def _main(plan: Plan, graph: Graph, edges: dict[str, Edge], scope: trio.Ca
             except Exception as e:
                 raise NodeError(sid, e) from e
             opened.append(sid)
+        outbox = _Outbox(edges)
         async with trio.open_nursery() as nursery:
             for sid, sink in sinks.items():
                 nursery.start_soon(_sink_task, sid, sink, edges[sid], graph.stats)
             with scope:
                 async with trio.open_nursery() as sources:
+                    for nid in sorted(graph.offloaded):
+                        sources.start_soon(_offload_task, nid, graph, edges["offload:" + nid], outbox)
                     for node in plan.of_role("source"):
-                        sources.start_soon(_source_task, node, plan.batch, graph, edges)
+                        sources.start_soon(_source_task, node, plan.batch, graph, outbox)
             if scope.cancelled_caught:  # user cancel: end every edge so sinks drain
                 for e in edges.values():
                     e.close()
@@ -211,44 +216,86 @@ async def _sink_task(sid: str, sink: Sink, edge: Edge, stats: Stats) -> None:
 
 
 class _Outbox:
-    """What a source task's pushes delivered to sinks, held until the task
-    next yields and then handed to each edge in one go (one task switch per
-    burst, not per packet; order per edge is kept)."""
+    """What the tasks' pushes delivered to sinks (and offload edges), held
+    until the pushing task next yields and then handed to each edge in one
+    go (one task switch per burst, not per packet).
+
+    One outbox serves every task of a run. Each edge has its own FIFO lock,
+    taken in the order the deliveries were taken out of the outbox, so every
+    edge receives its items in the order the graph produced them, whichever
+    task pushed them; a task blocked on one full edge holds no other edge's
+    lock (no task waits on another in a cycle: the graph is a DAG)."""
 
     def __init__(self, edges: Mapping[str, Edge]) -> None:
         self.edges = edges
-        self.pending: dict[str, list[tuple[Packet, float]]] = {}
-        self.ended: list[str] = []
+        self.pending: dict[str, list[Any]] = {}
+        self._locks = {t: trio.StrictFIFOLock() for t in edges}
 
     def add(self, deliveries: list[Delivery], arrival: float) -> None:
         pending = self.pending
         for target, pkt in deliveries:
-            if pkt is END:
-                self.ended.append(target)
-                continue
+            item = _CLOSE if pkt is END else (pkt, arrival)
             items = pending.get(target)
             if items is None:
-                pending[target] = [(pkt, arrival)]
+                pending[target] = [item]
             else:
-                items.append((pkt, arrival))
+                items.append(item)
 
     async def flush(self) -> None:
-        pending, self.pending = self.pending, {}
-        for target, items in pending.items():
-            await self.edges[target].send_all(items)
-        for target in self.ended:  # queued items are still drained by the receiver
-            self.edges[target].close()
-        self.ended.clear()
+        pending = self.pending
+        while pending:
+            # edges with room first: a full edge (a slow branch) does not hold back the others
+            target = next((t for t, v in pending.items() if self.edges[t].has_room(len(v))), None)
+            if target is None:
+                target = next(iter(pending))
+            items = pending.pop(target)
+            lock = self._locks[target]
+            try:
+                lock.acquire_nowait()
+            except trio.WouldBlock:
+                await lock.acquire()
+            try:
+                edge = self.edges[target]
+                if items[-1] is _CLOSE:
+                    await edge.send_all(items[:-1])
+                    edge.close()  # queued items are still drained by the receiver
+                else:
+                    await edge.send_all(items)
+            finally:
+                lock.release()
 
 
-async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, edges: Mapping[str, Edge]) -> None:
+#: End of an edge's input, queued behind its last items.
+_CLOSE: Any = object()
+
+
+async def _offload_task(nid: str, graph: Graph, edge: Edge, out: _Outbox) -> None:
+    """Run an offloaded operator: take what the graph delivered to its edge,
+    call the operator in a worker thread (its kernels release the GIL), and
+    push its outputs on from the trio thread. End of stream: ``finish()`` in
+    the worker thread, then the end propagates below the node."""
+    call, finish, forward = graph.call, graph.call_finish, graph.forward
+    while True:
+        try:
+            items = await edge.receive_all()
+        except trio.EndOfChannel:
+            break
+        for item, arrival in items:
+            res = await trio.to_thread.run_sync(call, nid, item)
+            out.add(forward(nid, res), arrival)
+            await out.flush()
+    res = await trio.to_thread.run_sync(finish, nid)
+    out.add(forward(nid, res, ended=True), trio.current_time())
+    await out.flush()
+
+
+async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox) -> None:
     sid = node.id
     st = graph.stats.node(sid)
     guard = Guard(sid)
     repair = Repair(window_us=node.spec.repair) if node.spec.repair is not None else None
     if repair is not None:
         st.repairs = repair.counts
-    out = _Outbox(edges)
     source: Source | None = None
     try:
         source = node.instantiate()

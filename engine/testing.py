@@ -3,23 +3,28 @@
 * :func:`assert_batch_invariant`: the conformance check every operator must
   pass: its output is identical whether the stream comes whole, event by
   event, or in any split into micro-batches (with empty ticks between).
-  Uses hypothesis to draw the splits.
+  Uses hypothesis to draw the splits. Operators with named ports get one
+  stream per port, split independently and interleaved in drawn orders.
+* :func:`feed` and :func:`feed_ports`: drive an operator the way the engine
+  does (process, on_tick, finish; ports joined by watermark).
 * :class:`ListSource` and :class:`ListSink`: in-memory source and sink, so
   a short test covers an operator end to end in a real pipeline.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
 from ._operator import Operator, Sink, Source, as_packets
-from ._packet import EventPacket, Kind, Packet, concat
+from ._packet import EventPacket, Kind, Packet
+from ._stream import concat
 
 __all__ = [
     "assert_batch_invariant",
+    "feed_ports",
     "assert_streams_equal",
     "assert_stream_contract",
     "split_stream",
@@ -29,11 +34,60 @@ __all__ = [
 ]
 
 
+def _ticks(op: Operator) -> bool:
+    return type(op).on_tick is not Operator.on_tick
+
+
 def feed(op: Operator, packets: Sequence[Packet]) -> list[Packet]:
-    """Push ``packets`` through ``op`` (then end of stream); all outputs."""
+    """Push ``packets`` through a one-input ``op`` as the engine does
+    (``process``, then ``on_tick`` with the packet's watermark), then end of
+    stream; all outputs."""
     out: list[Packet] = []
+    ticks = _ticks(op)
     for pkt in packets:
         out.extend(as_packets(op.process(pkt)))
+        if ticks:
+            out.extend(as_packets(op.on_tick(pkt.t_end)))
+    out.extend(as_packets(op.finish()))
+    return out
+
+
+def feed_ports(op: Operator, streams: Mapping[str, Sequence[Packet]], order: Sequence[str] | None = None) -> list[Packet]:
+    """Push each port's packets through an operator with named ports, joined
+    by watermark as the engine joins them, then end every port; all outputs.
+
+    ``order`` says which port's next packet goes in at each step (ports whose
+    packets have run out are skipped); by default round robin. A port ends
+    as soon as its last packet is in.
+    """
+    from ._graph import PortJoin
+
+    join = PortJoin(streams)
+    queues = {p: list(v) for p, v in streams.items()}
+    out: list[Packet] = []
+    ticks = _ticks(op)
+
+    def run(batches: list[dict[str, Packet]]) -> None:
+        for b in batches:
+            out.extend(as_packets(op.process_ports(b)))
+            if ticks:
+                out.extend(as_packets(op.on_tick(next(iter(b.values())).t_end)))
+
+    ended: set[str] = set()
+
+    def step(port: str) -> None:
+        if queues[port]:
+            run(join.push(port, queues[port].pop(0)))
+        if not queues[port] and port not in ended:
+            ended.add(port)
+            run(join.end(port))
+
+    for port in order or ():
+        if port in queues:
+            step(port)
+    while any(queues.values()) or len(ended) < len(queues):
+        for port in queues:
+            step(port)
     out.extend(as_packets(op.finish()))
     return out
 
@@ -136,7 +190,7 @@ def assert_stream_contract(packets: Sequence[Packet]) -> None:
 
 def assert_batch_invariant(
     factory: Callable[[], Operator],
-    stream: Packet,
+    stream: Packet | Mapping[str, Packet],
     *,
     max_examples: int = 20,
     event_by_event_check: bool = True,
@@ -144,12 +198,18 @@ def assert_batch_invariant(
     """The batch-invariance conformance check.
 
     ``factory`` makes a fresh operator; ``stream`` is the whole input as one
-    packet. The output for the whole packet is the reference; the operator
-    must produce the same samples fed one timestamp at a time and fed in
-    hypothesis-drawn splits with empty ticks in between.
+    packet, or for an operator with named ports one packet per port. The
+    output for the whole input is the reference; the operator must produce
+    the same samples fed one timestamp at a time and fed in hypothesis-drawn
+    splits with empty ticks in between (per port, independently, the ports
+    interleaved in a drawn order).
     """
     from hypothesis import HealthCheck, given, settings
     from hypothesis import strategies as st
+
+    if isinstance(stream, Mapping):
+        _assert_ports_invariant(factory, stream, max_examples, event_by_event_check)
+        return
 
     reference = feed(factory(), [stream])
     n = len(stream)
@@ -189,7 +249,7 @@ class ListSink(Sink):
     """Keeps every packet it receives in :attr:`packets` (all kinds)."""
 
     name = "list"
-    consumes = tuple(Kind)
+    consumes = (Kind.ANY,)
 
     def __init__(self) -> None:
         self.packets: list[Packet] = []
@@ -210,3 +270,32 @@ class ListSink(Sink):
         ev = [p for p in self.packets if isinstance(p, EventPacket)]
         return concat(ev)  # type: ignore[return-value]
 
+
+
+def _assert_ports_invariant(factory: Callable[[], Operator], streams: Mapping[str, Packet], max_examples: int,
+                            event_by_event_check: bool) -> None:
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    ports = list(streams)
+    reference = feed_ports(factory(), {p: [q] for p, q in streams.items()})
+    if event_by_event_check:
+        got = feed_ports(factory(), {p: event_by_event(q) for p, q in streams.items()})
+        assert_streams_equal(reference, got, "every port event by event")
+
+    def port_splits(p: str) -> Any:
+        q = streams[p]
+        span = max(q.t_end - q.t_start, 1)
+        return st.tuples(st.lists(st.integers(0, max(len(q) - 1, 0)), max_size=20),
+                         st.lists(st.integers(q.t_start, q.t_start + span), max_size=6))
+
+    @settings(max_examples=max_examples, deadline=None, derandomize=True,
+              suppress_health_check=list(HealthCheck))
+    @given(splits=st.fixed_dictionaries({p: port_splits(p) for p in ports}),
+           order=st.lists(st.sampled_from(ports), max_size=60))
+    def check(splits: dict[str, tuple[list[int], list[int]]], order: list[str]) -> None:
+        pieces = {p: split_stream(streams[p], *splits[p]) for p in ports}
+        what = ", ".join(f"{p} in {len(v)}" for p, v in pieces.items())
+        assert_streams_equal(reference, feed_ports(factory(), pieces, order), f"ports split ({what})")
+
+    check()

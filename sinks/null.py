@@ -9,7 +9,7 @@ class NullSink(Sink):
     """Counts what reaches it and discards it (``null:``)."""
 
     name = "null"
-    consumes = tuple(Kind)
+    consumes = (Kind.ANY,)
     schemes = ("null",)
 
     def __init__(self, url: str = "null:") -> None:
