@@ -7,19 +7,30 @@ from ._adapters import from_structured as from_structured, to_structured as to_s
 from ._boundary import Guard as Guard, Repair as Repair
 from ._edge import Edge as Edge
 from ._embed import Stepper as Stepper, ThreadedPipeline as ThreadedPipeline
-from ._operator import Operator as Operator, Sink as Sink, Source as Source
+from ._operator import Operator as Operator, Port as Port, Sink as Sink, Source as Source
 from ._packet import (
     EventPacket as EventPacket,
-    FramePacket as FramePacket,
-    ImuPacket as ImuPacket,
     Kind as Kind,
     Packet as Packet,
+    accepts as accepts,
+    packet_class as packet_class,
+    register_kind as register_kind,
+)
+from ._samples import (
+    AngularVelocityPacket as AngularVelocityPacket,
+    ClusterPacket as ClusterPacket,
+    Field as Field,
+    FramePacket as FramePacket,
+    ImuPacket as ImuPacket,
+    MapPacket as MapPacket,
+    PointPacket as PointPacket,
     PosePacket as PosePacket,
     ResultPacket as ResultPacket,
     SamplePacket as SamplePacket,
+    TrackPacket as TrackPacket,
     TriggerPacket as TriggerPacket,
-    concat as concat,
 )
+from ._stream import concat as concat, empty_like as empty_like, merge as merge
 from ._pipeline import BatchPolicy as BatchPolicy, Pipeline as Pipeline, Plan as Plan
 from ._registry import Registry as Registry, get_registry as get_registry
 from ._scheduler import RunningPipeline as RunningPipeline, arun as arun, open_pipeline as open_pipeline, run as run
