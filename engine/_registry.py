@@ -12,7 +12,8 @@ from typing import Any, Literal
 import pluggy
 
 from . import hookspecs
-from ._operator import Operator, Sink, Source
+from ._operator import Operator, Sink, Source, component_params
+from ._packet import Packet, register_kind
 from .errors import DuplicateNameError, FormatError, RegistryError
 
 __all__ = ["Registry", "RegistryView", "BenchSuite", "get_registry", "FAMILIES"]
@@ -20,7 +21,7 @@ __all__ = ["Registry", "RegistryView", "BenchSuite", "get_registry", "FAMILIES"]
 FAMILIES = ("filter", "flow", "lifetime", "map", "tracker", "repr")
 _OP_NAME = re.compile(r"^([a-z]+)\.([a-z][a-z0-9_]*)$")
 _COMP_NAME = re.compile(r"^[a-z][a-z0-9_.]*$")
-Role = Literal["operator", "source", "sink"]
+Role = Literal["operator", "source", "sink", "kind"]
 
 
 @dataclass
@@ -53,6 +54,7 @@ class Registry:
     sources: dict[str, Entry] = field(default_factory=dict)
     sinks: dict[str, Entry] = field(default_factory=dict)
     bench_suites: dict[str, BenchSuite] = field(default_factory=dict)
+    kinds: dict[str, Entry] = field(default_factory=dict)  # sample kinds added by plugins
     plugins: dict[str, str] = field(default_factory=dict)  # plugin name -> distribution/module
 
     def _table(self, role: Role) -> dict[str, Entry]:
@@ -69,6 +71,10 @@ class Registry:
                 raise RegistryError(
                     f"plugin {owner!r}: operator name {name!r} is not 'family.method' with family in {FAMILIES}"
                 )
+            ports = getattr(cls, "inputs", None) or {}
+            clash = sorted(set(ports) & set(component_params(cls)))
+            if clash:
+                raise RegistryError(f"plugin {owner!r}: operator {name!r} has ports and parameters both named {clash}")
         elif not _COMP_NAME.match(name or ""):
             raise RegistryError(f"plugin {owner!r}: {role} name {name!r} is not a lower-case identifier")
         table = self._table(role)
@@ -189,6 +195,14 @@ class RegistryView:
     def add_sink(self, cls: type[Sink]) -> None:
         self._registry.add("sink", cls, self.owner)
 
+    def add_kind(self, cls: type[Packet]) -> None:
+        """Add a kind of sample stream (see ``tectum_register_kinds``)."""
+        try:
+            register_kind(cls)
+        except ValueError as e:
+            raise RegistryError(f"plugin {self.owner!r}: {e}") from None
+        self._registry.kinds[str(cls.kind)] = Entry("kind", str(cls.kind), cls, self.owner)
+
     def add_bench_suite(self, name: str, run: Callable[[Path, bool], dict[str, Any]], description: str) -> None:
         """Add the ``tectum bench`` suite ``name``: ``run(out, quick)``
         returns its numbers; ``description`` is one line for ``--list``."""
@@ -215,8 +229,8 @@ def build_registry(pm: pluggy.PluginManager) -> Registry:
     reg = Registry()
     for name, plugin in pm.list_name_plugin():
         reg.plugins[name] = getattr(plugin, "__name__", repr(plugin))
-    for hook in ("tectum_register_sources", "tectum_register_sinks", "tectum_register_operators",
-                 "tectum_register_bench_suites"):
+    for hook in ("tectum_register_kinds", "tectum_register_sources", "tectum_register_sinks",
+                 "tectum_register_operators", "tectum_register_bench_suites"):
         caller = getattr(pm.hook, hook)
         for impl in caller.get_hookimpls():  # registration order
             impl.function(registry=RegistryView(reg, impl.plugin_name))

@@ -32,6 +32,19 @@ def tectum_register_operators(registry: "RegistryView") -> None:
 
 
 @hookspec
+def tectum_register_kinds(registry: "RegistryView") -> None:
+    """Register new kinds of sample stream with ``registry.add_kind(cls)``.
+
+    ``cls`` is a :class:`tectum.SamplePacket` subclass with ``kind =
+    tectum.Kind("name")`` and its ``fields`` declared as
+    :class:`tectum.Field` records (dtype, trailing shape, unit, optional), so
+    that the engine can make empty packets, concatenate, merge and slice the
+    stream, and the CSV/npz sinks can write it. Kinds are registered before
+    operators, sources and sinks, which may then name them.
+    """
+
+
+@hookspec
 def tectum_register_sources(registry: "RegistryView") -> None:
     """Register source classes with ``registry.add_source(cls)``.
 

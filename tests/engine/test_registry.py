@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pluggy
 import pytest
 
@@ -178,3 +179,55 @@ def test_sample_plugin_bench_suite_is_listed_and_runs(sample_plugin_path, tmp_pa
     assert rec["met"] == (rec["value"] >= rec["goal"] == 1.0)
     verdict = "met" if rec["met"] else "MISSED"
     assert re.search(rf"^every_nth, n = 2\s+\S+\s+Mev/s\s+>= 1\s+{verdict}\s*$", r.stdout, re.M)
+
+
+class Wheel(tectum.SamplePacket):
+    """A plugin's own kind: wheel odometry."""
+
+    kind = tectum.Kind("wheel_test")
+    fields = {"speed": tectum.Field("f8", (), "m/s"), "slip": tectum.Field("f8", (), "", optional=True)}
+
+
+class OtherWheel(tectum.SamplePacket):
+    kind = tectum.Kind("wheel_test")
+    fields = {"rpm": tectum.Field("f8", ())}
+
+
+def test_a_plugin_registers_a_kind_that_streams_like_the_built_ins():
+    class Plugin:
+        @hookimpl
+        def tectum_register_kinds(self, registry):
+            registry.add_kind(Wheel)
+
+    pm = plugin_manager()
+    pm.register(Plugin(), name="odometry")
+    reg = build_registry(pm)
+    assert reg.kinds["wheel_test"].owner == "odometry"
+    assert tectum.packet_class("wheel_test") is Wheel and tectum.Kind("wheel_test") in list(tectum.Kind)
+    a = Wheel([1, 2], speed=[1, 2], t_end=10)
+    b = Wheel([10], speed=[3], slip=[0.5], t_start=10, t_end=20)
+    both = tectum.concat([Wheel.empty(0, 1), a.with_interval(1, 10), b])
+    assert both.speed.tolist() == [1, 2, 3] and np.isnan(both.slip[:2]).all()
+    with pytest.raises(tectum.PacketError, match="speed"):
+        Wheel([1], speed=["fast"])
+
+    class Twin:
+        @hookimpl
+        def tectum_register_kinds(self, registry):
+            registry.add_kind(OtherWheel)
+
+    pm.register(Twin(), name="twin")
+    with pytest.raises(DuplicateNameError, match="Wheel.*OtherWheel"):
+        build_registry(pm)
+
+
+def test_ports_and_parameters_may_not_share_a_name():
+    class Clash(Operator):
+        name = "map.clash_test"
+        inputs = {"events": tectum.Port(tectum.Kind.EVENTS)}
+
+        def __init__(self, events: int = 1) -> None:
+            self.events = events
+
+    with pytest.raises(RegistryError, match="ports and parameters both named \\['events'\\]"):
+        tectum.Registry().add("operator", Clash, "me")
