@@ -44,5 +44,5 @@ def main(args: argparse.Namespace) -> int:
         missed = [t["name"] for t in targets if not t["met"]]
         if targets:
             print(f"targets: {len(targets) - len(missed)} of {len(targets)} met"
-                  + (f"; MISSED: {', '.join(missed)}" if missed else ""))
+                  + (f"; MISSED: {'; '.join(missed)}" if missed else ""))
     return 0

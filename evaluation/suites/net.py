@@ -142,7 +142,7 @@ def udp_curve(rates_mev_s: list[float], n_events: int) -> list[dict[str, Any]]:
         tx.close()
         dt = time.perf_counter() - t0
         la = np.array(lat) * 1e6 if lat else np.array([np.nan])
-        rows.append({"target_mev_s": rate or "max", "sent_mev_s": n / dt / 1e6, "events": n,
+        rows.append({"paced_mev_s": rate or "max", "sent_mev_s": n / dt / 1e6, "events": n,
                      "received": rec.events, "loss": 1 - rec.events / n, "lost_datagrams": rec.lost,
                      "latency_p50_us": float(np.median(la)), "latency_p99_us": float(np.percentile(la, 99))})
     return rows
@@ -154,5 +154,5 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
     print(table([tcp], ["events", "received", "lossless", "mev_s"]))
     rates = [0.5, 2.0, 0.0] if quick else [0.5, 1.0, 2.0, 5.0, 10.0, 0.0]
     udp = udp_curve(rates, n // 2)
-    print(table(udp, ["target_mev_s", "sent_mev_s", "loss", "latency_p50_us", "latency_p99_us"]))
+    print(table(udp, ["paced_mev_s", "sent_mev_s", "loss", "latency_p50_us", "latency_p99_us"]))
     return {"tcp": tcp, "udp": udp}
