@@ -3,6 +3,7 @@
 The public API, re-exported from the private modules that implement it.
 """
 
+from . import camera as camera
 from ._adapters import from_structured as from_structured, to_structured as to_structured
 from ._boundary import Guard as Guard, Repair as Repair
 from ._edge import Edge as Edge
@@ -30,7 +31,7 @@ from ._samples import (
     TrackPacket as TrackPacket,
     TriggerPacket as TriggerPacket,
 )
-from ._stream import concat as concat, empty_like as empty_like, merge as merge
+from ._stream import concat as concat, empty_like as empty_like, interleave as interleave, merge as merge
 from ._pipeline import BatchPolicy as BatchPolicy, Pipeline as Pipeline, Plan as Plan
 from ._registry import Registry as Registry, get_registry as get_registry
 from ._scheduler import RunningPipeline as RunningPipeline, arun as arun, open_pipeline as open_pipeline, run as run

@@ -4,7 +4,7 @@ and empty packets shaped like a stream's."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 
 import numpy as np
 
@@ -12,7 +12,7 @@ from ._packet import EventPacket, Packet
 from ._samples import ResultPacket, SamplePacket
 from .errors import PacketError
 
-__all__ = ["concat", "merge", "empty_like"]
+__all__ = ["concat", "merge", "empty_like", "interleave"]
 
 
 def concat(packets: Iterable[Packet]) -> Packet:
@@ -60,6 +60,41 @@ def empty_like(pkt: Packet, t_start: int, t_end: int) -> Packet:
                                     int(max(t_end, t_start)), {k: v[:0] for k, v in pkt.columns.items()})
     assert isinstance(pkt, SamplePacket)
     return type(pkt).empty(t_start, t_end, like=pkt)
+
+
+def interleave(primary: Iterable[Packet], others: Sequence[Iterable[Packet]]) -> Iterator[Packet]:
+    """One source's streams in time order: before each packet of ``primary``
+    (the events, usually), every other stream up to that packet's ``t_end``
+    (a packet straddling it is split there), so that a consumer joining the
+    streams by watermark never holds one stream back waiting for another.
+    Each stream must be in order; what remains of the others follows the
+    primary's last packet. Lazy: a stream's next packet is pulled only when
+    the primary has reached its start."""
+    iters = [iter(o) for o in others]
+    held: list[Packet | None] = [None] * len(iters)
+
+    def upto(k: int, t1: int | None) -> Iterator[Packet]:
+        while True:
+            q = held[k]
+            if q is None:
+                q = next(iters[k], None)
+                if q is None:
+                    return
+            if t1 is not None and q.t_end > t1:
+                if q.t_start < t1:
+                    a, q = q.split_at(t1)
+                    yield a
+                held[k] = q
+                return
+            held[k] = None
+            yield q
+
+    for pkt in primary:
+        for k in range(len(iters)):
+            yield from upto(k, pkt.t_end)
+        yield pkt
+    for k in range(len(iters)):
+        yield from upto(k, None)
 
 
 def _join(pkts: list[Packet], t0: int, t1: int, *, sort: bool) -> Packet:

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from tectum import ImuPacket, Kind, Packet, PosePacket, FramePacket
+from tectum import FramePacket, ImuPacket, Kind, Packet, PosePacket, interleave
 
 from ._common import POOL as _POOL
 from ._common import EventAssembler, FileSource
@@ -330,6 +330,11 @@ class TextSource(FileSource):
         return out
 
     def _packets(self) -> Iterator[Packet]:
+        """The events, with the companion streams (IMU, poses, frames)
+        interleaved in time: each up to an events packet's end before it."""
+        return interleave(self._event_packets(), self._companions())
+
+    def _event_packets(self) -> Iterator[Packet]:
         """Without a sensor size from the option or an image, the extent of
         the coordinates: a small file (up to ``_HOLD`` events) is parsed once
         and held, a larger one is read twice (bounded memory)."""
@@ -361,29 +366,34 @@ class TextSource(FileSource):
                 if asm.past_end():
                     break
         yield from asm.finish()
-        yield from self._companions()
 
-    def _companions(self) -> Iterator[Packet]:
+    def _companions(self) -> list[Iterator[Packet]]:
+        """The companion streams beside ``events.txt``, each an iterator of
+        packets in time order (images are read when their turn comes)."""
+        streams: list[Iterator[Packet]] = []
         q = self._beside("imu.txt")
-        if q:
-            a = _table(q, 7)
-            if a is not None:
-                yield ImuPacket(a[0], accel=a[1][:, 0:3], gyro=a[1][:, 3:6])
+        a = _table(q, 7) if q else None
+        if a is not None:
+            streams.append(iter([ImuPacket(a[0], accel=a[1][:, 0:3], gyro=a[1][:, 3:6])]))
         q = self._beside("groundtruth.txt")
-        if q:
-            a = _table(q, 8)
-            if a is not None:
-                yield PosePacket(a[0], position=a[1][:, 0:3], orientation=a[1][:, 3:7])
+        a = _table(q, 8) if q else None
+        if a is not None:
+            streams.append(iter([PosePacket(a[0], position=a[1][:, 0:3], orientation=a[1][:, 3:7])]))
         imgs = self._images()
         if imgs:
-            import cv2
+            streams.append(self._frames(imgs))
+        return streams
 
-            for k, (t, name) in enumerate(imgs):
-                img = cv2.imread(name, cv2.IMREAD_UNCHANGED)
-                if img is None:
-                    continue
-                end = imgs[k + 1][0] if k + 1 < len(imgs) else t + 1
-                yield FramePacket(np.array([t], np.int64), images=img[None], t_start=t, t_end=max(end, t + 1))
+    @staticmethod
+    def _frames(imgs: list[tuple[int, str]]) -> Iterator[Packet]:
+        import cv2
+
+        for k, (t, name) in enumerate(imgs):
+            img = cv2.imread(name, cv2.IMREAD_UNCHANGED)
+            if img is None:
+                continue
+            end = imgs[k + 1][0] if k + 1 < len(imgs) else t + 1
+            yield FramePacket(np.array([t], np.int64), images=img[None], t_start=t, t_end=max(end, t + 1))
 
 
 def _to_us(s: bytes) -> int:
