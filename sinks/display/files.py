@@ -20,10 +20,10 @@ __all__ = ["VideoSink", "PngSink", "FrameCallbackSink"]
 class _Rendering(Sink):
     consumes = (Kind.EVENTS, Kind.RESULTS)  # results: tracks drawn over the events
 
-    def __init__(self, fps: float, mode: Mode, tau_us: float) -> None:
+    def __init__(self, fps: float, mode: Mode, tau_us: float, flow_max_px_s: float = 500.0) -> None:
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
-        self.fps, self.mode, self.tau_us = fps, mode, tau_us
+        self.fps, self.mode, self.tau_us, self.flow_max_px_s = fps, mode, tau_us, flow_max_px_s
         self.renderer: Renderer | None = None
         self.frames = 0
         self._tracks: list[ResultPacket] = []
@@ -37,13 +37,16 @@ class _Rendering(Sink):
             return []
         assert isinstance(packet, EventPacket)
         if self.renderer is None:
-            self.renderer = Renderer(packet.sensor, self.fps, self.mode, self.tau_us)
+            self.renderer = self._new_renderer(packet.sensor)
             for r in self._tracks:
                 self.renderer.add_tracks(r)
             self._tracks = []
         got = self.renderer.add(packet)
         self.frames += len(got)
         return got
+
+    def _new_renderer(self, sensor: tuple[int, int]) -> Renderer:
+        return Renderer(sensor, self.fps, self.mode, self.tau_us, flow_max_px_s=self.flow_max_px_s)
 
 
 class VideoSink(_Rendering):

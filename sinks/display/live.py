@@ -4,8 +4,11 @@ The sink renders frames (see :mod:`.render`) and serves them from a tiny
 HTTP/1.1 server on trio sockets, run in its own thread (so a slow browser
 never holds the pipeline back: it only ever gets the newest frame):
 
-* ``/`` an HTML page showing the frames and the stats, refreshed by script;
+* ``/`` an HTML page (:mod:`._page`): the newest frame scaled to the window,
+  a legend for the mode, what each panel shows, and the stats, refreshed by
+  script within the one page load;
 * ``/frame.png`` the newest frame; ``/stream.mjpg`` an MJPEG stream;
+  ``/legend.png`` the colour wheel of the ``flow_wheel`` mode;
 * ``/stats.json`` events and packets seen, event rate, frames, stream time,
   and (``pipeline``) the whole run's stats: per node packets and events in
   and out, drops, busy time, counters, latency percentiles.
@@ -25,57 +28,27 @@ import cv2
 import numpy as np
 import trio
 
-from tectum import EventPacket, Kind, Packet, ResultPacket, Sink
+from tectum import EventPacket, Packet
 
-from .render import Mode, Renderer
+from ._page import page
+from .files import _Rendering
+from .render import Mode, flow_wheel_legend
 
 __all__ = ["LiveViewSink"]
 
-_PAGE = """<!doctype html>
-<html><head><meta charset="utf-8"><title>tectum live view</title>
-<style>body{{margin:0;background:#202020;color:#ddd;font:13px monospace}}
-#f{{display:block;width:{w}px;height:{h}px;image-rendering:pixelated}}#s{{padding:4px}}</style></head>
-<body><img id="f" src="/frame.png" width="{w}" height="{h}" alt="events"><div id="s">waiting for events</div>
-<pre id="p"></pre>
-<script>
-const img = document.getElementById("f"), st = document.getElementById("s");
-let busy = false;
-function tick() {{
-  if (busy) return; busy = true;
-  const next = new Image();
-  next.onload = () => {{ img.src = next.src; busy = false; }};
-  next.onerror = () => {{ busy = false; }};
-  next.src = "/frame.png?" + Date.now();
-  fetch("/stats.json").then(r => r.json()).then(s => {{
-    st.textContent = `${{s.events}} events, ${{(s.rate_ev_s/1e6).toFixed(3)}} Mev/s, ` +
-      `frame ${{s.frames}}, t=${{(s.t_us/1e6).toFixed(3)}} s`;
-    if (s.pipeline) {{
-      let rows = ["node                      ev in      ev out   drops  latency p50/p99 ms"];
-      for (const [k, n] of Object.entries(s.pipeline.nodes)) {{
-        const l = s.pipeline.latency_us[k] || {{}};
-        const lat = l.p50 !== undefined ? `${{(l.p50/1e3).toFixed(2)}}/${{(l.p99/1e3).toFixed(2)}}` : "";
-        rows.push(`${{k.padEnd(24)}}${{String(n.events_in).padStart(8)}}${{String(n.events_out).padStart(12)}}` +
-                  `${{String(n.drops).padStart(8)}}  ${{lat}}`);
-      }}
-      document.getElementById("p").textContent = rows.join("\n");
-    }} }}).catch(() => {{}});
-}}
-setInterval(tick, {interval});
-</script></body></html>
-"""
 
-
-class LiveViewSink(Sink):
+class LiveViewSink(_Rendering):
     """Serve a live rendering of the events over HTTP (see the module
-    docstring). ``scale`` enlarges the image (integer factor); ``mode``
-    polarity or time_surface; ``tau_us`` decay of the time surface."""
+    docstring). ``mode`` polarity, time_surface, flow_wheel or flow_arrows;
+    ``tau_us`` decay of the time surface; ``flow_max_px_s`` the flow speed
+    drawn in full colour; ``scale`` enlarges the served image by an integer
+    factor (the page scales it to the window anyway)."""
 
     name = "display"
     schemes = ("http",)
-    consumes = (Kind.EVENTS, Kind.RESULTS)  # results: tracks drawn over the events
 
     def __init__(self, url: str = "http://127.0.0.1:8080", fps: float = 30.0, mode: Mode = "polarity",
-                 tau_us: float = 30_000.0, scale: int = 1) -> None:
+                 tau_us: float = 30_000.0, scale: int = 1, flow_max_px_s: float = 500.0) -> None:
         from urllib.parse import urlsplit
 
         u = urlsplit(url)
@@ -83,9 +56,9 @@ class LiveViewSink(Sink):
             raise ValueError(f"{url!r}: expected http://HOST:PORT")
         if not 1 <= scale <= 8:
             raise ValueError("scale must be 1..8")
+        super().__init__(fps, mode, tau_us, flow_max_px_s)
         self.host, self.port = u.hostname, u.port
-        self.fps, self.mode, self.tau_us, self.scale = fps, mode, tau_us, scale
-        self.renderer: Renderer | None = None
+        self.scale = scale
         self._lock = threading.Lock()
         self._png: bytes | None = None
         self._jpeg: bytes | None = None
@@ -112,20 +85,16 @@ class LiveViewSink(Sink):
             raise OSError(f"live view could not listen on {self.host}:{self.port}: {self._error}")
 
     def write(self, packet: Packet) -> None:
-        if isinstance(packet, ResultPacket):
-            if self.renderer is not None:
-                self.renderer.add_tracks(packet)
+        frames = self._frames(packet)
+        if not isinstance(packet, EventPacket):
             return
-        assert isinstance(packet, EventPacket)
-        if self.renderer is None:
-            self.renderer = Renderer(packet.sensor, self.fps, self.mode, self.tau_us)
-            self._t_wall0 = time.perf_counter()
-        frames = self.renderer.add(packet)
         st = self._stats
+        if self._t_wall0 is None:
+            self._t_wall0 = time.perf_counter()
         st["events"] += len(packet)
         st["packets"] += 1
         st["t_us"] = packet.t_end
-        st["rate_ev_s"] = st["events"] / max(1e-6, time.perf_counter() - (self._t_wall0 or 0.0))
+        st["rate_ev_s"] = st["events"] / max(1e-6, time.perf_counter() - self._t_wall0)
         if frames:
             img = frames[-1][1]
             if self.scale > 1:
@@ -186,11 +155,12 @@ class LiveViewSink(Sink):
             await stream.aclose()
 
     def _response(self, path: str) -> bytes:
+        r = self.renderer or self._new_renderer((1, 1))  # its settings, before the first events
         if path in ("/", "/index.html"):
-            w, h = self.renderer.sensor if self.renderer else (346, 260)
-            body = _PAGE.format(w=w * self.scale, h=h * self.scale,
-                                interval=max(20, int(1000 / self.fps))).encode()
+            body = page(r, self.renderer.sensor if self.renderer else None, max(20, int(1000 / self.fps)))
             return _http(200, "text/html; charset=utf-8", body)
+        if path == "/legend.png":
+            return _http(200, "image/png", cv2.imencode(".png", flow_wheel_legend(96, r.flow_max))[1].tobytes())
         if path == "/frame.png":
             with self._lock:
                 png = self._png
@@ -199,7 +169,7 @@ class LiveViewSink(Sink):
                 png = buf.tobytes()
             return _http(200, "image/png", png)
         if path == "/stats.json":
-            body = dict(self._stats)
+            body = dict(self._stats, tracks=len(r.tracks) + len(self._tracks))
             if self._run_stats is not None:
                 try:
                     body["pipeline"] = self._run_stats.as_dict()

@@ -28,7 +28,7 @@ from numba import njit
 
 from tectum import EventPacket, ResultPacket
 
-__all__ = ["Renderer", "BACKGROUND", "ON_COLOUR", "OFF_COLOUR"]
+__all__ = ["Renderer", "flow_wheel_legend", "BACKGROUND", "ON_COLOUR", "OFF_COLOUR", "TRACK_COLOUR"]
 
 #: BGR colours (OpenCV order) of the background and of ON / OFF events.
 BACKGROUND = (40, 40, 40)
@@ -139,6 +139,22 @@ def draw(last_t: np.ndarray, last_p: np.ndarray, now: np.int64, window_us: np.in
                 a = 1.0 if lt >= now - window_us and lt >= 0 else 0.0
             for k in range(3):
                 out[r, c, k] = np.uint8(bg[k] + a * (col[k] - bg[k]))
+
+
+def flow_wheel_legend(size: int, flow_max_px_s: float) -> np.ndarray:
+    """The key to ``flow_wheel`` pictures, (size, size, 3) BGR uint8: each
+    pixel of a disc coloured as a flow pointing from the centre to it, full
+    speed (``flow_max_px_s``) on the rim; drawn by the same kernel."""
+    c = (size - 1) / 2
+    yy, xx = np.mgrid[0:size, 0:size].astype(np.float32)
+    dx, dy = (xx - c) / c, (yy - c) / c
+    outside = dx * dx + dy * dy > 1.0
+    vx = np.where(outside, np.nan, dx * flow_max_px_s).astype(np.float32)
+    vy = np.where(outside, np.nan, dy * flow_max_px_s).astype(np.float32)
+    out = np.empty((size, size, 3), np.uint8)
+    draw_wheel(np.zeros((size, size), np.int64), vx, vy, np.int64(0), np.int64(1), float(flow_max_px_s),
+               np.array(BACKGROUND, np.float64), out)
+    return out
 
 
 class Renderer:
