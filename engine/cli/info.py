@@ -34,6 +34,9 @@ def main(args: argparse.Namespace) -> int:
              ("rate", f"{info['rate_mev_s']:.4f} Mev/s"),
              ("streams", ", ".join(f"{k} {v:,}" for k, v in info["streams"].items()) or "none"),
              ("t0 offset", f"{info['t0_offset_us']} µs")]
+    for key in ("time_unit", "columns"):  # text files: what was assumed, and why
+        if isinstance(info.get(key), str):
+            lines.append((key.replace("_", " "), info[key]))
     if info.get("skipped_events"):
         lines.append(("skipped", str(info["skipped_events"])))
     for k, v in lines:

@@ -1,8 +1,10 @@
 """Event text files: the UZH/RPG event-camera dataset ``events.txt`` and CSV.
 
 One event per line, four numbers separated by spaces, tabs or commas, in
-the order given by ``columns`` (default ``txyp``) with time in ``time_unit``
-(default seconds, as in the dataset: ``0.003811000 96 133 0``). Polarity
+the order given by ``columns`` with time in ``time_unit``; without those
+options, the header's names and the form of the times decide (decimals are
+seconds, as in the dataset: ``0.003811000 96 133 0``; integers µs; see
+:mod:`._text_layout`), and :meth:`TextSource.info` says which. Polarity
 0/1 or -1/+1. Lines starting with ``#`` or ``%`` and a header line with
 letters (``t,x,y,p``) are skipped. Time is parsed from the decimal text
 exactly into integer µs (rounded half up below 1 µs), never through a float.
@@ -28,6 +30,7 @@ from tectum import FramePacket, ImuPacket, Kind, Packet, PosePacket, interleave
 
 from ._common import POOL as _POOL
 from ._common import EventAssembler, FileSource
+from ._text_layout import TextLayout, text_layout
 
 __all__ = ["TextSource", "parse_lines"]
 
@@ -218,9 +221,11 @@ class TextSource(FileSource):
     Parameters (besides :class:`FileSource`'s)
     ------------------------------------------
     columns:
-        Column order, a permutation of ``txyp`` (e.g. ``xytp``).
+        Column order, a permutation of ``txyp`` (e.g. ``xytp``); default:
+        the header's, else ``txyp``.
     time_unit:
-        ``s`` (default, as in the RPG dataset), ``ms``, ``us`` or ``ns``.
+        ``s``, ``ms``, ``us`` or ``ns``; default: the unit the header names,
+        else seconds for decimal times (the RPG dataset) and µs for integers.
     companions:
         Read ``imu.txt``, ``groundtruth.txt`` and ``images.txt`` beside an
         ``events.txt`` as IMU, pose and frame streams.
@@ -231,15 +236,17 @@ class TextSource(FileSource):
     extensions = (".txt", ".csv")
     produces = (Kind.EVENTS, Kind.IMU, Kind.POSES, Kind.FRAMES)
 
-    def __init__(self, path: str, columns: str = "txyp", time_unit: str = "s", companions: bool = True,
-                 **kw: Any) -> None:
+    def __init__(self, path: str, columns: str | None = None, time_unit: str | None = None,
+                 companions: bool = True, **kw: Any) -> None:
         super().__init__(path, **kw)
-        if sorted(columns) != sorted("txyp"):
+        if columns is not None and sorted(columns) != sorted("txyp"):
             raise ValueError(f"columns must be a permutation of 'txyp', got {columns!r}")
-        if time_unit not in _UNIT_DIGITS:
+        if time_unit is not None and time_unit not in _UNIT_DIGITS:
             raise ValueError(f"time_unit must be one of {list(_UNIT_DIGITS)}")
         self.columns = columns
         self.time_unit = time_unit
+        #: Column order and time unit used, and why (known once reading starts).
+        self.layout: TextLayout | None = None
         self.companions = companions
 
     @classmethod
@@ -253,8 +260,10 @@ class TextSource(FileSource):
         from index 0); the line offsets are a function, computed (by parsing
         the chunk again) only when something is wrong."""
         f = self._open()
-        order = np.array(["txyp".index(c) for c in self.columns], np.int64)
-        digits = _UNIT_DIGITS[self.time_unit]
+        self.layout = lay = text_layout(f.read(1 << 16), self.columns, self.time_unit)
+        f.seek(0)
+        order = np.array(["txyp".index(c) for c in lay.columns], np.int64)
+        digits = _UNIT_DIGITS[lay.time_unit]
         no_where = np.empty(0, np.int64)
         pos = 0
         rest = b""
@@ -299,6 +308,15 @@ class TextSource(FileSource):
             pos += used
             if eof and bad < 0:
                 return
+
+    def info(self) -> dict[str, Any]:
+        """:meth:`FileSource.info` with the time unit and column order used,
+        each with its reason (``"us (the times are integers: µs)"``)."""
+        out = super().info()
+        if self.layout is not None:
+            out["time_unit"] = f"{self.layout.time_unit} ({self.layout.time_unit_from})"
+            out["columns"] = f"{self.layout.columns} ({self.layout.columns_from})"
+        return out
 
     def _sensor_guess(self) -> tuple[int, int] | None:
         imgs = self._images()

@@ -1,0 +1,90 @@
+"""The layout of an event text file, read from its first lines: the column
+order and the unit of the time column, each with the reason it was chosen.
+
+The unit comes, in this order of trust, from the ``time_unit`` option, from
+a header that names it (``t_us``, ``timestamp[ns]``, ``time (s)``), or from
+the form of the values: decimals are seconds (the RPG ``events.txt``
+layout, ``0.003811000 96 133 0``), integers are µs (the common CSV export),
+integers of 18 or more digits ns since the epoch. The column order comes
+from the ``columns`` option, else from a header naming all four columns
+(``timestamp,x,y,polarity``; ``x@320`` as event-stream tools write it), else
+``txyp``.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+__all__ = ["TextLayout", "text_layout", "UNITS"]
+
+#: Units of the time column and their names in headers.
+UNITS = {"s": "s", "sec": "s", "seconds": "s", "ms": "ms", "msec": "ms", "us": "us", "µs": "us", "usec": "us",
+         "microseconds": "us", "ns": "ns", "nsec": "ns", "nanoseconds": "ns"}
+_TIME = ("t", "ts", "time", "timestamp", "timestamps")
+_FIELDS = {"x": "x", "y": "y", "p": "p", "pol": "p", "polarity": "p", "on": "p", "sign": "p", **{n: "t" for n in _TIME}}
+_UNIT = "|".join(sorted(map(re.escape, UNITS), key=len, reverse=True))
+# a time column's name with its unit: t_us, timestamp-ns, time (s), t[us]
+_TIME_WITH_UNIT = re.compile(rf"^({'|'.join(_TIME)})(?:[ _-]+({_UNIT})|\s*[\[(]\s*({_UNIT})\s*[\])])$")
+_EPOCH_NS_DIGITS = 18  # 1e17 ns is 1973: shorter integers are taken for µs
+
+
+@dataclass(frozen=True)
+class TextLayout:
+    """Column order (a permutation of ``txyp``), time unit (``s``, ``ms``,
+    ``us``, ``ns``) and, for each, why."""
+
+    columns: str
+    columns_from: str
+    time_unit: str
+    time_unit_from: str
+
+
+def _header(head: bytes) -> tuple[list[str], list[bytes]]:
+    """The header's names (lower case, ``@size`` dropped; empty without a
+    header) and the first data lines."""
+    lines = [ln.strip() for ln in head.split(b"\n")[:-1]]
+    lines = [ln for ln in lines if ln and not ln.startswith((b"#", b"%"))]
+    if lines and re.search(rb"[A-Za-z]", lines[0]):
+        text = lines[0].decode("utf-8", "replace").lower()
+        return [re.sub(r"@\d+$", "", n.strip()) for n in re.split(r"[,\t;]| (?![\[(])", text) if n.strip()], lines[1:21]
+    return [], lines[:20]
+
+
+def _field(name: str) -> tuple[str | None, str | None]:
+    """(field, unit) a header name stands for: ``"t_us"`` -> ``("t", "us")``."""
+    if name in _FIELDS:
+        return _FIELDS[name], None
+    m = _TIME_WITH_UNIT.match(name)
+    if m:
+        return "t", UNITS[m.group(2) or m.group(3)]
+    return None, None
+
+
+def text_layout(head: bytes, columns: str | None = None, time_unit: str | None = None) -> TextLayout:
+    """The layout of a text file starting with ``head`` (a few kB), the
+    options (None: decide from the file) taking precedence."""
+    names, data = _header(head)
+    fields = [_field(n) for n in names]
+    order = "".join(f for f, _ in fields if f)
+    if columns:
+        cols, cols_from = columns, "the columns option"
+    elif len(names) == 4 and sorted(order) == sorted("txyp"):
+        cols, cols_from = order, f"the header {','.join(names)!r}"
+    else:
+        cols, cols_from = "txyp", "no header naming t, x, y and p: the default"
+    named = [(n, u) for n, (f, u) in zip(names, fields) if f == "t" and u]
+    if time_unit:
+        return TextLayout(cols, cols_from, time_unit, "the time_unit option")
+    if named:
+        return TextLayout(cols, cols_from, named[0][1], f"the header names the time column {named[0][0]!r}")
+    k = cols.index("t")
+    times = [f[k] for f in (re.split(rb"[ \t,;]+", ln) for ln in data) if len(f) > k]
+    if not times:
+        return TextLayout(cols, cols_from, "s", "no times to judge by: seconds, as in the RPG events.txt")
+    if any(b"." in v for v in times):
+        return TextLayout(cols, cols_from, "s", "the times are decimals: seconds, as in the RPG events.txt")
+    if max(len(v.lstrip(b"+-")) for v in times) >= _EPOCH_NS_DIGITS:
+        return TextLayout(cols, cols_from, "ns", f"the times are integers of {_EPOCH_NS_DIGITS}+ digits: "
+                                                 "ns since the epoch")
+    return TextLayout(cols, cols_from, "us", "the times are integers: µs")
