@@ -63,7 +63,8 @@ class Repair:
     _released: int | None = None
     _newest: int | None = None
 
-    def __call__(self, pkt: EventPacket) -> list[EventPacket]:
+    def __call__(self, pkt: Packet) -> list[Packet]:
+        """The repaired events of ``pkt`` that are ready (other kinds pass as they are)."""
         if not isinstance(pkt, EventPacket):
             return [pkt]
         w, h = pkt.sensor

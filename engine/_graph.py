@@ -22,9 +22,9 @@ from time import perf_counter_ns
 from typing import Any
 
 from ._operator import Operator, as_packets
-from ._packet import Kind, Packet, accepts
+from ._packet import EventPacket, Kind, Packet, accepts
 from ._pipeline import Plan
-from ._stats import Stats
+from ._stats import NodeStats, Stats
 from ._stream import concat, empty_like, merge
 from .errors import NodeError, TectumError
 
@@ -124,12 +124,22 @@ class PortJoin:
             else:
                 keep.append(q)
         self.pending[port] = keep
+        if len(pieces) == 1:
+            q = pieces[0]
+            if q.t_start == t0 and q.t_end == t1:
+                return q
+            return _reinterval(q, t0, t1)
         pieces = [q for q in pieces if len(q)]
         if not pieces:
             return empty_like(proto, t0, t1)
-        if len(pieces) == 1:
-            return pieces[0].with_interval(t0, t1)  # type: ignore[attr-defined,no-any-return]
-        return concat(pieces).with_interval(t0, t1)  # type: ignore[attr-defined,no-any-return]
+        return _reinterval(pieces[0] if len(pieces) == 1 else concat(pieces), t0, t1)
+
+
+def _reinterval(pkt: Packet, t0: int, t1: int) -> Packet:
+    """``pkt``'s samples with the interval ``[t0, t1)``, which holds them (no check)."""
+    if isinstance(pkt, EventPacket):
+        return EventPacket._trusted(pkt.t, pkt.x, pkt.y, pkt.p, pkt.sensor, t0, t1, pkt.columns)
+    return pkt._trusted(pkt.t, pkt.data, t0, t1)  # type: ignore[attr-defined,no-any-return]
 
 
 class Merger:
@@ -196,6 +206,7 @@ class _Node:
 
     def __init__(self, nid: str) -> None:
         self.id = nid
+        self.st: NodeStats = NodeStats()
         self.op: Operator | None = None
         self.consumes: tuple[Kind, ...] = ()
         self.routes: tuple[tuple[int, Any, Any], ...] = ()
@@ -307,7 +318,7 @@ class Graph:
                 node = plan.nodes[child]
                 crec = recs[child]
                 if node.role == "sink":
-                    routes.append((_SINK, child, tuple(node.cls.consumes)))
+                    routes.append((_SINK, child, tuple(node.cls.consumes)))  # type: ignore[attr-defined]
                 elif crec.ports:
                     for port, up in crec.ports.items():
                         if up == nid:
@@ -344,10 +355,31 @@ class Graph:
                     self._dispatch(child, b, out)
 
     def _run(self, rec: _Node, pkt: Packet, out: list[Delivery]) -> None:
+        # The hot path of one-input operators (event by event: once per
+        # event per operator), so _call's work is inlined here.
         if pkt.kind not in rec.consumes:
             self._emit(rec, pkt, out)  # passes by
             return
-        self._dispatch(rec, pkt, out)
+        if rec.offload:
+            out.append(("offload:" + rec.id, pkt))
+            return
+        st = rec.st
+        st.packets_in += 1
+        st.events_in += pkt.t.shape[0]
+        t0 = perf_counter_ns()
+        try:
+            res = rec.op.process(pkt)  # type: ignore[union-attr]
+            if rec.ticks:
+                res = list(as_packets(res)) + list(as_packets(rec.op.on_tick(pkt.t_end)))  # type: ignore[union-attr]
+        except NodeError:
+            raise
+        except Exception as e:
+            raise NodeError(rec.id, e) from e
+        st.busy_ns += perf_counter_ns() - t0
+        for q in res if type(res) is list else as_packets(res):
+            st.packets_out += 1
+            st.events_out += q.t.shape[0]
+            self._emit(rec, q, out)
 
     def _dispatch(self, rec: _Node, item: Packet | Batch, out: list[Delivery]) -> None:
         if rec.offload:

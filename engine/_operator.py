@@ -219,7 +219,7 @@ class Sink:
 
 def component_params(cls: type) -> dict[str, inspect.Parameter]:
     """The keyword parameters a component's ``__init__`` accepts, by name."""
-    sig = inspect.signature(cls.__init__)
+    sig = inspect.signature(cls.__init__)  # type: ignore[misc]  # the class's own constructor
     return {
         n: p
         for n, p in list(sig.parameters.items())[1:]
@@ -240,7 +240,7 @@ def coerce_param(cls: type, name: str, value: Any) -> Any:
     """Convert ``value`` (from TOML or a ``k=v`` string) to the annotated type."""
     import typing
 
-    hints = typing.get_type_hints(cls.__init__)
+    hints = typing.get_type_hints(cls.__init__)  # type: ignore[misc]  # the class's own constructor
     typ = hints.get(name)
     if typ is None:
         return value

@@ -268,6 +268,11 @@ class EventPacket(Packet):
 
     __slots__ = ("t", "x", "y", "p", "sensor", "columns")
     kind = Kind.EVENTS
+    x: np.ndarray
+    y: np.ndarray
+    p: np.ndarray
+    sensor: tuple[int, int]
+    columns: Mapping[str, np.ndarray]
 
     def __init__(
         self,

@@ -136,7 +136,7 @@ class Pipeline:
         instead (re-sorted within ``W`` µs, bad events dropped, all counted
         in the stats)."""
         comp = arg if isinstance(arg, Source) else None
-        name = arg.name if comp is not None else str(arg)
+        name = comp.name if comp is not None else str(arg)
         if repair is not None and repair < 0:
             raise PipelineError("repair window must be >= 0 µs")
         return self._add(NodeSpec(id or self._auto_id("source" if comp else name), "source", name,
@@ -179,7 +179,7 @@ class Pipeline:
         upstream waits), ``keep_latest`` (the oldest is dropped) or ``drop``
         (the new one is dropped). Drops are counted in the stats."""
         comp = arg if isinstance(arg, Sink) else None
-        name = arg.name if comp is not None else str(arg)
+        name = comp.name if comp is not None else str(arg)
         return self._add(NodeSpec(id or self._auto_id("sink" if comp else name), "sink", name,
                                   MappingProxyType(dict(params)), (input,), policy, buffer, comp))
 
@@ -364,7 +364,7 @@ def _validate(p: Pipeline, reg: Registry) -> Plan:
         s = specs[nid]
         cls = classes[nid]
         params = _check_params(s, cls, params_of[nid])
-        decl = s.component if s.component is not None else cls  # instances may narrow their kinds
+        decl: Any = s.component if s.component is not None else cls  # instances may narrow their kinds
         inputs = inputs_of[nid]
         wired: dict[str, str] = {}
         if s.role == "source":

@@ -30,7 +30,7 @@ class Entry:
 
     role: Role
     name: str
-    cls: type
+    cls: Any  # an Operator, Source, Sink or Packet subclass
     owner: str
 
 
@@ -64,7 +64,7 @@ class Registry:
         base = {"operator": Operator, "source": Source, "sink": Sink}[role]
         if not (isinstance(cls, type) and issubclass(cls, base)):
             raise RegistryError(f"plugin {owner!r} registered {cls!r} as a {role}, but it is not a {base.__name__} subclass")
-        name = cls.name
+        name: str = getattr(cls, "name", "")
         if role == "operator":
             m = _OP_NAME.match(name or "")
             if not m or m.group(1) not in FAMILIES:
@@ -142,15 +142,15 @@ class Registry:
                     head = f.read(4096)
             except OSError as e:
                 raise FormatError(f"cannot open: {e.strerror}", path=arg) from None
-            for e in table.values():
-                if e.cls.sniff(head):
-                    return e.cls
+            for entry in table.values():
+                if entry.cls.sniff(head):
+                    return entry.cls  # type: ignore[no-any-return]
         lower = arg.lower()
         best = None
-        for e in table.values():
-            for ext in e.cls.extensions:
+        for entry in table.values():
+            for ext in entry.cls.extensions:
                 if lower.endswith(ext) and (best is None or len(ext) > best[0]):
-                    best = (len(ext), e.cls)
+                    best = (len(ext), entry.cls)
         if best:
             return best[1]
         exts = ", ".join(sorted({x for e in table.values() for x in e.cls.extensions}))

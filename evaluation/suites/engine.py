@@ -1,6 +1,8 @@
 """Engine overhead: per packet and per operator, event-by-event and
-micro-batch throughput through a chain of trivial operators, and paced
-end-to-end latency."""
+micro-batch throughput through a chain of trivial operators, paced
+end-to-end latency; the cost of joining named ports (events + poses) by
+watermark; and the latency of a fast operator's output while a slow,
+offloaded operator runs beside it on the same source."""
 
 from __future__ import annotations
 
@@ -11,7 +13,7 @@ from typing import Any
 import numpy as np
 
 import tectum
-from tectum import EventPacket, Operator, Pipeline
+from tectum import EventPacket, Kind, Operator, Pipeline, Port, PosePacket
 from tectum.testing import ListSource
 
 from tectum.evaluation.harness import TARGET_COLUMNS, table, target, target_row
@@ -77,6 +79,93 @@ def per_operator_overhead(pk: EventPacket, max_events: int) -> float:
     return float(np.polyfit(x, y, 1)[0])
 
 
+class PortIdentity(Operator):
+    """Two ports (events, poses); passes the events on (measures the join)."""
+
+    name = "map.ports_bench"
+    inputs = {"events": Port(Kind.EVENTS), "poses": Port(Kind.POSES)}
+
+    def process_ports(self, ports: Any) -> list[EventPacket]:
+        ev = ports.get("events")
+        return [ev] if ev is not None else []
+
+
+class Sleeper(Operator):
+    """A slow operator: ``cost_us`` of GIL-free work per packet (a sleep,
+    standing in for a kernel that releases the GIL)."""
+
+    name = "filter.sleeper_bench"
+    heavy = True
+
+    def __init__(self, cost_us: float) -> None:
+        self.cost_s = cost_us * 1e-6
+
+    def process(self, packet: EventPacket) -> list[EventPacket]:
+        time.sleep(self.cost_s)
+        return [packet]
+
+
+def pose_stream(t_end: int, rate_hz: float = 1000.0) -> PosePacket:
+    """Poses at ``rate_hz`` over ``[0, t_end)`` µs."""
+    t = np.arange(0, t_end, int(1e6 / rate_hz), dtype=np.int64)
+    return PosePacket(t, position=np.zeros((len(t), 3)), orientation=np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1)),
+                      t_start=0, t_end=t_end)
+
+
+def _ports_pipeline(pk: EventPacket, **batch: Any) -> Pipeline:
+    from tectum.sinks.null import NullSink
+
+    p = Pipeline(**batch)
+    ev = p.source(ListSource([pk]), id="src")
+    ps = p.source(ListSource([pose_stream(pk.t_end)]), id="poses")
+    p.op(PortIdentity(), events=ev, poses=ps, id="join")
+    p.sink(NullSink(), "join", id="sink")
+    return p
+
+
+def port_join(pk: EventPacket, max_events: int) -> dict[str, float]:
+    """Events/s through a two-port operator (events + 1 kHz poses) and the
+    join's overhead per events packet against one identity operator."""
+    _run(_ports_pipeline(pk, max_events=max_events))  # warm-up
+    best, packets = float("inf"), 0
+    for _ in range(3):
+        dt, _cpu, stats = _run(_ports_pipeline(pk, max_events=max_events))
+        best = min(best, dt)
+        packets = stats.nodes["src"].packets_out
+    one = chain_rate(pk, 1, max_events)
+    return {"events_s": len(pk) / best, "packets": packets,
+            "join_overhead_us_per_packet": (best / packets - one["us_per_packet"] * 1e-6) * 1e6}
+
+
+def paced_ports_latency(rate_hz: float, duration_s: float, window_us: int) -> dict[str, float]:
+    """Latency percentiles (µs) of a two-port operator's output, events at
+    ``rate_hz`` and poses at 1 kHz replayed in real time."""
+    pk = stream(int(rate_hz * duration_s), rate_hz)
+    return tectum.run(_ports_pipeline(pk, pace=1.0, max_latency_us=window_us)).latency["sink"].percentiles()
+
+
+def fast_beside_slow(rate_hz: float, duration_s: float, window_us: int, cost_us: float) -> dict[str, Any]:
+    """Latency (µs) of a fast operator's output, alone and with a slow
+    operator (``cost_us`` per packet, offloaded, and inline) fed by the
+    same paced source."""
+    from tectum.sinks.null import NullSink
+
+    pk = stream(int(rate_hz * duration_s), rate_hz)
+
+    def build(slow: bool | None) -> Pipeline:
+        p = Pipeline(pace=1.0, max_latency_us=window_us)
+        src = p.source(ListSource([pk]), id="src")
+        p.sink(NullSink(), p.op(Identity(), src, id="fast"), id="fast_sink")
+        if slow is not None:
+            p.sink(NullSink(), p.op(Sleeper(cost_us), src, id="slow", offload=slow), id="slow_sink")
+        return p
+
+    out: dict[str, Any] = {}
+    for label, slow in (("alone", None), ("offloaded_slow_beside", True), ("inline_slow_beside", False)):
+        out[label] = tectum.run(build(slow)).latency["fast_sink"].percentiles()
+    return out
+
+
 def paced_latency(rate_hz: float, duration_s: float, window_us: int) -> dict[str, float]:
     """Latency percentiles (µs) replaying ``rate_hz`` in real time, released
     in ``window_us`` windows, through 3 identity operators."""
@@ -113,5 +202,27 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
         {"measure": "latency p50 @1 Mev/s, 1 ms", "value": lat.get("p50", float("nan")), "unit": "µs"},
         target_row(p99),
     ]
+    ports_ebe = port_join(stream(n_ebe), 1)
+    ports_mb = port_join(stream(n_mb // 5), 4096)
+    ports_lat = paced_ports_latency(1e6, 1.0 if quick else 3.0, 1000)
+    side = fast_beside_slow(2e5, 1.0 if quick else 3.0, 1000, 400.0)
+    res.update({"ports_event_by_event": ports_ebe, "ports_micro_batch_4096": ports_mb,
+                "ports_latency_1mevs_1ms_us": ports_lat, "fast_beside_slow_us": side})
+    p99_ports = target("two ports, latency p99 @1 Mev/s, 1 ms", ports_lat.get("p99", float("nan")), 1000.0, "µs",
+                       higher_is_better=False)
+    alone, beside = side["alone"].get("p99", float("nan")), side["offloaded_slow_beside"].get("p99", float("nan"))
+    no_rise = target("fast op p99 with a slow offloaded op beside / alone", beside / alone, 1.25, "x",
+                     higher_is_better=False)
+    rows += [
+        {"measure": "two ports, event by event", "value": ports_ebe["events_s"], "unit": "events/s"},
+        {"measure": "port join per packet (ebe)", "value": ports_ebe["join_overhead_us_per_packet"], "unit": "µs"},
+        {"measure": "port join per packet (4096)", "value": ports_mb["join_overhead_us_per_packet"], "unit": "µs"},
+        target_row(p99_ports),
+        {"measure": "fast op p99, alone", "value": alone, "unit": "µs"},
+        {"measure": "fast op p99, slow op offloaded beside", "value": beside, "unit": "µs"},
+        {"measure": "fast op p99, slow op inline beside", "value": side["inline_slow_beside"].get("p99", float("nan")),
+         "unit": "µs"},
+        target_row(no_rise),
+    ]
     print(table(rows, TARGET_COLUMNS))
-    return {**res, "targets": [ebe_wall, ebe_cpu, per_op, p99]}
+    return {**res, "targets": [ebe_wall, ebe_cpu, per_op, p99, p99_ports, no_rise]}
