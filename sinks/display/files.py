@@ -4,13 +4,13 @@ to PNG snapshots, and to a Python callback."""
 from __future__ import annotations
 
 import os
-import tempfile
 from collections.abc import Callable
 
 import cv2
 import numpy as np
 
 from tectum import EventPacket, Kind, Packet, ResultPacket, Sink
+from tectum.sinks.files._common import temp_beside
 
 from .render import MODES, Mode, Renderer
 
@@ -68,8 +68,7 @@ class VideoSink(_Rendering):
         for _t, img in self._frames(packet):
             if self._writer is None:
                 ext = os.path.splitext(self.path)[1].lower()
-                fd, self._tmp = tempfile.mkstemp(suffix=ext, prefix=".tectum-video-",
-                                                 dir=os.path.dirname(os.path.abspath(self.path)))
+                fd, self._tmp = temp_beside(self.path, ext)
                 os.close(fd)
                 fourcc = cv2.VideoWriter_fourcc(*("mp4v" if ext == ".mp4" else "MJPG"))
                 h, w = img.shape[:2]

@@ -4,12 +4,12 @@
 from __future__ import annotations
 
 import os
-import tempfile
+import secrets
 from typing import IO, Any, ClassVar
 
 from tectum import EventPacket, Kind, Packet, Sink
 
-__all__ = ["FileSink"]
+__all__ = ["FileSink", "temp_beside", "discard", "write_all"]
 
 
 class FileSink(Sink):
@@ -27,10 +27,7 @@ class FileSink(Sink):
         self.count = 0
 
     def open(self) -> None:
-        parent = os.path.dirname(os.path.abspath(self.path))
-        if not os.path.isdir(parent):
-            raise FileNotFoundError(f"folder {parent!r} does not exist")
-        fd, self._tmp = tempfile.mkstemp(prefix=".tectum-", suffix=".part", dir=parent)
+        fd, self._tmp = temp_beside(self.path)
         self.f = os.fdopen(fd, "w+b")
 
     def write(self, packet: Packet) -> None:
@@ -93,6 +90,23 @@ class FileSink(Sink):
             self.f = None
         discard(self._tmp)
         self._tmp = None
+
+
+def temp_beside(path: str, suffix: str = ".part") -> tuple[int, str]:
+    """A new empty file in the folder of ``path``, to be renamed onto it when
+    complete: ``(fd open for reading and writing, its name)``. Created with
+    mode 0o666 less the umask, as the target itself would be (mkstemp's
+    0o600 would make every output private). The folder must exist."""
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        raise FileNotFoundError(f"folder {parent!r} does not exist")
+    flags = os.O_RDWR | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
+    while True:
+        name = os.path.join(parent, f".tectum-{secrets.token_hex(6)}{suffix}")
+        try:
+            return os.open(name, flags, 0o666), name
+        except FileExistsError:  # 2^48 names: another writer drew the same one
+            continue
 
 
 def discard(path: str | None) -> None:

@@ -11,14 +11,13 @@ a fifth smaller), ``lzf`` (h5py and PyTables only) or ``none``."""
 from __future__ import annotations
 
 import os
-import tempfile
 from typing import Any
 
 import numpy as np
 
 from tectum import EventPacket, Packet, Sink
 
-from ._common import discard
+from ._common import discard, temp_beside
 
 __all__ = ["Hdf5Sink"]
 
@@ -47,8 +46,7 @@ class Hdf5Sink(Sink):
         from tectum.sources.files.hdf5 import _h5py
 
         h5py = _h5py()
-        parent = os.path.dirname(os.path.abspath(self.path))
-        fd, self._tmp = tempfile.mkstemp(prefix=".tectum-", suffix=".h5.part", dir=parent)
+        fd, self._tmp = temp_beside(self.path, ".h5.part")
         os.close(fd)
         self.h = h5py.File(self._tmp, "w")
         g = self.h.create_group("events")
