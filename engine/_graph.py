@@ -112,9 +112,14 @@ class PortJoin:
 
     def _take(self, port: str, t0: int, t1: int, proto: Packet) -> Packet:
         """The port's data in ``[t0, t1)`` as one packet with that interval."""
+        pending = self.pending[port]
+        if pending:  # the common case: a sparse stream with nothing before t1
+            q = pending[0]
+            if q.t_end > t1 and (q.t.shape[0] == 0 or q.t[0] >= t1):
+                return empty_like(proto, t0, t1)  # all held samples lie at or after t1: held as they are
         pieces: list[Packet] = []
         keep: list[Packet] = []
-        for q in self.pending[port]:
+        for q in pending:
             if q.t_end <= t1:
                 pieces.append(q)
             elif q.t_start < t1:
