@@ -48,3 +48,13 @@ from .errors import (
 from .hookspecs import hookimpl as hookimpl
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str) -> object:
+    """``tectum.testing`` (test helpers, which import hypothesis) is loaded on
+    first use, so ``import tectum`` stays light and the README's check works."""
+    if name == "testing":
+        import importlib
+
+        return importlib.import_module(".testing", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
