@@ -4,10 +4,10 @@ kernels that are importable on their own."""
 
 from __future__ import annotations
 
+from tectum.camera import Camera, read_calibration, read_uzh_calib
 from tectum.hookspecs import hookimpl
 
 from .background_activity import BackgroundActivity, background_activity_kernel
-from .calibration import Camera, read_calibration, read_uzh_calib
 from .geometry import Downsample, Flip, Roi, Rotate
 from .hot_pixel import HotPixel
 from .mask import Mask

@@ -8,8 +8,7 @@ import numpy as np
 from numba import njit
 
 from tectum import EventPacket, Operator
-
-from .calibration import Camera, read_calibration
+from tectum.camera import Camera, read_calibration
 
 __all__ = ["Undistort", "undistort_lut", "packed_lut", "lut_kernel", "kept_index_kernel"]
 
@@ -17,18 +16,14 @@ __all__ = ["Undistort", "undistort_lut", "packed_lut", "lut_kernel", "kept_index
 def undistort_lut(camera: Camera, sensor: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """Where each pixel of a ``sensor`` (w, h) lands after undistortion (and
     rectification when ``camera.R`` is set), to the nearest pixel of the
-    same-size output image projected with ``camera.P`` (else ``K``).
-    Returns ``(lut_x, lut_y)``, int32 (H, W), -1 where it lands outside."""
-    import cv2
-
+    same-size output image projected with ``camera.P`` (else ``K``), from
+    :meth:`Camera.undistort_maps <tectum.camera.Camera.undistort_maps>`.
+    Returns ``(lut_x, lut_y)``, int32 (H, W), -1 where it lands outside (or
+    where the lens model has no inverse)."""
     w, h = sensor
-    gx, gy = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    pts = np.stack([gx.ravel(), gy.ravel()], axis=1).reshape(-1, 1, 2)
-    P = camera.P if camera.P is not None else camera.K
-    und = cv2.undistortPoints(pts, camera.K, camera.D if camera.D.size else None, R=camera.R, P=P)
-    ux = np.rint(und[:, 0, 0]).reshape(h, w)
-    uy = np.rint(und[:, 0, 1]).reshape(h, w)
-    ok = np.isfinite(ux) & np.isfinite(uy) & (ux >= 0) & (ux < w) & (uy >= 0) & (uy < h)
+    mx, my = camera.undistort_maps(sensor)
+    ux, uy = np.rint(mx), np.rint(my)
+    ok = (ux >= 0) & (ux < w) & (uy >= 0) & (uy < h)  # false on NaN
     lut_x = np.where(ok, ux, -1).astype(np.int32)
     lut_y = np.where(ok, uy, -1).astype(np.int32)
     return lut_x, lut_y
@@ -50,7 +45,7 @@ _LUTS_MAX = 8
 def _cached_lut(camera: Camera, sensor: tuple[int, int]) -> np.ndarray:
     """The packed table of ``camera`` on ``sensor``, built once per
     calibration (a few small tables per process, read-only)."""
-    key = tuple(a.tobytes() if a is not None else b"-" for a in (camera.K, camera.D, camera.R, camera.P))
+    key = tuple(a.tobytes() if a is not None else b"-" for a in (camera.params, camera.R, camera.P))
     key += (np.array(sensor, np.int64).tobytes(),)
     lut = _LUTS.get(key)
     if lut is None:
@@ -92,14 +87,16 @@ def kept_index_kernel(x, y, lut, idx):  # type: ignore[no-untyped-def]
 
 class Undistort(Operator):
     """Undistort (and with a stereo calibration, rectify) event coordinates
-    with the OpenCV camera model, through a per-pixel lookup table built
-    once: each pixel moves to the nearest pixel of its undistorted position
-    on a same-size image projected with ``P`` (rectified) or ``K``; events
-    landing outside are dropped.
+    with the camera's lens model (OpenCV's radtan or equidistant/fisheye),
+    through a per-pixel lookup table built once: each pixel moves to the
+    nearest pixel of its undistorted position on a same-size image
+    projected with ``P`` (rectified) or ``K``; events landing outside, or
+    on pixels the model maps from no ray, are dropped.
 
-    ``calib`` is a file read by :func:`read_calibration` (OpenCV YAML/JSON,
-    UZH ``calib.txt``); ``side`` picks a stereo camera; ``camera`` gives a
-    :class:`Camera` directly (Python use).
+    ``calib`` is a file read by :func:`tectum.camera.read_calibration`
+    (OpenCV YAML/JSON, ROS ``camera_info``, UZH ``calib.txt``); ``side``
+    picks a stereo camera; ``camera`` gives a :class:`tectum.camera.Camera`
+    directly (Python use).
 
     State: one packed int32 table, 4 x W x H bytes (360 kB for 346x260),
     shared by the operators of the same calibration in a process.
@@ -107,7 +104,8 @@ class Undistort(Operator):
 
     name = "filter.undistort"
     #: For the batch-invariance check of every built-in (a 48x36 sensor, strong barrel distortion).
-    conformance_params = {"camera": Camera(K=[[40.0, 0, 24], [0, 40.0, 18], [0, 0, 1]], D=[-0.3, 0.1, 0, 0])}
+    conformance_params = {"camera": Camera(K=np.array([[40.0, 0, 24], [0, 40.0, 18], [0, 0, 1]]),
+                                           D=np.array([-0.3, 0.1, 0, 0]))}
 
     def __init__(self, calib: str = "", side: Literal["mono", "left", "right"] = "mono",
                  camera: Camera | None = None) -> None:

@@ -3,20 +3,30 @@ import json
 import cv2
 import numpy as np
 import pytest
-from helpers import shared_data
 
-from tectum.plugins.filter import Camera, Undistort, read_calibration, read_uzh_calib, undistort_lut
+from tectum.camera import Camera, read_calibration, read_uzh_calib
+from tectum.plugins.filter import Undistort, undistort_lut
 from tectum.testing import assert_batch_invariant, feed
+
+from helpers import shared_data
 
 K = np.array([[30.0, 0, 12.0], [0, 31.0, 8.0], [0, 0, 1]])
 D = np.array([-0.2, 0.05, 0.001, -0.002, 0.0])
 
 
+FISHEYE = np.array([-0.3, 0.1, 0.0, 0.0])
+
+
 def reference(ev, cam):
-    """Per event, straight through cv2.undistortPoints, rounded to the nearest pixel."""
+    """Per event, straight through cv2.undistortPoints (cv2.fisheye's for the
+    equidistant model), rounded to the nearest pixel."""
     pts = np.stack([ev.x, ev.y], 1).astype(np.float64).reshape(-1, 1, 2)
     P = cam.P if cam.P is not None else cam.K
-    u = cv2.undistortPoints(pts, cam.K, cam.D, R=cam.R, P=P)[:, 0]
+    if cam.model == "equidistant":
+        u = cv2.fisheye.undistortPoints(pts, cam.K, cam.D, R=cam.R, P=P,
+                                        criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14))[:, 0]
+    else:
+        u = cv2.undistortPoints(pts, cam.K, cam.D, R=cam.R, P=P)[:, 0]
     ux, uy = np.rint(u[:, 0]), np.rint(u[:, 1])
     ok = (ux >= 0) & (ux < ev.sensor[0]) & (uy >= 0) & (uy < ev.sensor[1])
     return ok, ux[ok].astype(int), uy[ok].astype(int)
@@ -28,6 +38,22 @@ def test_matches_per_event_opencv(make_pattern):
     ok, ux, uy = reference(ev, Camera(K, D))
     assert np.array_equal(out.t, ev.t[ok]) and np.array_equal(out.x, ux) and np.array_equal(out.y, uy)
     assert not ok.all()  # barrel distortion pushes corners out
+
+
+def test_equidistant_matches_per_event_opencv(make_pattern, tmp_path):
+    """The fisheye model, given directly and as a ROS camera_info file."""
+    ev = make_pattern()
+    cam = Camera(K, FISHEYE, model="equidistant")
+    out = feed(Undistort(camera=cam), [ev])[0]
+    ok, ux, uy = reference(ev, cam)
+    assert np.array_equal(out.t, ev.t[ok]) and np.array_equal(out.x, ux) and np.array_equal(out.y, uy)
+    assert not ok.all()
+    ros = tmp_path / "fisheye.yaml"
+    ros.write_text("image_width: 24\nimage_height: 16\ndistortion_model: equidistant\ncamera_matrix:\n  rows: 3\n"
+                   "  cols: 3\n  data: [" + ", ".join(map(str, K.ravel())) + "]\ndistortion_coefficients:\n  rows: 1\n"
+                   "  cols: 4\n  data: [" + ", ".join(map(str, FISHEYE)) + "]\n")
+    from_file = feed(Undistort(calib=str(ros)), [ev])[0]
+    assert np.array_equal(from_file.x, out.x) and np.array_equal(from_file.y, out.y)
 
 
 def test_zero_distortion_is_identity():
