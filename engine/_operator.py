@@ -143,6 +143,14 @@ class Source:
         return False
 
     @classmethod
+    def kinds_for(cls, arg: str, params: Mapping[str, Any]) -> tuple[Kind, ...]:
+        """The kinds of stream this source will give for ``arg`` with
+        ``params``, known before it opens (validation wires ports by them):
+        by default every kind it can produce; a source whose streams depend
+        on what the recording holds narrows this."""
+        return cls.produces
+
+    @classmethod
     def sniff_dir(cls, path: str) -> bool:
         """True when the folder ``path`` is a recording this source opens
         (a ROS 2 bag, a dataset sequence)."""
@@ -218,13 +226,28 @@ class Sink:
 
 
 def component_params(cls: type) -> dict[str, inspect.Parameter]:
-    """The keyword parameters a component's ``__init__`` accepts, by name."""
-    sig = inspect.signature(cls.__init__)  # type: ignore[misc]  # the class's own constructor
-    return {
-        n: p
-        for n, p in list(sig.parameters.items())[1:]
-        if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
-    }
+    """The keyword parameters a component's ``__init__`` accepts, by name,
+    including those it passes on to a base class through ``**kwargs``."""
+    out: dict[str, inspect.Parameter] = {}
+    for owner in _init_chain(cls):
+        params = list(inspect.signature(owner.__init__).parameters.values())[1:]  # type: ignore[misc]
+        for p in params:
+            if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY):
+                out.setdefault(p.name, p)
+    return out
+
+
+def _init_chain(cls: type) -> list[type]:
+    """``cls`` and the base classes its ``__init__`` hands ``**kwargs`` on to."""
+    chain = []
+    for owner in cls.__mro__:
+        if "__init__" not in owner.__dict__ or owner is object:
+            continue
+        chain.append(owner)
+        sig = inspect.signature(owner.__init__)  # type: ignore[misc]
+        if not any(p.kind == p.VAR_KEYWORD for p in sig.parameters.values()):
+            break
+    return chain
 
 
 def as_packets(out: Iterable[Packet] | Packet | None) -> Sequence[Packet]:
@@ -240,7 +263,8 @@ def coerce_param(cls: type, name: str, value: Any) -> Any:
     """Convert ``value`` (from TOML or a ``k=v`` string) to the annotated type."""
     import typing
 
-    hints = typing.get_type_hints(cls.__init__)  # type: ignore[misc]  # the class's own constructor
+    owner = next((c for c in _init_chain(cls) if name in inspect.signature(c.__init__).parameters), cls)  # type: ignore[misc]
+    hints = typing.get_type_hints(owner.__init__)  # type: ignore[misc]  # the class's own constructor
     typ = hints.get(name)
     if typ is None:
         return value

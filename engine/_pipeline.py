@@ -363,12 +363,17 @@ def _validate(p: Pipeline, reg: Registry) -> Plan:
     for nid in order:
         s = specs[nid]
         cls = classes[nid]
+        if s.role == "operator" and s.component is None and "calib" in component_params(cls) \
+                and not params_of[nid].get("calib"):
+            found = _calibration_beside(_upstream_sources(nid, specs, inputs_of))
+            if found:
+                params_of[nid]["calib"] = found
         params = _check_params(s, cls, params_of[nid])
         decl: Any = s.component if s.component is not None else cls  # instances may narrow their kinds
         inputs = inputs_of[nid]
         wired: dict[str, str] = {}
         if s.role == "source":
-            provides = frozenset(decl.produces)
+            provides = frozenset(decl.produces if s.component is not None else decl.kinds_for(s.name, params))
         elif nid in named:
             wired = _wire_ports(s, _ports_of(s, cls) or {}, named[nid], s.inputs, nodes)
             problem = decl.check_ports(frozenset(wired))
@@ -388,6 +393,41 @@ def _validate(p: Pipeline, reg: Registry) -> Plan:
         nodes[nid] = PlanNode(s, cls, MappingProxyType(params), tuple(children[nid]), provides, inputs,
                               MappingProxyType(wired), offload)
     return Plan(MappingProxyType(nodes), tuple(order), p.batch)
+
+
+#: Calibration files looked for beside a recording, in this order (the
+#: dataset layouts: UZH/RPG calib.txt; OpenCV and ROS camera_info YAML).
+CALIBRATION_NAMES = ("calib.txt", "calib.yaml", "camera.yaml", "camera_info.yaml")
+
+
+def _upstream_sources(nid: str, specs: Mapping[str, NodeSpec], inputs_of: Mapping[str, tuple[str, ...]]) -> list[str]:
+    out, todo, seen = [], list(inputs_of[nid]), set()
+    while todo:
+        n = todo.pop(0)
+        if n in seen:
+            continue
+        seen.add(n)
+        if specs[n].role == "source":
+            out.append(specs[n].name)
+        todo += inputs_of[n]
+    return out
+
+
+def _calibration_beside(sources: Sequence[str]) -> str | None:
+    """The calibration file beside the one recording an operator reads, if
+    there is exactly one such file (an operator's ``calib`` parameter
+    defaults to it)."""
+    found = set()
+    for arg in sources:
+        path = arg.split("?", 1)[0]
+        if not os.path.exists(path):
+            continue
+        folder = path if os.path.isdir(path) else os.path.dirname(os.path.abspath(path))
+        hit = next((os.path.join(folder, n) for n in CALIBRATION_NAMES if os.path.isfile(os.path.join(folder, n))),
+                   None)
+        if hit:
+            found.add(hit)
+    return found.pop() if len(found) == 1 else None
 
 
 def _ports_of(s: NodeSpec, cls: type) -> Mapping[str, Port] | None:

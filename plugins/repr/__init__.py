@@ -15,15 +15,17 @@ from .functional import (
     accumulate, color, count_image, event_frame, parse_color, polarity_map, render_polarity, sae,
     time_surface, voxel_grid,
 )
+from .motion_compensated import MotionCompensated
 from .operators import Accumulate, Color, CountImage, EventFrame, Sae, TimeSurface, VoxelGrid
 
 __all__ = [
-    "EventFrame", "Accumulate", "CountImage", "TimeSurface", "Sae", "VoxelGrid", "Color", "OPERATORS",
+    "EventFrame", "Accumulate", "CountImage", "TimeSurface", "Sae", "VoxelGrid", "Color", "MotionCompensated",
+    "OPERATORS",
     "event_frame", "accumulate", "count_image", "time_surface", "sae", "voxel_grid", "color",
     "polarity_map", "render_polarity", "parse_color",
 ]
 
-OPERATORS = (EventFrame, Accumulate, CountImage, TimeSurface, Sae, VoxelGrid, Color)
+OPERATORS = (EventFrame, Accumulate, CountImage, TimeSurface, Sae, VoxelGrid, Color, MotionCompensated)
 
 
 @hookimpl

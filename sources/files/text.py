@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import os
 import re
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 import numpy as np
@@ -202,6 +202,8 @@ _LINE = re.compile(rb"^\s*" + _NUM + rb"(?:[ \t,]+" + _NUM + rb"){3}\s*$")
 
 def looks_like_events_text(head: bytes) -> bool:
     """First data lines are 4 numeric columns, the 4th a polarity (0/1/-1)."""
+    if head.startswith(b"# tectum ") and not head.startswith(b"# tectum events"):
+        return False  # a sample stream (tectum.sources.files.samples_csv)
     lines = [ln for ln in head.split(b"\n")[:-1] if ln.strip() and not ln.startswith((b"#", b"%"))]
     if lines and re.search(rb"[A-Za-z]", lines[0]) and b"," in lines[0]:
         lines = lines[1:]  # CSV header
@@ -252,6 +254,15 @@ class TextSource(FileSource):
     @classmethod
     def sniff(cls, head: bytes) -> bool:
         return looks_like_events_text(head)
+
+    @classmethod
+    def kinds_for(cls, arg: str, params: Mapping[str, Any]) -> tuple[Kind, ...]:
+        """Events, and the companion streams whose files lie beside ``arg``."""
+        if not params.get("companions", True):
+            return (Kind.EVENTS,)
+        folder = os.path.dirname(os.path.abspath(arg.split("?", 1)[0]))
+        beside = {Kind.IMU: "imu.txt", Kind.POSES: "groundtruth.txt", Kind.FRAMES: "images.txt"}
+        return (Kind.EVENTS, *(k for k, n in beside.items() if os.path.isfile(os.path.join(folder, n))))
 
     def _parse(self, columns: Callable[[int], tuple[np.ndarray, ...]],
                state: np.ndarray) -> Iterator[tuple[int, int, tuple[np.ndarray, ...], Callable[[], np.ndarray]]]:

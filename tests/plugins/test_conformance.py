@@ -6,7 +6,8 @@ operator that needs another input than events gives its own stream through
 a class attribute ``conformance_stream`` (a callable returning a packet),
 and one that has required parameters gives ``conformance_params`` (a dict);
 windowed operators are checked the same way, since they emit when the
-watermark passes a window's end.
+watermark passes a window's end. Operators with named ports give one packet
+per port; each port is split on its own and the ports interleaved.
 """
 
 from __future__ import annotations
@@ -33,7 +34,9 @@ def test_batch_invariance(name):
     cls = tectum.get_registry().operator(name)
     make_stream = getattr(cls, "conformance_stream", None)
     if make_stream is not None:
-        stream = make_stream()
+        stream = make_stream()  # one packet, or one per port for operators with named ports
+    elif cls.inputs is not None:
+        pytest.fail(f"{name} has ports {sorted(cls.inputs)}: give it a conformance_stream (one packet per port)")
     elif Kind.EVENTS in cls.consumes:
         stream = bars(duration_us=40_000, sensor="48x36", noise_hz=20.0, speed=300.0)
     else:
