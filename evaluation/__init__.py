@@ -13,7 +13,13 @@ the runtime code (the engine imports none of it).
 from __future__ import annotations
 
 from .metrics import (
-    binomial_pass, denoise_rates, flow_errors, lifetime_errors, noise_passed_by_label, roc_auc, rotational_flow,
+    binomial_pass,
+    denoise_rates,
+    flow_errors,
+    lifetime_errors,
+    noise_passed_by_label,
+    roc_auc,
+    rotational_flow,
     simulator_normal_truth,
 )
 from .scenes import translating_edges

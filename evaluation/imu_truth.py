@@ -22,7 +22,8 @@ from tectum import EventPacket, ImuPacket
 
 from .metrics import flow_errors, rotational_flow
 
-__all__ = ["G", "full_flow_vs_rotation", "read_events_and_imu", "gyro_flow", "imu_full_scale_factor", "normal_flow_vs_rotation"]
+__all__ = ["G", "full_flow_vs_rotation", "read_events_and_imu", "gyro_flow", "imu_full_scale_factor",
+           "normal_flow_vs_rotation"]
 
 G = 9.80665
 

@@ -10,11 +10,12 @@ from tectum.errors import PipelineError
 __all__ = ["split_query", "split_op", "open_source"]
 
 
-def split_query(arg: str) -> tuple[str, dict[str, str]]:
+def split_query(arg: str) -> tuple[str, dict[str, Any]]:
     """``"out.npz?compress=true"`` -> ``("out.npz", {"compress": "true"})``.
 
     Parameters of sources and sinks follow a ``?`` as in a URL
-    (``pattern:?speed=500&noise_hz=2``)."""
+    (``pattern:?speed=500&noise_hz=2``); the values are strings, which
+    pipeline validation converts to the parameters' types."""
     if "?" not in arg:
         return arg, {}
     base, q = arg.split("?", 1)

@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from tectum import EventPacket
+
 __all__ = ["flow_errors", "lifetime_errors", "rotational_flow", "simulator_normal_truth"]
 
 
@@ -59,7 +61,8 @@ def flow_errors(vx: np.ndarray, vy: np.ndarray, valid: np.ndarray, true_vx: np.n
     }
 
 
-def lifetime_errors(lifetime: np.ndarray, true_lifetime: np.ndarray, noise: np.ndarray | None = None) -> dict[str, float]:
+def lifetime_errors(lifetime: np.ndarray, true_lifetime: np.ndarray,
+                    noise: np.ndarray | None = None) -> dict[str, float]:
     """Relative error of lifetimes (µs) to the truth ``1e6/|normal speed|``;
     NaN estimates are invalid. Returns ``mean_rel_pct``, ``median_rel_pct``,
     ``density``, ``noise_valid``."""
@@ -80,7 +83,7 @@ def lifetime_errors(lifetime: np.ndarray, true_lifetime: np.ndarray, noise: np.n
     }
 
 
-def simulator_normal_truth(events, frame_t: np.ndarray, frame_intensity: np.ndarray,
+def simulator_normal_truth(events: EventPacket, frame_t: np.ndarray, frame_intensity: np.ndarray,
                            eps: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
     """True normal flow (px/s) per simulated event: speed ``1e6 / lifetime``
     along the unit gradient of ``log(I + eps)`` of the truth frame nearest in

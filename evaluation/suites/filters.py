@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import datetime
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +30,12 @@ from tectum import EventPacket, concat
 from tectum.evaluation.harness import peer, shared_data, table, target, target_row, throughput
 from tectum.evaluation.metrics import denoise_rates, roc_auc
 from tectum.plugins.filter import (
-    BackgroundActivity, Camera, HotPixel, Refractory, SpatioTemporalCorrelation, Undistort,
+    BackgroundActivity,
+    Camera,
+    HotPixel,
+    Refractory,
+    SpatioTemporalCorrelation,
+    Undistort,
 )
 from tectum.plugins.filter._state import padded_timestamps
 from tectum.plugins.filter.background_activity import background_activity_kernel
@@ -93,6 +99,12 @@ def _dv_stores(dv: Any, pieces: list[EventPacket]) -> list[Any]:
     return stores
 
 
+def _dv_ba(dv: Any, sensor: tuple[int, int], dt_us: int) -> Any:
+    """dv-processing's background activity filter with a ``dt_us`` µs window."""
+    window = datetime.timedelta(microseconds=dt_us)
+    return dv.noise.BackgroundActivityNoiseFilter(sensor, backgroundActivityDuration=window)
+
+
 def _structured(ev: EventPacket, dtype: Any) -> np.ndarray:
     arr = np.zeros(len(ev), dtype)
     for name in ("t", "x", "y", "p"):
@@ -143,7 +155,7 @@ def _peer_ops(ev: EventPacket, pieces: list[EventPacket], quick: bool) -> list[t
         stores = _dv_stores(dv, pieces)
 
         def dv_ba() -> None:
-            f = dv.noise.BackgroundActivityNoiseFilter(SENSOR, backgroundActivityDuration=datetime.timedelta(microseconds=6000))
+            f = _dv_ba(dv, SENSOR, 6000)
             for s in stores:
                 f.accept(s)
                 f.generateEvents()
@@ -193,9 +205,10 @@ def _peer_ops(ev: EventPacket, pieces: list[EventPacket], quick: bool) -> list[t
         out += [("refractory", "evlib", lambda: evlib_f.filter_noise(df, method="refractory",
                                                                     refractory_period_us=1000).collect(), n),
                 ("hot_pixel", "evlib", lambda: evlib_f.filter_hot_pixels(df, threshold_percentile=99.9).collect(), n),
-                ("event_frame", "evlib", lambda: evlib_r.create_event_frame(df, SENSOR[1], SENSOR[0], n_time_bins=bins), n),
-                ("time_surface", "evlib", lambda: evlib_r.create_time_surface(df, SENSOR[1], SENSOR[0], dt=float(CHUNK_US),
-                                                                                tau=50_000.0), n)]
+                ("event_frame", "evlib",
+                 lambda: evlib_r.create_event_frame(df, SENSOR[1], SENSOR[0], n_time_bins=bins), n),
+                ("time_surface", "evlib",
+                 lambda: evlib_r.create_time_surface(df, SENSOR[1], SENSOR[0], dt=float(CHUNK_US), tau=50_000.0), n)]
     return out
 
 
@@ -221,10 +234,10 @@ def speed(ev: EventPacket, quick: bool) -> list[dict[str, Any]]:
             rows.append({"operation": op, "impl": name, "error": f"{type(e).__name__}: {e}"})
             continue
         rows.append({"operation": op, "impl": name, **r})
-    ours = {r["operation"]: r["mev_s"] for r in rows if r["impl"] == "tectum"}
-    for r in rows:
-        if "mev_s" in r and not r["impl"].startswith("tectum"):
-            r["tectum_ratio"] = ours[r["operation"]] / r["mev_s"]
+    ours = {row["operation"]: row["mev_s"] for row in rows if row["impl"] == "tectum"}
+    for row in rows:
+        if "mev_s" in row and not row["impl"].startswith("tectum"):
+            row["tectum_ratio"] = ours[row["operation"]] / row["mev_s"]
     return rows
 
 
@@ -265,12 +278,16 @@ def at_defaults(ev: EventPacket, t_from: int | None = None) -> dict[str, dict[st
     defaults are today)."""
     idx = ev.with_columns(index=np.arange(len(ev), dtype=np.int64))
     out: dict[str, dict[str, Any]] = {}
-    for name, op in (("background_activity", BackgroundActivity()), ("stcf", SpatioTemporalCorrelation())):
+    ops: tuple[tuple[str, BackgroundActivity | SpatioTemporalCorrelation], ...] = (
+        ("background_activity", BackgroundActivity()), ("stcf", SpatioTemporalCorrelation()))
+    for name, op in ops:
         keep = np.zeros(len(ev), np.bool_)
         for q in [*op.process(idx), *op.finish()]:
             keep[q.columns["index"]] = True
         tpr, fpr = denoise_rates(ev, keep, t_from=t_from)
-        params = {"dt_us": op.dt_us, **({"k": op.k, "polarity": op.polarity} if name == "stcf" else {})}
+        params: dict[str, Any] = {"dt_us": op.dt_us}
+        if isinstance(op, SpatioTemporalCorrelation):
+            params.update(k=op.k, polarity=op.polarity)
         out[name] = {**params, "signal_kept": tpr, "noise_passed": fpr}
     return out
 
@@ -307,7 +324,7 @@ def peer_roc(ev: EventPacket, quick: bool, t_from: int | None = None) -> dict[st
         (store,) = _dv_stores(dv, [ev])
         out["dv-processing BA"] = []
         for dt in BA_DTS:
-            f = dv.noise.BackgroundActivityNoiseFilter(ev.sensor, backgroundActivityDuration=datetime.timedelta(microseconds=dt))
+            f = _dv_ba(dv, ev.sensor, dt)
             f.accept(store)
             a = f.generateEvents().numpy()
             tpr, fpr = denoise_rates(ev, _kept_mask(ev, a["timestamp"], a["x"], a["y"]), t_from=t_from)
@@ -428,12 +445,8 @@ def setting_speeds(ev: EventPacket, quick: bool) -> list[dict[str, Any]]:
     rows = []
     for name, k, pol in _sweep_names():
         for dt in BA_DTS:
-            if name == "background_activity":
-                def make(dt: int = dt) -> Any:
-                    return BackgroundActivity(dt_us=dt)
-            else:
-                def make(dt: int = dt, k: int = k, pol: bool = pol) -> Any:
-                    return SpatioTemporalCorrelation(dt_us=dt, k=k, polarity=pol)
+            make: Callable[[], Any] = (partial(BackgroundActivity, dt_us=dt) if name == "background_activity"
+                                       else partial(SpatioTemporalCorrelation, dt_us=dt, k=k, polarity=pol))
             r = throughput(_feed_all(make, pieces), len(ev), repeat=2 if quick else 3)
             rows.append({"filter": name, "dt_us": dt, "mev_s": r["mev_s"]})
     dv = peer("dv_processing")
@@ -441,11 +454,12 @@ def setting_speeds(ev: EventPacket, quick: bool) -> list[dict[str, Any]]:
         stores = _dv_stores(dv, pieces)
         for dt in BA_DTS:
             def fn(dt: int = dt) -> None:
-                f = dv.noise.BackgroundActivityNoiseFilter(ev.sensor, backgroundActivityDuration=datetime.timedelta(microseconds=dt))
+                f = _dv_ba(dv, ev.sensor, dt)
                 for s in stores:
                     f.accept(s)
                     f.generateEvents()
-            rows.append({"filter": "dv-processing BA", "dt_us": dt, "mev_s": throughput(fn, len(ev), repeat=2)["mev_s"]})
+            rows.append({"filter": "dv-processing BA", "dt_us": dt,
+                         "mev_s": throughput(fn, len(ev), repeat=2)["mev_s"]})
     return rows
 
 
@@ -463,7 +477,7 @@ def real_recordings(out: Path) -> dict[str, Any]:
     res: dict[str, Any] = {}
     for d in sorted((root / "ecd").glob("*/events.txt")):
         ev = read_ecd_events(d)
-        row = {"events": len(ev)}
+        row: dict[str, float] = {"events": len(ev)}
         for name, op in (("background_activity", BackgroundActivity()), ("stcf", SpatioTemporalCorrelation()),
                          ("refractory_1ms", Refractory(period_us=1000))):
             row[name] = len(op.process(ev)[0]) / len(ev)
@@ -622,7 +636,8 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
     print(table(pat_auc, list(pat_auc[0])))
     print(table(pat_def, list(pat_def[0])))
 
-    ref_ev, _ = sim_stream(SIM_REFERENCE[0], SIM_REFERENCE[1], SIM_SCENES[SIM_REFERENCE[0]][2 if quick else 3],
+    _, _, ref_quick, ref_full = SIM_SCENES[SIM_REFERENCE[0]]
+    ref_ev, _ = sim_stream(SIM_REFERENCE[0], SIM_REFERENCE[1], ref_quick if quick else ref_full,
                            seed=1 + int(SIM_REFERENCE[1] * 10))
     settings = setting_speeds(ref_ev.without_columns("noise"), quick)
     real = real_recordings(out)

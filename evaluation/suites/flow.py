@@ -21,12 +21,13 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from tectum import EventPacket, concat
+from tectum import EventPacket, Packet, concat
 from tectum.evaluation.harness import shared_data, table, throughput
 from tectum.evaluation.metrics import flow_errors, lifetime_errors, simulator_normal_truth
 from tectum.evaluation.scenes import translating_edges
@@ -57,13 +58,17 @@ LIFETIMES: dict[str, Callable[[], Any]] = {
 
 
 def _edges(speed: float = 1000.0, angle: float = 30.0, noise_hz: float = 1.0, jitter_us: float = 300.0,
-           spacing: float = 16.0, threshold: float = 0.5, duration_us: int = 60_000, sensor=(96, 96),
+           spacing: float = 16.0, threshold: float = 0.5, duration_us: int = 60_000, sensor: tuple[int, int] = (96, 96),
            angles: tuple[float, ...] | None = None, seed: int = 1) -> EventPacket:
     v = speed * np.array([np.cos(np.radians(angle)), np.sin(np.radians(angle))])
     one = threshold >= 0.5  # the reference: one event per pixel crossing, sharp edges
     return translating_edges(sensor, duration_us, v[0], v[1], angles_deg=angles or (angle,), spacing_px=spacing,
                              contrast=(0.5, 0.5) if one else (0.3, 0.8), threshold=threshold,
                              blur_px=0.0 if one else 1.0, jitter_us=jitter_us, noise_hz=noise_hz, seed=seed)
+
+
+def _feed(make: Callable[[], Any], pkt: EventPacket) -> list[Packet]:
+    return feed(make(), [pkt])
 
 
 def _run(make: Callable[[], Any], pkt: EventPacket) -> EventPacket:
@@ -88,7 +93,7 @@ def speed(quick: bool) -> list[dict[str, Any]]:
     makers["lifetime plane_fit"] = PlaneFitLifetime
     makers["lifetime plane_fit burst 10ms"] = lambda: PlaneFitLifetime(burst_us=10_000)
     for name, make in makers.items():
-        r = throughput(lambda: feed(make(), [pkt]), len(pkt), repeat=2 if quick else 3)
+        r = throughput(partial(_feed, make, pkt), len(pkt), repeat=2 if quick else 3)
         # CPU time too: the machine may be shared, wall time then overstates the cost
         cpu = []
         for _ in range(2 if quick else 3):
@@ -121,8 +126,8 @@ def accuracy(quick: bool) -> list[dict[str, Any]]:
     ref = _edges()
     tex = _edges(speed=800.0, angle=30.0, angles=(0.0, 60.0, 120.0), spacing=12, jitter_us=300.0)
     for name, (make, kind) in METHODS.items():
-        scene, truth = (ref, "reference edges 1000 px/s, 300 us jitter, 1 Hz/px (vs normal truth)") if kind == "normal" \
-            else (tex, "texture 800 px/s, 300 us jitter, 1 Hz/px (vs full truth)")
+        scene, truth = ((ref, "reference edges 1000 px/s, 300 us jitter, 1 Hz/px (vs normal truth)") if kind == "normal"
+                        else (tex, "texture 800 px/s, 300 us jitter, 1 Hz/px (vs full truth)"))
         rows.append({"method": name, "scene": truth, **_score(_run(make, scene), scene, kind)})
     for lname, lmake in LIFETIMES.items():
         out = lmake().process(ref.without_columns("lifetime"))[0]
@@ -179,8 +184,13 @@ def _imu_rotation(quick: bool) -> list[dict[str, Any]]:
     path = data / "aedat" / "davis240_imu_rotdisk.aedat" if data else None
     if path is None or not path.exists():
         return []
-    from tectum.evaluation.imu_truth import (full_flow_vs_rotation, gyro_flow, imu_full_scale_factor,
-                                             normal_flow_vs_rotation, read_events_and_imu)
+    from tectum.evaluation.imu_truth import (
+        full_flow_vs_rotation,
+        gyro_flow,
+        imu_full_scale_factor,
+        normal_flow_vs_rotation,
+        read_events_and_imu,
+    )
 
     ev, imu = read_events_and_imu(str(path))
     if quick:
@@ -259,8 +269,8 @@ def _boundaries(values: list[float], per: dict[str, list[dict[str, float]]]) -> 
             out[name] = "never valid"
             continue
         best_e, best_d = np.nanmin(err), dens.max()
-        bad = [(v, "error x2" if (not np.isfinite(e) or e > 2 * max(best_e, 2.5)) else "density /2")
-               for v, e, d in zip(values, err, dens) if not np.isfinite(e) or e > 2 * max(best_e, 2.5) or d < best_d / 2]
+        worse = ~np.isfinite(err) | (err > 2 * max(best_e, 2.5))
+        bad = [(v, "error x2" if w else "density /2") for v, w, d in zip(values, worse, dens) if w or d < best_d / 2]
         out[name] = ", ".join(f"{v:g} ({why})" for v, why in bad) or "none in range"
     return out
 
@@ -321,7 +331,8 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
     print(table(acc, ["method", "scene", "aee", "rel_aee_pct", "median_rel_pct", "aae_deg", "density",
                       "noise_valid", "median_ratio", "sign_agree"]))
     maps = failure_maps(quick)
-    bounds = [{"sweep": m["label"], "method": k, "fails at": v} for m in maps.values() for k, v in m["boundary"].items()]
+    bounds = [{"sweep": m["label"], "method": k, "fails at": v}
+              for m in maps.values() for k, v in m["boundary"].items()]
     print(table(bounds, ["sweep", "method", "fails at"]))
     charts = _charts(out, acc, spd, maps)
     for c in charts:

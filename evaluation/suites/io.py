@@ -9,13 +9,18 @@ from __future__ import annotations
 
 import os
 import tempfile
+from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tectum import EventPacket
+from tectum import EventPacket, Packet
 from tectum.evaluation.harness import peer, shared_data, table, throughput
+
+if TYPE_CHECKING:
+    from tectum.sinks.files._common import FileSink
+    from tectum.sinks.files.hdf5 import Hdf5Sink
 
 FILES = {"rosbag": "bags/evt3_eventpacket_ros2_sqlite",
          "evt2": "prophesee/gen31_evt2.raw", "evt3": "prophesee/imx636_evt3.raw", "dat": "prophesee/gen4.dat",
@@ -27,7 +32,7 @@ EXT = {"text": ".txt", "aedat4": ".aedat4", "evt2": ".raw", "evt3": ".evt3.raw",
 
 #: Like-for-like options: peers read only the events (loadtxt no companion
 #: files, dv-processing only the events stream).
-_EVENTS_ONLY = {"text": {"companions": False}, "aedat4": {"streams": "events"}}
+_EVENTS_ONLY: dict[str, dict[str, Any]] = {"text": {"companions": False}, "aedat4": {"streams": "events"}}
 
 
 def _decode(path: str, fmt: str = "") -> int:
@@ -60,7 +65,7 @@ def _peers(fmt: str, path: str) -> dict[str, Any]:
     return out
 
 
-def run(out: Path, quick: bool) -> dict:
+def run(out: Path, quick: bool) -> dict[str, Any]:
     rows: list[dict[str, Any]] = []
     shared = shared_data()
     repeat = 2 if quick else 5
@@ -69,7 +74,7 @@ def run(out: Path, quick: bool) -> dict:
             continue
         path = str(shared / rel)
         n = _decode(path, fmt)
-        r = throughput(lambda: _decode(path, fmt), n, repeat=repeat)
+        r = throughput(partial(_decode, path, fmt), n, repeat=repeat)
         rows.append({"format": fmt, "op": "decode", "reader": "tectum", "events": n, "mev_s": r["mev_s"],
                      "cpu_mev_s": r["cpu_mev_s"]})
         for name, fn in _peers(fmt, path).items():
@@ -86,9 +91,14 @@ def run(out: Path, quick: bool) -> dict:
     return {"rows": rows}
 
 
+def _encode_file(cls: type[FileSink] | type[Hdf5Sink], path: str, parts: list[Packet]) -> None:
+    from tectum.sinks.files._common import write_all
+
+    write_all(cls(path), parts)
+
+
 def _encode(quick: bool) -> list[dict[str, Any]]:
     from tectum.sinks.files import SINKS
-    from tectum.sinks.files._common import write_all
 
     n = 1_000_000 if quick else 4_000_000
     rng = np.random.default_rng(0)
@@ -100,10 +110,10 @@ def _encode(quick: bool) -> list[dict[str, Any]]:
         for cls in SINKS:
             f = os.path.join(d, "o" + EXT[cls.name])
             parts = list(pkt.batches(1 << 18))
-            r = throughput(lambda: write_all(cls(f), parts), n, repeat=2 if quick else 3)
+            r = throughput(partial(_encode_file, cls, f, parts), n, repeat=2 if quick else 3)
             rows.append({"format": cls.name, "op": "encode", "reader": "tectum", "events": n, "mev_s": r["mev_s"],
                          "cpu_mev_s": r["cpu_mev_s"]})
-            r = throughput(lambda: _decode(f), n, repeat=2 if quick else 3)
+            r = throughput(partial(_decode, f), n, repeat=2 if quick else 3)
             rows.append({"format": cls.name, "op": "decode-generated", "reader": "tectum", "events": n,
                          "mev_s": r["mev_s"], "cpu_mev_s": r["cpu_mev_s"]})
             for name, fn in _peers(cls.name, f).items():

@@ -13,12 +13,15 @@ from __future__ import annotations
 import socket
 import threading
 import time
+import zlib
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from tectum import Packet, Sink
 from tectum.evaluation.harness import table
+from tectum.sources.net._wire import HEADER, Receiver, chunks, encode_end, encode_events, encode_hello, row_bytes
 
 __all__ = ["run"]
 
@@ -48,7 +51,7 @@ def tcp_rate(n_events: int) -> dict[str, Any]:
     port = _free_port(socket.SOCK_STREAM)
     src = NetSource(f"tcp://127.0.0.1:{port}")
     rx = tectum.Pipeline()
-    got = _Counter()
+    got = _Count()
     rx.sink(got, rx.source(src))
     th = tectum.ThreadedPipeline(rx, watch=[]).start()
     src.ready.wait(5)
@@ -62,27 +65,38 @@ def tcp_rate(n_events: int) -> dict[str, Any]:
             "mev_s": sent / dt / 1e6, "lost_messages": src.counts["lost"]}
 
 
-class _Counter:
-    """A sink that counts (defined lazily to keep imports light)."""
+class _Count(Sink):
+    """A sink that counts the events it receives."""
 
-    def __new__(cls):  # type: ignore[no-untyped-def]
-        from tectum import Sink
+    name = "count"
 
-        class Count(Sink):
-            name = "count"
+    def __init__(self) -> None:
+        self.events = 0
 
-            def __init__(self) -> None:
-                self.events = 0
+    def write(self, packet: Packet) -> None:
+        self.events += len(packet)
 
-            def write(self, packet: Any) -> None:
-                self.events += len(packet)
 
-        return Count()
+def _receive(rx: socket.socket, rec: Receiver, sent_at: dict[int, float], lat: list[float]) -> None:
+    """Feed the datagrams of ``rx`` to ``rec`` until the stream ends or ``rx``
+    times out; the latency (s) of each accepted datagram whose send time is in
+    ``sent_at`` (by sequence number) goes to ``lat``."""
+    while True:
+        try:
+            data = rx.recv(65536)
+        except OSError:
+            return
+        now = time.perf_counter()
+        seq = int.from_bytes(data[8:12], "little")
+        before = rec.accepted
+        rec.feed(data)
+        if rec.accepted > before and seq in sent_at:
+            lat.append(now - sent_at[seq])
+        if rec.ended:
+            return
 
 
 def udp_curve(rates_mev_s: list[float], n_events: int) -> list[dict[str, Any]]:
-    from tectum.sources.net._wire import HEADER, Receiver, chunks, encode_events, encode_hello, row_bytes
-
     pk = _packets(n_events)
     rows = []
     for rate in rates_mev_s:
@@ -94,29 +108,11 @@ def udp_curve(rates_mev_s: list[float], n_events: int) -> list[dict[str, Any]]:
         sent_at: dict[int, float] = {}
         lat: list[float] = []
         rec = Receiver()
-
-        def receive() -> None:
-            while True:
-                try:
-                    data = rx.recv(65536)
-                except OSError:
-                    return
-                now = time.perf_counter()
-                seq = int.from_bytes(data[8:12], "little")
-                before = rec.accepted
-                rec.feed(data)
-                if rec.accepted > before and seq in sent_at:
-                    lat.append(now - sent_at[seq])
-                if rec.ended:
-                    return
-
-        th = threading.Thread(target=receive)
+        th = threading.Thread(target=_receive, args=(rx, rec, sent_at, lat))
         th.start()
         tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         tx.connect(("127.0.0.1", port))
         hello = encode_hello(1, 0, pk[0].sensor, [])
-        import zlib
-
         schema = zlib.crc32(hello[HEADER:])
         tx.send(hello)
         seq, n, t0 = 1, 0, time.perf_counter()
@@ -133,8 +129,6 @@ def udp_curve(rates_mev_s: list[float], n_events: int) -> list[dict[str, Any]]:
                     ahead = n / (rate * 1e6) - (time.perf_counter() - t0)
                     if ahead > 0:
                         time.sleep(ahead)
-        from tectum.sources.net._wire import encode_end
-
         for _ in range(3):
             tx.send(encode_end(1, seq, schema, pk[-1].t_end))
         th.join(5)

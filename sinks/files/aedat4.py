@@ -117,7 +117,7 @@ class Aedat4Sink(FileSink):
         self.seen.add(type_id)
         pos = self.f.tell()
         self.f.write(struct.pack("<ii", sid, len(payload)))
-        self.f.write(payload)
+        self.f.write(codec.as_buffer(payload))
         self.table.append((pos + 8, sid, len(payload), n, t0, t1))
 
     def _empty(self) -> None:

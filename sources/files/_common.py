@@ -24,7 +24,7 @@ import sys
 import threading
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NoReturn, TypeVar
 
 import numpy as np
 
@@ -238,7 +238,7 @@ class EventAssembler:
     and makes the intervals tile time without gaps.
     """
 
-    def __init__(self, src: "FileSource", sensor: tuple[int, int], *, offset: int = 0,
+    def __init__(self, src: FileSource, sensor: tuple[int, int], *, offset: int = 0,
                  check_geometry: bool = True) -> None:
         self.src = src
         self.sensor = sensor
@@ -292,7 +292,8 @@ class EventAssembler:
         if K.check_events(t, x, y, k, k + n, self.offset, prev, w, h) >= 0:
             # something is wrong: the general path reports or drops it
             self.carry = tuple(a[:k].copy() for a in cols) if k else None
-            return self.push(*(a[k:k + n].copy() for a in cols), byte_offset, where)
+            s = slice(k, k + n)
+            return self.push(t[s].copy(), x[s].copy(), y[s].copy(), p[s].copy(), byte_offset, where)
         self.last_t = int(t[k + n - 1])
         a, m = 0, k + n
         lo, hi = self.src.t_start_us, self.src.t_end_us
@@ -402,17 +403,27 @@ class EventAssembler:
         return t, x, y, p
 
 
+def record_offsets(at: int, size: int, rows: int | np.ndarray) -> np.ndarray:
+    """Byte offsets of records of ``size`` bytes from byte ``at``: of the
+    first ``rows`` records, or of the records indexed by ``rows``. With
+    ``functools.partial``, the lazy ``where`` of :meth:`EventAssembler.commit`."""
+    idx = np.arange(rows, dtype=np.int64) if isinstance(rows, int) else rows
+    return at + size * idx
+
+
+S = TypeVar("S", bound=SamplePacket)
+
+
 class SampleTiler:
     """Turn decoded samples (frames, IMU, triggers...) of several streams into
     packets: clip to the source's time range, drop (``skip_bad``) or raise on
     samples going back in time, and tile each stream's intervals without gaps."""
 
-    def __init__(self, src: "FileSource") -> None:
+    def __init__(self, src: FileSource) -> None:
         self.src = src
         self.ends: dict[Any, int] = {}
 
-    def push(self, cls: type[SamplePacket], key: Any, t: np.ndarray, pos: int = 0,
-             **data: np.ndarray) -> SamplePacket | None:
+    def push(self, cls: type[S], key: Any, t: np.ndarray, pos: int = 0, **data: np.ndarray) -> S | None:
         """Samples ``t`` (µs) with fields ``data`` of stream ``key``, found at
         byte ``pos``; the packet to emit, or None when nothing is left."""
         t = np.asarray(t, np.int64)
@@ -510,7 +521,7 @@ class FileSource(Source):
         else:
             self.skipped_ranges.append((first, last))
 
-    def _fail(self, message: str, offset: int | None = None) -> None:
+    def _fail(self, message: str, offset: int | None = None) -> NoReturn:
         raise FormatError(message, path=self.path, offset=offset)
 
     def _sensor(self, found: tuple[int, int] | None) -> tuple[int, int] | None:

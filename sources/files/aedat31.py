@@ -114,7 +114,7 @@ class Aedat31Source(FileSource):
                 self._note_skip(pos, size - 1, 1)  # no way to resynchronise: give up the rest
                 break
             data = f.read(body)
-            ovf = np.int64(int(h["ovf"])) << 31
+            ovf = int(h["ovf"]) << 31
             if etype == 1 and esize == 8:
                 w = np.frombuffer(data, "<u4", count=2 * num).reshape(-1, 2)
                 valid = (w[:, 0] & 1) == 1
@@ -130,10 +130,10 @@ class Aedat31Source(FileSource):
                 rec = rec[(rec["info"] & 1) == 1]
                 if rec.shape[0]:
                     v = rec["v"].astype(np.float64)
-                    q = tiler.push(ImuPacket, "imu", rec["t"].astype(np.int64) + ovf, pos, accel=v[:, 0:3] * 9.80665,
-                                   gyro=np.deg2rad(v[:, 3:6]), temperature=v[:, 6])
-                    if q is not None:
-                        yield q
+                    imu = tiler.push(ImuPacket, "imu", rec["t"].astype(np.int64) + ovf, pos,
+                                     accel=v[:, 0:3] * 9.80665, gyro=np.deg2rad(v[:, 3:6]), temperature=v[:, 6])
+                    if imu is not None:
+                        yield imu
             elif etype == 0 and esize == 8:
                 w = np.frombuffer(data, "<u4", count=2 * num).reshape(-1, 2)
                 typ = (w[:, 0] >> 1) & 0x7F

@@ -266,7 +266,7 @@ class Aedat4Source(FileSource):
         if not self.skip_bad:
             if have - i < 8:
                 self._fail("file ends inside a packet header (truncated)", at)
-            sid, size = struct.unpack_from("<ii", buf, i)
+            sid, size = struct.unpack_from("<ii", buf.data, i)
             self._fail(f"packet size {size} (stream {sid}) runs past the end of the data (truncated or corrupt)", at)
         self._note_skip(at, limit - 1, 1)
 
@@ -440,7 +440,7 @@ class _Batch:
             out = byte_buffer(int(rows[:, 5].sum()))
             if _lz4.AVAILABLE:
                 AK.inflate_packets(buf, rows, out, starts, ends)
-            mv = memoryview(buf)
+            mv = buf.data
             for (a, b, *_, at), s, e in zip(rows.tolist(), starts.tolist(), ends.tolist()):
                 d = out[s:e] if e >= 0 else self._decompressed(sid, mv[a:b], at) if e == -2 else None
                 if e == -1:
@@ -461,7 +461,7 @@ class _Batch:
             k = 0
             while k < rows.shape[0]:
                 if not fast[k]:
-                    yield from self._one(memoryview(buf)[rows[k, 0]:rows[k, 1]], int(rows[k, 8]))
+                    yield from self._one(buf.data[rows[k, 0]:rows[k, 1]], int(rows[k, 8]))
                     k += 1
                     continue
                 # a run of plain LZ4 packets whose events fit in _RUN_EVENTS (at least one packet)
@@ -502,14 +502,14 @@ class _Batch:
             if counts[i] == -1:
                 self._bad(self.ev_id, "does not decode: malformed EventPacket FlatBuffer", int(pos[i]), size)
             else:
-                why = _why(memoryview(buf)[rows[i, 0]:rows[i, 1]], self.comp)
+                why = _why(buf.data[rows[i, 0]:rows[i, 1]], self.comp)
                 self._bad(self.ev_id, f"does not decompress: {why}", int(pos[i]), size)
         good = counts > 0
         yield from self.asm.commit(n, int(pos[0]), lambda: np.repeat(pos[good], counts[good]))
 
     def _one(self, payload: memoryview, pos: int) -> Iterator[Packet]:
         """One event packet, decompressed in Python."""
-        assert self.asm is not None
+        assert self.asm is not None and self.ev_id is not None
         d = self._decompressed(self.ev_id, payload, pos)
         if d is None:
             return

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import functools
 import struct
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 
@@ -124,7 +124,19 @@ def _lz4_block() -> Any:
     return lz4.block
 
 
+def as_buffer(buf: bytes | np.ndarray) -> bytes | memoryview:
+    """``buf`` as the bytes-like object that file and compressor calls are
+    typed for (numpy declares an array a buffer only from Python 3.12)."""
+    return buf.data if isinstance(buf, np.ndarray) else buf
+
+
+@overload
+def compress(buf: bytes, compression: int | str) -> bytes: ...
+@overload
+def compress(buf: np.ndarray, compression: int | str) -> bytes | np.ndarray: ...
 def compress(buf: bytes | np.ndarray, compression: int | str) -> bytes | np.ndarray:
+    """``buf`` compressed with the AEDAT 4.0 ``compression`` (name or code);
+    uncompressed, ``buf`` itself."""
     c = compression_code(compression)
     if c == 0:
         return buf
@@ -134,7 +146,7 @@ def compress(buf: bytes | np.ndarray, compression: int | str) -> bytes | np.ndar
         return lz4.frame.compress(buf, compression_level=9 if c == 2 else 0, content_checksum=False)
     import zstandard
 
-    return zstandard.ZstdCompressor(level=9 if c == 4 else 3).compress(buf)
+    return zstandard.ZstdCompressor(level=9 if c == 4 else 3).compress(as_buffer(buf))
 
 
 def decode_events(buf: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -200,9 +212,9 @@ def _frames(buf: bytes, copy: bool = True) -> FramePacket:
     if w < 0 or h < 0 or n != w * h * ch:
         raise FlatError(f"frame of {w}x{h}x{ch} has {n} pixel bytes")
     img = np.frombuffer(buf, np.uint8, count=n, offset=start).reshape((1, h, w) if ch == 1 else (1, h, w, ch))
-    extra = {"exposure_start": np.array([tab.scalar(3, "q")], np.int64),
-             "exposure_end": np.array([tab.scalar(4, "q")], np.int64),
-             "position": np.array([[tab.scalar(8, "h"), tab.scalar(9, "h")]], np.int16)}
+    extra: dict[str, Any] = {"exposure_start": np.array([tab.scalar(3, "q")], np.int64),
+                             "exposure_end": np.array([tab.scalar(4, "q")], np.int64),
+                             "position": np.array([[tab.scalar(8, "h"), tab.scalar(9, "h")]], np.int16)}
     return FramePacket(np.array([ts], np.int64), images=img.copy() if copy else img, **extra)
 
 

@@ -7,13 +7,14 @@ The sensor size comes from the option, else the coordinates' extent."""
 from __future__ import annotations
 
 from collections.abc import Iterator
+from functools import partial
 from typing import Any
 
 import numpy as np
 
 from tectum import Packet
 
-from ._common import EventAssembler, FileSource
+from ._common import EventAssembler, FileSource, record_offsets
 
 __all__ = ["NpySource"]
 
@@ -77,8 +78,7 @@ class NpySource(FileSource):
             t, x, y, p = asm.reserve(k)
             t[:k], x[:k], y[:k] = a[names["t"]], a[names["x"]], a[names["y"]]
             np.copyto(p[:k], np.where(a[names["p"]] > 0, 1, -1), casting="unsafe")
-            yield from asm.commit(k, at, lambda at=at, k=k, idx=idx: at + dtype.itemsize * (
-                np.arange(k, dtype=np.int64) if idx is None else idx))
+            yield from asm.commit(k, at, partial(record_offsets, at, dtype.itemsize, k if idx is None else idx))
             if asm.past_end():
                 break
         yield from asm.finish()

@@ -25,6 +25,7 @@ trigger id, ``value`` 1 rising / 0 falling edge).
 from __future__ import annotations
 
 from collections.abc import Iterator
+from functools import partial
 from typing import Any, ClassVar
 
 import numpy as np
@@ -32,8 +33,17 @@ import numpy as np
 from tectum import FormatError, Kind, Packet, TriggerPacket
 
 from . import _kernels as K
-from ._common import (EventAssembler, FileSource, SampleTiler, byte_buffer, header_dict, read_prefixed_header,
-                      sensor_from_header, t0_from_header)
+from ._common import (
+    EventAssembler,
+    FileSource,
+    SampleTiler,
+    byte_buffer,
+    header_dict,
+    read_prefixed_header,
+    record_offsets,
+    sensor_from_header,
+    t0_from_header,
+)
 
 __all__ = ["Evt2Source", "Evt3Source", "DatSource", "raw_format_of"]
 
@@ -80,9 +90,12 @@ class RawSource(FileSource):
     def _kernel(self) -> Any:
         return K.decode_evt2 if self.evt == "evt2" else K.decode_evt3
 
-    def _decode(self, words: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, ...]:
-        """All events of ``words`` in fresh arrays, with the index of each
-        one's word (slow path: extent scans, error offsets)."""
+    def _decode(self, words: np.ndarray,
+                state: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int,
+                                            np.ndarray]:
+        """All events of ``words`` in fresh arrays (t, x, y, p), the index of
+        each one's word, the kernel's error position and count, and the
+        triggers (slow path: extent scans, error offsets)."""
         n = words.shape[0] * self.fanout
         t = np.empty(n, np.int64)
         x = np.empty(n, np.uint16)
@@ -300,7 +313,7 @@ class DatSource(FileSource):
             m = records.shape[0]
             t, x, y, p = asm.reserve(m)
             K.decode_dat(records, state, t, x, y, p)
-            yield from asm.commit(m, at, lambda at=at, m=m: at + 8 * np.arange(m, dtype=np.int64))
+            yield from asm.commit(m, at, partial(record_offsets, at, 8, m))
             if asm.past_end():
                 break
         yield from asm.finish()

@@ -305,16 +305,16 @@ class _Decoder:
         elif typ == "event_camera_msgs/msg/EventPacket":
             yield from self._event_packet(*event_packet_fields(raw, self.version))
         elif typ == "sensor_msgs/msg/Image":
-            out = self._image(conn.topic, deser(raw, typ))
-            if out is not None:
-                yield out
+            frame = self._image(conn.topic, deser(raw, typ))
+            if frame is not None:
+                yield frame
         elif typ == "sensor_msgs/msg/Imu":
             m = deser(raw, typ)
             a, g = m.linear_acceleration, m.angular_velocity
-            out = self.tiler.push(ImuPacket, conn.topic, np.array([_stamp_us(m.header.stamp)]),
+            imu = self.tiler.push(ImuPacket, conn.topic, np.array([_stamp_us(m.header.stamp)]),
                                   accel=np.array([[a.x, a.y, a.z]]), gyro=np.array([[g.x, g.y, g.z]]))
-            if out is not None:
-                yield out
+            if imu is not None:
+                yield imu
 
     def _dvs(self, raw: bytes) -> Iterator[Packet]:
         buf = np.frombuffer(raw, np.uint8)

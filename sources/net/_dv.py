@@ -180,7 +180,7 @@ class DvDecoder:
         if self.ev_id is not None and (self.sensor is None or min(self.sensor) <= 0 or max(self.sensor) > 65535):
             raise ValueError(f"the events stream declares no usable sizeX/sizeY ({self.sensor})")
         self.counts: dict[str, int] = {"packets": 0, "events": 0, "samples": 0, "skipped": 0}
-        self._held: tuple[np.ndarray, ...] | None = None
+        self._held: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None  # t, x, y, p
         self._ev_end: int | None = None
         self._ends: dict[int, int] = {}
 
