@@ -145,25 +145,21 @@ def _increasing(j00, j01, j10, j11):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def _radtan_increasing(params, x, y):  # type: ignore[no-untyped-def]
+def _increasing_at(params, x, y):  # type: ignore[no-untyped-def]
+    """Whether the model increases at ``(x, y)`` (the equidistant one at ``θ = x``)."""
+    if params[MODEL] == EQUIDISTANT:
+        return _theta_d(params, x)[1] > 0.0
     _, _, j00, j01, j10, j11 = _radtan(params, x, y)
     return _increasing(j00, j01, j10, j11)
 
 
 @njit(cache=True, nogil=True)
 def _on_first_branch(params, x, y):  # type: ignore[no-untyped-def]
-    """Whether the model is increasing (``dθd/dθ`` or the Jacobian
-    determinant positive) at ``(x, y)`` and at ``FOLD_CHECKS - 1`` points
-    between it and the optical axis: a root past a fold is no inverse."""
+    """Whether the model increases at ``(x, y)`` and at ``FOLD_CHECKS - 1``
+    points between it and the optical axis: a root past a fold is no inverse."""
     for i in range(1, FOLD_CHECKS + 1):
         f = i / FOLD_CHECKS
-        if params[MODEL] == EQUIDISTANT:
-            _, d = _theta_d(params, f * x)
-        else:
-            if not _radtan_increasing(params, f * x, f * y):
-                return False
-            continue
-        if not d > 0.0:
+        if not _increasing_at(params, f * x, f * y):
             return False
     return True
 
@@ -172,7 +168,7 @@ def _on_first_branch(params, x, y):  # type: ignore[no-untyped-def]
 def _invert_radtan(params, xd, yd):  # type: ignore[no-untyped-def]
     x0, y0 = _homography(params, UNTILT, xd, yd)
     x, y = x0, y0
-    while not _radtan_increasing(params, x, y) and x * x + y * y > 1e-300:
+    while not _increasing_at(params, x, y) and x * x + y * y > 1e-300:
         x, y = 0.5 * x, 0.5 * y
     fx, fy, j00, j01, j10, j11 = _radtan(params, x, y)
     rx, ry = fx - x0, fy - y0
@@ -202,7 +198,7 @@ def _invert_equidistant(params, xd, yd):  # type: ignore[no-untyped-def]
     if td == 0.0:
         return xd, yd
     th = td
-    while not _theta_d(params, th)[1] > 0.0 and th > 1e-300:
+    while not _increasing_at(params, th, 0.0) and th > 1e-300:
         th *= 0.5
     f, d = _theta_d(params, th)
     r = f - td

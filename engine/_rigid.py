@@ -273,6 +273,8 @@ def interpolate_poses_kernel(tq, t, position, orientation, out_pos, out_ori, val
 
 
 # -- loops over stacks ------------------------------------------------------------
+# One loop per kernel: a loop taking the kernel as an argument is not cached by
+# numba (its dispatcher type differs in each process), so it would compile anew.
 @njit(cache=True, nogil=True)
 def _so3_exp_many(w, out):  # type: ignore[no-untyped-def]
     for i in range(w.shape[0]):

@@ -43,94 +43,34 @@ This module imports no plugin, source or sink.
 
 from __future__ import annotations
 
-from ._calibration_files import Side as Side
-from ._calibration_files import read_calibration as read_calibration
-from ._calibration_files import read_uzh_calib as read_uzh_calib
-from ._camera import Camera as Camera
-from ._camera import Model as Model
-from ._lens import (
-    distort_kernel as distort_kernel,
-)
-from ._lens import (
-    pixel_to_normalized_kernel as pixel_to_normalized_kernel,
-)
-from ._lens import (
-    project_kernel as project_kernel,
-)
-from ._lens import (
-    undistort_kernel as undistort_kernel,
-)
+from ._calibration_files import Side, read_calibration, read_uzh_calib
+from ._camera import Camera, Model
+from ._lens import distort_kernel, pixel_to_normalized_kernel, project_kernel, undistort_kernel
 from ._rigid import (
-    QUAT_TOL as QUAT_TOL,
-)
-from ._rigid import (
-    compose as compose,
-)
-from ._rigid import (
-    hat as hat,
-)
-from ._rigid import (
-    interpolate_poses as interpolate_poses,
-)
-from ._rigid import (
-    interpolate_poses_kernel as interpolate_poses_kernel,
-)
-from ._rigid import (
-    invert as invert,
-)
-from ._rigid import (
-    quat_conj as quat_conj,
-)
-from ._rigid import (
-    quat_mul as quat_mul,
-)
-from ._rigid import (
-    quat_mul_kernel as quat_mul_kernel,
-)
-from ._rigid import (
-    quat_slerp as quat_slerp,
-)
-from ._rigid import (
-    quat_slerp_kernel as quat_slerp_kernel,
-)
-from ._rigid import (
-    quat_to_rot as quat_to_rot,
-)
-from ._rigid import (
-    quat_to_rot_kernel as quat_to_rot_kernel,
-)
-from ._rigid import (
-    rot_to_quat as rot_to_quat,
-)
-from ._rigid import (
-    rot_to_quat_kernel as rot_to_quat_kernel,
-)
-from ._rigid import (
-    se3_exp as se3_exp,
-)
-from ._rigid import (
-    se3_exp_kernel as se3_exp_kernel,
-)
-from ._rigid import (
-    se3_log as se3_log,
-)
-from ._rigid import (
-    se3_log_kernel as se3_log_kernel,
-)
-from ._rigid import (
-    so3_exp as so3_exp,
-)
-from ._rigid import (
-    so3_exp_kernel as so3_exp_kernel,
-)
-from ._rigid import (
-    so3_log as so3_log,
-)
-from ._rigid import (
-    so3_log_kernel as so3_log_kernel,
-)
-from ._rigid import (
-    transform_points as transform_points,
+    QUAT_TOL,
+    compose,
+    hat,
+    interpolate_poses,
+    interpolate_poses_kernel,
+    invert,
+    quat_conj,
+    quat_mul,
+    quat_mul_kernel,
+    quat_slerp,
+    quat_slerp_kernel,
+    quat_to_rot,
+    quat_to_rot_kernel,
+    rot_to_quat,
+    rot_to_quat_kernel,
+    se3_exp,
+    se3_exp_kernel,
+    se3_log,
+    se3_log_kernel,
+    so3_exp,
+    so3_exp_kernel,
+    so3_log,
+    so3_log_kernel,
+    transform_points,
 )
 
 __all__ = [
