@@ -63,7 +63,9 @@ local x axis), ``position`` [x, y] px at t = 0, ``velocity`` [vx, vy] px/s,
 ``angle_deg``, ``angular_velocity`` rad/s (spin about the position),
 ``radius`` / ``size`` [w, h] px, ``intensity`` or ``texture`` + ``texel_px``,
 ``blink_hz``, ``blink_duty``, ``blink_rise_us``, ``blink_phase`` (cycles),
-``intensity_off``, ``id``.
+``intensity_off``, ``id``, ``bounce`` (true: the shape reflects off the
+sensor's sides, so the scene lasts any duration; or a box [x0, y0, x1, y1]
+px for its centre).
 
 ``sensor_model``: overrides of the preset's parameters (:class:`SensorModel`).
 ``davis``: APS frames and IMU (:mod:`.davis`). ``sim``: step limits

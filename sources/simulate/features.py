@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from .motion import Trajectory
-from .render import DISK, RECT, sprite_states
+from .render import DISK, RECT, SPRITE_STATE, sprite_states
 from .scenes import CompiledScene
 
 __all__ = ["Features"]
@@ -78,7 +78,7 @@ class Features:
                 v[behind] = np.nan
                 out[n, :nw, 0], out[n, :nw, 1] = u, v
             if self.sprite_rows:
-                st = sprite_states(cs.sprites, ts, np.empty((cs.sprites.shape[0], 6)))
+                st = sprite_states(cs.sprites, ts, np.empty((cs.sprites.shape[0], SPRITE_STATE)))
                 j = nw
                 for k in self.sprite_rows:
                     x0, y0, c, s = st[k, 0], st[k, 1], st[k, 2], st[k, 3]

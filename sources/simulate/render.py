@@ -32,9 +32,12 @@ from numba import njit
 
 from .textures import bilinear, sample_texture, texel_taps
 
-__all__ = ["render", "pixel_value", "probe", "gradient_at", "lifetimes", "sprite_states", "frame_patches", "background"]
+__all__ = ["render", "pixel_value", "probe", "gradient_at", "lifetimes", "sprite_states", "frame_patches", "background",
+           "SPRITE_STATE"]
 
 DISK, RECT, EDGE = 0, 1, 2
+#: Columns of a sprite's state (see :func:`sprite_states`).
+SPRITE_STATE = 8
 
 
 @njit(cache=True, inline="always")
@@ -42,16 +45,33 @@ def _clip01(v: float) -> float:
     return 0.0 if v < 0.0 else (1.0 if v > 1.0 else v)
 
 
+@njit(cache=True, inline="always")
+def _bounce(u0: float, v: float, t: float, lo: float, hi: float) -> tuple[float, float]:
+    """Position and velocity at ``t`` (s) of a point starting at ``u0`` (px)
+    with speed ``v`` (px/s) that bounces elastically between ``lo`` and
+    ``hi`` (a triangle wave; no bounds when ``hi <= lo``)."""
+    u = u0 + v * t
+    if hi <= lo:
+        return u, v
+    span = hi - lo
+    q = (u - lo) - 2.0 * span * math.floor((u - lo) / (2.0 * span))
+    if q <= span:
+        return lo + q, v
+    return lo + 2.0 * span - q, -v
+
+
 @njit(cache=True)
 def sprite_states(sprites: np.ndarray, t: float, st: np.ndarray) -> np.ndarray:
-    """Per sprite at time ``t`` (s), written to ``st`` (m, 6) and returned:
-    centre x, y, cos, sin of the angle, blink weight in [0, 1] and a
-    bounding radius (px, inf for edges)."""
+    """Per sprite at time ``t`` (s), written to ``st`` (m, SPRITE_STATE) and
+    returned: centre x, y (px), cos, sin of the angle, blink weight in
+    [0, 1], a bounding radius (px, inf for edges) and the centre's velocity
+    vx, vy (px/s; a sprite with a bounce box, columns 18-21, reflects off
+    its sides)."""
     m = sprites.shape[0]
     for k in range(m):
         s = sprites[k]
-        st[k, 0] = s[1] + s[3] * t
-        st[k, 1] = s[2] + s[4] * t
+        st[k, 0], st[k, 6] = _bounce(s[1], s[3], t, s[18], s[20])
+        st[k, 1], st[k, 7] = _bounce(s[2], s[4], t, s[19], s[21])
         ang = s[5] + s[6] * t
         st[k, 2] = math.cos(ang)
         st[k, 3] = math.sin(ang)
@@ -285,7 +305,7 @@ def render(out: np.ndarray, t: float, R: np.ndarray, p: np.ndarray, f: float, cx
     lone panorama incrementally along rows), then each sprite over its
     bounding box, in order."""
     H, W = out.shape
-    st = sprite_states(sprites, t, np.empty((sprites.shape[0], 6)))
+    st = sprite_states(sprites, t, np.empty((sprites.shape[0], SPRITE_STATE)))
     gain, bx, by = background(bg, t)
     pc = frame_patches(R, p, patches, np.empty((patches.shape[0], 12)))
     if patches.shape[0] == 0 and pano[0] >= 0 and ss == 1:
@@ -367,7 +387,7 @@ def probe(xs: np.ndarray, ys: np.ndarray, t: float, R: np.ndarray, p: np.ndarray
     the world point seen there is projected with the poses at ``t - delta``
     (``Ra, pa``) and ``t + delta`` (``Rb, pb``): a symmetric difference of the
     exact projection."""
-    st = sprite_states(sprites, t, np.empty((sprites.shape[0], 6)))
+    st = sprite_states(sprites, t, np.empty((sprites.shape[0], SPRITE_STATE)))
     world = patches.shape[0] > 0 or pano[0] >= 0
     pc = frame_patches(R, p, patches, np.empty((patches.shape[0], 12)))
     for i in range(xs.shape[0]):
@@ -384,8 +404,8 @@ def probe(xs: np.ndarray, ys: np.ndarray, t: float, R: np.ndarray, p: np.ndarray
             ly = -st[k, 3] * ddx + st[k, 2] * ddy
             if _coverage(int(s[0]), lx, ly, s[7], s[8], 1.0) > 0.0:
                 w = s[6]
-                vx[i] = s[3] - w * ddy
-                vy[i] = s[4] + w * ddx
+                vx[i] = st[k, 6] - w * ddy
+                vy[i] = st[k, 7] + w * ddx
                 oid[i] = int(s[17])
                 depth[i] = np.nan
                 found = True

@@ -74,11 +74,11 @@ def _translation_edges(w: int, h: int) -> dict[str, Any]:
             "background": {"intensity": 0.25},
             "objects": [
                 {"shape": "bar", "position": [0.2 * w, 0.5 * h], "size": [0.08 * s, 3 * h], "angle_deg": 30,
-                 "velocity": [0.5 * w, 0], "intensity": 0.8},
+                 "velocity": [0.5 * w, 0], "intensity": 0.8, "bounce": [0, 0, w - 1, 0]},
                 {"shape": "bar", "position": [0.5 * w, 0.1 * h], "size": [3 * w, 0.06 * s],
-                 "velocity": [0, 0.4 * h], "intensity": 0.6},
+                 "velocity": [0, 0.4 * h], "intensity": 0.6, "bounce": [0, 0, 0, h - 1]},
                 {"shape": "rect", "position": [0.75 * w, 0.3 * h], "size": [0.25 * s, 0.25 * s], "angle_deg": 15,
-                 "velocity": [-0.2 * w, 0.15 * h], "intensity": 0.9}]}
+                 "velocity": [-0.2 * w, 0.15 * h], "intensity": 0.9, "bounce": True}]}
 
 
 def _shapes(w: int, h: int) -> dict[str, Any]:
@@ -87,12 +87,12 @@ def _shapes(w: int, h: int) -> dict[str, Any]:
             "background": {"texture": {"kind": "noise", "contrast": 0.3, "mean": 0.3}, "texel_px": 2.0},
             "objects": [
                 {"shape": "disk", "position": [0.25 * w, 0.3 * h], "radius": 0.12 * s,
-                 "velocity": [0.3 * w, 0.2 * h], "intensity": 0.9},
+                 "velocity": [0.3 * w, 0.2 * h], "intensity": 0.9, "bounce": True},
                 {"shape": "rect", "position": [0.7 * w, 0.6 * h], "size": [0.3 * s, 0.2 * s],
-                 "velocity": [-0.25 * w, -0.1 * h], "angular_velocity": 1.5,
+                 "velocity": [-0.25 * w, -0.1 * h], "angular_velocity": 1.5, "bounce": True,
                  "texture": {"kind": "checker", "period": 8, "contrast": 0.7, "mean": 0.5}},
                 {"shape": "disk", "position": [0.5 * w, 0.8 * h], "radius": 0.1 * s,
-                 "velocity": [0.1 * w, -0.35 * h], "angular_velocity": -2.0,
+                 "velocity": [0.1 * w, -0.35 * h], "angular_velocity": -2.0, "bounce": True,
                  "texture": {"kind": "noise", "contrast": 0.8, "mean": 0.6, "seed": 5}}]}
 
 
@@ -222,6 +222,26 @@ class CompiledScene:
     video: dict[str, Any] | None = None
 
 
+def _bounce_box(spec: Any, shape: str, a: float, b: float, w: int, h: int, i: int) -> list[float]:
+    """The box ``[x0, y0, x1, y1]`` (px) an object's centre bounces inside:
+    ``true`` keeps the whole shape on the sensor (its bounding circle), a
+    list gives the box (an axis with ``x0 == x1`` does not bounce); ``false``
+    (no box: ``[0, 0, 0, 0]``) lets it fly."""
+    if spec is False or spec is None:
+        return [0.0, 0.0, 0.0, 0.0]
+    if spec is True:
+        if shape in ("edge", "bar"):
+            raise ValueError(f"object {i}: a {shape} reaches beyond the sensor: give bounce as [x0, y0, x1, y1]")
+        r = a if shape == "disk" else 0.5 * math.hypot(a, b)
+        box = [r, r, w - 1 - r, h - 1 - r]
+    else:
+        box = [float(v) for v in spec]
+    if len(box) != 4 or box[2] < box[0] or box[3] < box[1] or box[:2] == box[2:]:
+        raise ValueError(f"object {i}: bounce box {box} is not [x0, y0, x1, y1] with x0 <= x1, y0 <= y1 "
+                         "(and one of them <)")
+    return box
+
+
 def _patch_row(center: Any, rot: np.ndarray, hw: float, hh: float, tid: int, texel: float, inten: float,
                oid: int) -> list[float]:
     c = np.asarray(center, np.float64)
@@ -297,8 +317,8 @@ def compile_scene(d: Mapping[str, Any]) -> CompiledScene:
                       math.radians(float(ob.get("angle_deg", 0.0))), float(ob.get("angular_velocity", 0.0)),
                       a, b, inten, float(ob.get("intensity_off", inten)), tid, float(ob.get("texel_px", 1.0)),
                       bhz, duty, float(ob.get("blink_rise_us", 100.0)) * 1e-6, float(ob.get("blink_phase", 0.0)),
-                      float(ob.get("id", i + 1))])
-    sprites = np.array(srows, np.float64).reshape(-1, 18)
+                      float(ob.get("id", i + 1)), *_bounce_box(ob.get("bounce", False), shape, a, b, w, h, i)])
+    sprites = np.array(srows, np.float64).reshape(-1, 22)
     data, table = pool.arrays()
     sim = d.get("sim", {})
     return CompiledScene(

@@ -29,7 +29,7 @@ from numba import njit
 
 from .dvs import fire, lowpass1, need_events, quiet
 from .motion import pose_kernel
-from .render import background, frame_patches, pixel_value, sprite_states
+from .render import SPRITE_STATE, background, frame_patches, pixel_value, sprite_states
 
 __all__ = ["advance", "NodeCache"]
 
@@ -43,7 +43,7 @@ class NodeCache:
         self.R = np.zeros((n, 3, 3))
         self.p = np.zeros((n, 3))
         self.pc = np.zeros((n, n_patches, 12))
-        self.st = np.zeros((n, n_sprites, 6))
+        self.st = np.zeros((n, n_sprites, SPRITE_STATE))
         self.g = np.zeros((n, 3))
         self.done = np.zeros(n, np.bool_)
         self.seg_t = np.empty(n)
