@@ -9,7 +9,6 @@ import numpy as np
 from tectum import EventPacket, Operator
 
 from ._state import select
-
 from .hot_pixel import mask_kernel
 
 __all__ = ["Mask", "parse_pixels", "load_mask"]

@@ -3,10 +3,7 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
-
 import numpy as np
-
 from numba import njit
 
 from tectum import EventPacket, Operator
@@ -60,8 +57,9 @@ class FlowOperator(Operator):
     where invalid) and ``valid`` (bool) under configurable names, so input
     that already carries truth columns named ``vx``/``vy`` can keep them."""
 
-    #: "normal" (component along the local edge normal) or "full" flow.
-    flow_type: ClassVar[str] = "normal"
+    #: "normal" (component along the local edge normal) or "full" flow; a
+    #: class default that an operator with both modes sets per instance.
+    flow_type: str = "normal"
 
     def _set_outputs(self, out_vx: str, out_vy: str, out_valid: str) -> None:
         names = (out_vx, out_vy, out_valid)

@@ -47,7 +47,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["EMPTY", "SPAN", "crossing_time", "new_surface", "rebase", "rel_time", "plane_fit_at", "plane_fit", "plane_scratch"]
+__all__ = ["EMPTY", "SPAN", "crossing_time", "new_surface", "rebase", "rel_time", "plane_fit_at", "plane_fit",
+           "plane_scratch"]
 
 #: int32 value of a pixel with no event (older than any window).
 EMPTY = -(1 << 30)
@@ -243,8 +244,8 @@ def _rss(scr, mp, a, b, c):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True, fastmath=FASTMATH, inline="always")
-def plane_fit_at(sae, k, xi, yi, ti, radius, window_us, n_iter, reject_us, robust, robust_k, floor_us,
-                 min_points, scr):  # type: ignore[no-untyped-def]
+def plane_fit_at(sae, k, xi, yi, ti, radius, window_us, n_iter, reject_us, robust, robust_k, floor_us,  # type: ignore[no-untyped-def]
+                 min_points, scr):
     """Fit the plane around event (xi, yi) (sensor px) at relative time
     ``ti`` (µs) on polarity ``k`` of the surface ``sae`` (see
     :func:`new_surface` and the module docstring); ``scr`` the scratch array
@@ -258,8 +259,8 @@ def plane_fit_at(sae, k, xi, yi, ti, radius, window_us, n_iter, reject_us, robus
 
 
 @njit(cache=True, nogil=True, fastmath=FASTMATH, inline="always")
-def _fit(sae, k, xi, yi, ti, radius, mp, window_us, n_iter, reject_us, robust, robust_k, floor_us, min_points,
-         scr):  # type: ignore[no-untyped-def]
+def _fit(sae, k, xi, yi, ti, radius, mp, window_us, n_iter, reject_us, robust, robust_k, floor_us, min_points,  # type: ignore[no-untyped-def]
+         scr):
     """:func:`plane_fit_at` with the slot count ``mp`` (padded) given."""
     n = _gather(sae, k, xi, yi, ti, radius, window_us, scr)
     if n < min_points:
@@ -310,8 +311,8 @@ def _fit(sae, k, xi, yi, ti, radius, mp, window_us, n_iter, reject_us, robust, r
 
 
 @njit(cache=True, nogil=True, fastmath=FASTMATH)
-def plane_fit(sae, k, xi, yi, ti, radius, window_us, n_iter, reject_us, robust, robust_k, floor_us, min_points,
-              scr):  # type: ignore[no-untyped-def]
+def plane_fit(sae, k, xi, yi, ti, radius, window_us, n_iter, reject_us, robust, robust_k, floor_us, min_points,  # type: ignore[no-untyped-def]
+              scr):
     """:func:`plane_fit_at` as a function of its own, for kernels compiled
     without the fast-math flags (inlined there, the fit's loops would not
     vectorise)."""

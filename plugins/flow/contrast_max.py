@@ -192,7 +192,7 @@ def _maximise(xs, ys, ts, lo, hi, img, margin, max_speed, start_x, start_y, star
                 near[back] = last
         if step < 4.0 * min_step and scale == 1.0:
             # the last step: the vertex of the parabola through the centre and its neighbours
-            for k, c in ((0, bx), (2, by)):
+            for k in (0, 2):
                 den = near[k] - 2.0 * best + near[k + 1]
                 if near[k] >= 0.0 and near[k + 1] >= 0.0 and den < 0.0:
                     d = min(0.5, max(-0.5, 0.5 * (near[k] - near[k + 1]) / den)) * step
@@ -208,8 +208,8 @@ def _maximise(xs, ys, ts, lo, hi, img, margin, max_speed, start_x, start_y, star
 
 
 @njit(cache=True, nogil=True)
-def _estimate(xs, ys, ts, lo, hi, img, margin, max_speed, start_x, start_y, start_step, min_step, half_s,
-              min_events, min_focus, min_gain, min_cond):  # type: ignore[no-untyped-def]
+def _estimate(xs, ys, ts, lo, hi, img, margin, max_speed, start_x, start_y, start_step, min_step, half_s,  # type: ignore[no-untyped-def]
+              min_events, min_focus, min_gain, min_cond):
     """One patch's flow (px/s) from its events lo..hi and why it is not
     valid (see the module docstring): (vx, vy, ok, longer) where ``longer``
     says a longer span may help (too few events, unfocused or no gain over
@@ -257,8 +257,8 @@ def _patch_end(ps, lo):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def contrast_max_window(t, x, y, t_mid, half_s, patch, max_speed, min_step, min_events, min_focus, min_gain,
-                        min_cond, min_disp, prev_v, prev_ok, need, vx, vy, valid):  # type: ignore[no-untyped-def]
+def contrast_max_window(t, x, y, t_mid, half_s, patch, max_speed, min_step, min_events, min_focus, min_gain,  # type: ignore[no-untyped-def]
+                        min_cond, min_disp, prev_v, prev_ok, need, vx, vy, valid):
     """Flow (px/s) for one window's events; ``prev_v`` (PY, PX, 2) and
     ``prev_ok`` (PY, PX) hold each patch's last result and are updated;
     ``need`` (PY, PX) is set for the patches whose estimate moves them less
@@ -293,8 +293,8 @@ def contrast_max_window(t, x, y, t_mid, half_s, patch, max_speed, min_step, min_
 
 
 @njit(cache=True, nogil=True)
-def contrast_max_grow(t, x, y, cur0, t_mid, half_s, patch, max_speed, min_step, min_events, min_focus, min_gain,
-                      min_cond, min_disp, prev_v, prev_ok, need, vx, vy, valid):  # type: ignore[no-untyped-def]
+def contrast_max_grow(t, x, y, cur0, t_mid, half_s, patch, max_speed, min_step, min_events, min_focus, min_gain,  # type: ignore[no-untyped-def]
+                      min_cond, min_disp, prev_v, prev_ok, need, vx, vy, valid):
     """The patches flagged in ``need`` again, on a longer span: events
     ``t, x, y`` (time-sorted) of the span, the current window's from index
     ``cur0`` on; ``vx, vy, valid`` are the current window's outputs. A

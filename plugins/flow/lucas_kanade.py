@@ -52,8 +52,8 @@ def _counts(ring_t, ring_p, yy, xx, ti, dt_us):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def lucas_kanade_kernel(t, x, y, p, ring_t, ring_p, head, radius, dt_us, full, min_cond, min_grad, min_explained,
-                        min_speed, max_speed, c1, c2, vx, vy, valid):  # type: ignore[no-untyped-def]
+def lucas_kanade_kernel(t, x, y, p, ring_t, ring_p, head, radius, dt_us, full, min_cond, min_grad, min_explained,  # type: ignore[no-untyped-def]
+                        min_speed, max_speed, c1, c2, vx, vy, valid):
     """Per event: push it into the per-pixel rings (``ring_t`` (H, W, K)
     int64 µs, ``ring_p`` (H, W, K) int8, ``head`` (H, W) int64), then solve
     the local Lucas-Kanade system; ``c1``/``c2`` are (2 radius + 3)^2 scratch."""

@@ -17,8 +17,8 @@ __all__ = ["PlaneFit", "plane_flow_kernel"]
 
 
 @njit(cache=True, nogil=True, fastmath=FASTMATH)
-def plane_flow_kernel(t, x, y, p, sae, base, last, burst_us, radius, window_us, n_iter, reject_us, robust, robust_k,
-                      floor_us, min_points, max_rms, min_speed, max_speed, vx, vy, valid):  # type: ignore[no-untyped-def]
+def plane_flow_kernel(t, x, y, p, sae, base, last, burst_us, radius, window_us, n_iter, reject_us, robust, robust_k,  # type: ignore[no-untyped-def]
+                      floor_us, min_points, max_rms, min_speed, max_speed, vx, vy, valid):
     """Per event: update the surface ``sae`` (relative to ``base[0]``, see
     :func:`tectum.plugins.flow._plane.new_surface`) then fit; normal flow
     (px/s) or NaN + invalid.
@@ -96,7 +96,7 @@ class PlaneFit(FlowOperator):
             w, h = packet.sensor
             self.last = np.zeros((h, w) if self.burst_us else (1, 1), np.int64)
         vx, vy, valid = self._alloc(len(packet))
-        plane_flow_kernel(packet.t, packet.x, packet.y, packet.p, self.sae, self.base, self.last, self.burst_us, self.radius, self.window_us,
-                          self.n_iter, self.reject_us, self.robust, self.robust_k, self.floor_us,
-                          self.min_points, self.max_rms, self.min_speed, self.max_speed, vx, vy, valid)
+        plane_flow_kernel(packet.t, packet.x, packet.y, packet.p, self.sae, self.base, self.last, self.burst_us,
+                          self.radius, self.window_us, self.n_iter, self.reject_us, self.robust, self.robust_k,
+                          self.floor_us, self.min_points, self.max_rms, self.min_speed, self.max_speed, vx, vy, valid)
         return [self._emit(packet, vx, vy, valid)]

@@ -29,8 +29,9 @@ __all__ = ["PlaneFitLifetime", "lifetime_kernel"]
 
 
 @njit(cache=True, nogil=True)
-def lifetime_kernel(t, x, y, p, sae, base, last, burst_us, life, radius, window_us, robust_k, floor_us, min_points, max_rms,
-                    min_life, max_life, regularise, out, until, pol, frame_t, frame_us, frames):  # type: ignore[no-untyped-def]
+def lifetime_kernel(t, x, y, p, sae, base, last, burst_us, life, radius, window_us,  # type: ignore[no-untyped-def]
+                    robust_k, floor_us, min_points, max_rms, min_life, max_life, regularise, out, until, pol, frame_t,
+                    frame_us, frames):
     """Per event: lifetime (µs, NaN if invalid) into ``out``; ``sae`` the
     padded surface relative to ``base[0]`` (see
     :func:`tectum.plugins.flow._plane.new_surface`); ``life`` (2, H, W)
@@ -110,7 +111,8 @@ class PlaneFitLifetime(Operator):
                  max_life_us: float = 1_000_000.0, regularise: float = 0.5, frame_us: int = 0, burst_us: int = 0,
                  out: str = "lifetime") -> None:
         if radius < 1 or not 0 < window_us < SPAN // 2 or min_points < 3 or not 0 <= regularise <= 1 or frame_us < 0:
-            raise ValueError(f"need radius >= 1, 0 < window_us < {SPAN // 2}, min_points >= 3, 0 <= regularise <= 1, frame_us >= 0")
+            raise ValueError(f"need radius >= 1, 0 < window_us < {SPAN // 2}, min_points >= 3, "
+                             "0 <= regularise <= 1, frame_us >= 0")
         if burst_us < 0:
             raise ValueError("need burst_us >= 0")
         self.burst_us = int(burst_us)
@@ -145,9 +147,9 @@ class PlaneFitLifetime(Operator):
         frames = np.zeros((n_frames, h, w), np.int8)
         t0 = int(self.frame_t[0])
         out = np.empty(len(packet), np.float64)
-        nf = lifetime_kernel(packet.t, packet.x, packet.y, packet.p, self.sae, self.base, self.last, self.burst_us, self.life, self.radius,
-                             self.window_us, self.robust_k, self.floor_us, self.min_points, self.max_rms,
-                             self.min_life, self.max_life, self.regularise, out, self.until, self.pol,
+        nf = lifetime_kernel(packet.t, packet.x, packet.y, packet.p, self.sae, self.base, self.last, self.burst_us,
+                             self.life, self.radius, self.window_us, self.robust_k, self.floor_us, self.min_points,
+                             self.max_rms, self.min_life, self.max_life, self.regularise, out, self.until, self.pol,
                              self.frame_t, self.frame_us, frames)
         while nf < n_frames:  # frames at or before the watermark with no later event in this packet
             _render(self.until, self.pol, self.frame_t[0], frames[nf])

@@ -12,8 +12,16 @@ from __future__ import annotations
 from tectum.hookspecs import hookimpl
 
 from .functional import (
-    accumulate, color, count_image, event_frame, parse_color, polarity_map, render_polarity, sae,
-    time_surface, voxel_grid,
+    accumulate,
+    color,
+    count_image,
+    event_frame,
+    parse_color,
+    polarity_map,
+    render_polarity,
+    sae,
+    time_surface,
+    voxel_grid,
 )
 from .motion_compensated import MotionCompensated
 from .operators import Accumulate, Color, CountImage, EventFrame, Sae, TimeSurface, VoxelGrid

@@ -13,7 +13,8 @@ from numba import njit
 
 __all__ = [
     "NEVER", "histogram_kernel", "signed_kernel", "count_kernel", "sae_kernel",
-    "time_surface_kernel", "decay_kernel", "surface_kernel", "voxel_kernel", "last_polarity_kernel", "render_polarity_kernel",
+    "time_surface_kernel", "decay_kernel", "surface_kernel", "voxel_kernel", "last_polarity_kernel",
+    "render_polarity_kernel",
 ]
 
 #: SAE value of a pixel that never fired (µs).

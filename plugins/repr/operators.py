@@ -22,7 +22,7 @@ class _Image(Windowed):
     dtype: type = np.int32
 
     def _start(self, sensor: tuple[int, int]) -> None:
-        self.state = np.zeros((sensor[1], sensor[0], *self.shape_tail), self.dtype)
+        self.state: np.ndarray = np.zeros((sensor[1], sensor[0], *self.shape_tail), self.dtype)
 
     def _frame(self, t0: int, t1: int) -> np.ndarray:
         out = self.state  # the accumulator becomes the frame; a fresh one takes over
