@@ -89,11 +89,12 @@ def test_one_page_load_updates_picture_and_stats(live_view: str, browser: Any, r
     browser.get(live_view + "/")
     browser.execute_script("window.sameLoad = 'yes'")  # gone if anything reloads the page
     img = browser.find_element(By.ID, "f")
-    _wait(browser, "the first frame is shown", lambda: browser.execute_script("return arguments[0].naturalWidth", img) > 0)
+    shown = "return arguments[0].naturalWidth"
+    _wait(browser, "the first frame is shown", lambda: browser.execute_script(shown, img) > 0)
     first = _picture(browser)
     _wait(browser, "the picture changes", lambda: np.abs(_picture(browser).astype(int) - first).sum(axis=2).max() > 60)
-    rows = _wait(browser, "the stats table fills in", lambda: browser.execute_script(  # at once: rows are replaced each tick
-        "return [...document.querySelectorAll('#nodes tbody tr')].map(tr => [...tr.cells].map(c => c.textContent))"))
+    table = "return [...document.querySelectorAll('#nodes tbody tr')].map(tr => [...tr.cells].map(c => c.textContent))"
+    rows = _wait(browser, "the stats table fills in", lambda: browser.execute_script(table))  # at once: rows change
     assert any(r[0] == "pattern" and int(r[2].replace(",", "")) > 0 for r in rows), rows  # the source's events out
     status = browser.find_element(By.ID, "status").text
     assert " events, " in status and "Mev/s" in status, status
