@@ -11,7 +11,8 @@ HELP = "list attached USB event cameras (DVS128, DAVIS240/346, DVXplorer); --emu
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print the list as JSON")
     p.add_argument("--emulate", metavar="MODEL", action="append", default=[],
-                   help="add an emulated camera (dvs128, davis240, davis346, dvxplorer, dvxplorer_lite) instead of using libusb")
+                   help="add an emulated camera (dvs128, davis240, davis346, dvxplorer, dvxplorer_lite) "
+                        "instead of using libusb")
 
 
 def main(args: argparse.Namespace) -> int:

@@ -70,7 +70,7 @@ class VideoSink(_Rendering):
                 ext = os.path.splitext(self.path)[1].lower()
                 fd, self._tmp = temp_beside(self.path, ext)
                 os.close(fd)
-                fourcc = cv2.VideoWriter_fourcc(*("mp4v" if ext == ".mp4" else "MJPG"))
+                fourcc = cv2.VideoWriter.fourcc(*("mp4v" if ext == ".mp4" else "MJPG"))
                 h, w = img.shape[:2]
                 self._writer = cv2.VideoWriter(self._tmp, fourcc, self.fps, (w, h))
                 if not self._writer.isOpened():

@@ -31,7 +31,7 @@ __all__ = ["Evt2Sink", "Evt3Sink", "DatSink", "encode_evt2", "encode_evt3"]
 
 
 @njit(cache=True, nogil=True)
-def encode_evt2(t, x, y, p, state, out):  # pragma: no cover - numba
+def encode_evt2(t, x, y, p, state, out):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     """state[0] = last time high written (-1: none). Returns words used."""
     k = 0
     last = state[0]
@@ -49,7 +49,7 @@ def encode_evt2(t, x, y, p, state, out):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def encode_evt3(t, x, y, p, state, out):  # pragma: no cover - numba
+def encode_evt3(t, x, y, p, state, out):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     """state: 0 last time high (unrolled, -1 none), 1 last low, 2 last y (-1).
     Returns words used."""
     k = 0
@@ -99,7 +99,7 @@ def encode_evt3(t, x, y, p, state, out):  # pragma: no cover - numba
             off = 0
             while off < span:
                 nb = 12 if span - off > 8 else 8
-                mask = 0
+                mask = np.int64(0)
                 while m < j and np.int64(x[m]) - base < off + nb:
                     mask |= 1 << (np.int64(x[m]) - base - off)
                     m += 1

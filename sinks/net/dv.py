@@ -22,7 +22,6 @@ import socket
 import threading
 import time
 from dataclasses import dataclass
-
 from typing import Literal
 
 import trio
@@ -64,13 +63,14 @@ class DvNetSink(Sink):
     schemes = ("dv+tcp",)
     consumes = (Kind.EVENTS, Kind.IMU, Kind.FRAMES)
 
-    def __init__(self, url: str, stream: Literal["events", "imu", "frames"] = "events", compression: str = "none", wait_clients: int = 1,
-                 wait_s: float = 30.0, max_clients: int = 8, packet_events: int = 1 << 16,
+    def __init__(self, url: str, stream: Literal["events", "imu", "frames"] = "events", compression: str = "none",
+                 wait_clients: int = 1, wait_s: float = 30.0, max_clients: int = 8, packet_events: int = 1 << 16,
                  send_timeout_s: float = 10.0, sensor: str = "", linger_s: float = 1.0) -> None:
         self.host, self.port = parse_dv_url(url)
         if stream not in ("events", "imu", "frames"):
             raise ValueError(f"stream must be events, imu or frames; got {stream!r}")
-        if wait_clients < 0 or wait_s < 0 or not 0 <= linger_s <= 60 or not 1 <= max_clients <= 256 or packet_events < 1 or send_timeout_s <= 0:
+        if (wait_clients < 0 or wait_s < 0 or not 0 <= linger_s <= 60 or not 1 <= max_clients <= 256
+                or packet_events < 1 or send_timeout_s <= 0):
             raise ValueError("need wait_clients >= 0, wait_s >= 0, 1 <= max_clients <= 256, packet_events >= 1, "
                              "send_timeout_s > 0, 0 <= linger_s <= 60")
         self.stream = stream

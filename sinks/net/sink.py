@@ -13,17 +13,17 @@ datagrams so a late receiver can join, and can pace itself to
 from __future__ import annotations
 
 import random
-from zlib import crc32
 import socket
 import time
+from zlib import crc32
 
 import numpy as np
 import trio
 
 from tectum import EventPacket, Kind, Packet, SamplePacket, Sink
 from tectum.sources.net._addr import parse
-from tectum.sources.net._samples import FRAG, SAMPLES, fragments, sample_pieces, schema_of
-from tectum.sources.net._samples import encode_samples, row_bytes as sample_row_bytes
+from tectum.sources.net._samples import FRAG, SAMPLES, encode_samples, fragments, sample_pieces, schema_of
+from tectum.sources.net._samples import row_bytes as sample_row_bytes
 from tectum.sources.net._wire import HEADER, _header, chunks, encode_end, encode_events, encode_hello, row_bytes
 
 __all__ = ["NetSink"]

@@ -88,7 +88,7 @@ class Table:
         start, n = self.vector(i, 1)
         return bytes(self.buf[start:start + n]).decode("utf-8", "replace") if n else ""
 
-    def tables(self, i: int) -> list["Table"]:
+    def tables(self, i: int) -> list[Table]:
         start, n = self.vector(i, 4)
         out = []
         for k in range(n):

@@ -103,7 +103,8 @@ def decode_samples(msg: bytes | memoryview, schema: int, n: int, t_base: int, ma
         code, k = struct.unpack_from("<BB", body, 0)
         if code not in _CLASSES or k > MAX_COLUMNS:
             return "schema"
-        pos, cols = 2, []
+        pos = 2
+        cols: list[tuple[str, np.dtype, tuple[int, ...]]] = []  # name, dtype, dimensions
         for _ in range(k):
             strs = []
             for _ in range(2):

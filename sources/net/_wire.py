@@ -161,11 +161,11 @@ class Receiver:
                 "sessions": self.sessions, "rejected": dict(self.rejected),
                 "rejected_total": sum(self.rejected.values())}
 
-    def _reject(self, why: str) -> list[EventPacket]:
+    def _reject(self, why: str) -> list[Packet]:
         self.rejected[why] = self.rejected.get(why, 0) + 1
         return []
 
-    def feed(self, msg: bytes | memoryview, inner: bool = False) -> list[Packet]:  # type: ignore[override]
+    def feed(self, msg: bytes | memoryview, inner: bool = False) -> list[Packet]:
         """One message (a datagram, or a TCP frame without its length)."""
         if len(msg) < HEADER:
             return self._reject("short")
@@ -256,7 +256,7 @@ class Receiver:
         self.last_seq = seq
         return True
 
-    def _hello(self, msg: bytes | memoryview, session: int, seq: int, schema: int) -> list[EventPacket]:
+    def _hello(self, msg: bytes | memoryview, session: int, seq: int, schema: int) -> list[Packet]:
         body = bytes(msg[HEADER:])
         if zlib.crc32(body) != schema:
             return self._reject("schema")
@@ -268,7 +268,8 @@ class Receiver:
             return []  # a repeat for late joiners: its number is not in the sequence
         try:
             w, h, k = struct.unpack_from("<HHB", body, 0)
-            pos, cols = 5, []
+            pos = 5
+            cols: list[tuple[str, np.dtype]] = []
             if k > MAX_COLUMNS or w == 0 or h == 0:
                 raise ValueError
             for _ in range(k):
@@ -296,9 +297,11 @@ class Receiver:
     def _events(self, msg: bytes | memoryview, t0: int, t1: int, tb: int, n: int) -> EventPacket | None:
         assert self.columns is not None and self.sensor is not None
         if n > self.max_events or len(msg) != HEADER + n * row_bytes(self.columns):
-            return self._no("length")
+            self._reject("length")
+            return None
         if t1 < t0 or (self._prev_end is not None and t1 < self._prev_end) or (n and tb < t0):
-            return self._no("time")
+            self._reject("time")
+            return None
         pos = HEADER
         dt = np.frombuffer(msg, "<u4", n, pos)
         pos += 4 * n
@@ -308,28 +311,27 @@ class Receiver:
         pos += 2 * n
         p = np.frombuffer(msg, np.int8, n, pos).copy()
         pos += n
-        cols = {}
+        cols: dict[str, np.ndarray] = {}
         for name, d in self.columns:
             cols[name] = np.frombuffer(msg, d.newbyteorder("<"), n, pos).astype(d)
             pos += d.itemsize * n
         if tb > (1 << 62):
-            return self._no("time")
+            self._reject("time")
+            return None
         t = dt.astype(np.int64) + tb
         w, h = self.sensor
         if n and (np.any(x >= w) or np.any(y >= h) or np.any((p != 1) & (p != -1))):
-            return self._no("bad_event")
+            self._reject("bad_event")
+            return None
         if n and (np.any(t[1:] < t[:-1]) or int(t[-1]) > t1
                   or (self._prev_end is not None and int(t[0]) < self._prev_end)
                   or (self._held is not None and len(self._held) and int(t[0]) < int(self._held.t[0]))):
-            return self._no("time")
+            self._reject("time")
+            return None
         return EventPacket(t, x, y, p, sensor=self.sensor, t_start=min(t0, int(t[0])) if n else t0,
                            t_end=max(t1, int(t[-1]) + 1) if n else t1, columns=cols)
 
-    def _no(self, why: str) -> None:
-        self._reject(why)
-        return None
-
-    def _release(self, pkt: EventPacket, cut: int) -> list[EventPacket]:
+    def _release(self, pkt: EventPacket, cut: int) -> list[Packet]:
         h = self._held
         if h is not None and len(h):
             pkt = EventPacket(*(np.concatenate([h[k], pkt[k]]) for k in ("t", "x", "y", "p")),
@@ -347,7 +349,7 @@ class Receiver:
         self._prev_end = max(cut, start)
         return [pkt._take_slice(0, i, start, self._prev_end)]
 
-    def flush(self, t_end: int | None = None) -> list[EventPacket]:
+    def flush(self, t_end: int | None = None) -> list[Packet]:
         """Release everything held (end of stream)."""
         h = self._held
         self._held = None

@@ -43,7 +43,7 @@ class DavisConfig:
     accel_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @classmethod
-    def from_spec(cls, spec: Mapping[str, Any] | None) -> "DavisConfig":
+    def from_spec(cls, spec: Mapping[str, Any] | None) -> DavisConfig:
         spec = dict(spec or {})
         known = set(cls.__dataclass_fields__)
         bad = set(spec) - known

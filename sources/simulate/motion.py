@@ -20,10 +20,9 @@ exact rotations by a symmetric difference (exact for a constant rate).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
-
-import math
 
 import numpy as np
 from numba import njit
@@ -140,8 +139,8 @@ class Trajectory:
 
     def pose(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
         """``(R, p)``: world-from-camera rotation matrix and position (m)
-        (by :func:`pose_kernel`, as the renderer's sub-steps). The last few poses are remembered (a step asks for the same times
-        several times)."""
+        (by :func:`pose_kernel`, as the renderer's sub-steps). The last few
+        poses are remembered (a step asks for the same times several times)."""
         t = float(t_s)
         if self.static:
             t = 0.0

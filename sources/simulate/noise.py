@@ -55,7 +55,7 @@ class SensorModel:
     jitter_us: float = 0.0       #: timestamp jitter, std of the delay (µs)
     eps: float = 1e-3            #: L = log(I + eps)
 
-    def replace(self, **kw: Any) -> "SensorModel":
+    def replace(self, **kw: Any) -> SensorModel:
         known = {f.name for f in dataclasses.fields(self)}
         bad = set(kw) - known
         if bad:

@@ -277,10 +277,10 @@ def compile_scene(d: Mapping[str, Any]) -> CompiledScene:
         s = np.broadcast_to(np.asarray(bx.get("size", [1, 1, 1]), float), (3,))
         tid, inten = _texture_or_constant(pool, bx, 2000 + i)
         for k in range(3):
-            a, b = (k + 1) % 3, (k + 2) % 3
+            ka, kb = (k + 1) % 3, (k + 2) % 3  # the face's in-plane axes
             for sign in (-1.0, 1.0):
-                fr = np.stack([rot[:, a], rot[:, b], sign * rot[:, k]], axis=1)
-                rows.append(_patch_row(c + sign * 0.5 * s[k] * rot[:, k], fr, 0.5 * s[a], 0.5 * s[b], tid,
+                fr = np.stack([rot[:, ka], rot[:, kb], sign * rot[:, k]], axis=1)
+                rows.append(_patch_row(c + sign * 0.5 * s[k] * rot[:, k], fr, 0.5 * s[ka], 0.5 * s[kb], tid,
                                        float(bx.get("texel_m", 0.01)), inten, int(bx.get("id", i + 1))))
     patches = np.array(rows, np.float64).reshape(-1, 18)
     pano = np.array([-1.0, 1.0, 0.0])

@@ -32,8 +32,8 @@ import numpy as np
 from tectum import EventPacket, FramePacket, ImuPacket, Packet, PosePacket
 
 from .davis import DavisConfig, aps_frame, imu_samples
-from .features import Features
 from .dvs import log_intensity
+from .features import Features
 from .noise import SHOT, NoiseSource, SensorModel, thresholds
 from .order import time_order
 from .render import lifetimes, probe, render
@@ -60,7 +60,7 @@ class StepConfig:
     dt_min_us: float = 0.5
 
     @classmethod
-    def from_spec(cls, spec: Mapping[str, Any] | None) -> "StepConfig":
+    def from_spec(cls, spec: Mapping[str, Any] | None) -> StepConfig:
         spec = {k: float(v) for k, v in (spec or {}).items() if k != "supersample"}
         bad = set(spec) - set(cls.__dataclass_fields__)
         if bad:
@@ -224,7 +224,8 @@ class Simulator:
         if chunk is not None:
             self._pending.append(chunk)
 
-    def _events(self, t0: float, t1: float, parts: list[tuple[np.ndarray, ...]]) -> dict[str, np.ndarray] | None:
+    def _events(self, t0: float, t1: float,
+                parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> dict[str, np.ndarray] | None:
         m = self.model
         ts, idx, pol = ((np.concatenate([p[k] for p in parts]) if len(parts) > 1 else parts[0][k]) for k in range(3))
         nt, ni, npol, u, lab = self.noise.take(t0, t1)

@@ -85,7 +85,8 @@ def advance(img: np.ndarray, W: int, L: np.ndarray, lp: np.ndarray, slope: np.nd
     ``img`` (flat) is the true linear intensity at ``t1``; ``L`` (log
     intensity at ``t0``, becomes that at ``t1``), ``lp`` (low-pass state,
     used when ``lp_hz > 0``), ``slope`` (log intensity per µs over each
-    pixel's last piece), ``l_ref`` and ``t_release`` are updated in place. Events go to ``out_*`` as in :func:`.dvs.dvs_step`. Returns
+    pixel's last piece), ``l_ref`` and ``t_release`` are updated in place.
+    Events go to ``out_*`` as in :func:`.dvs.dvs_step`. Returns
     ``(n_written, next_pixel, refined_pixels)``; ``next_pixel < img.size``
     means the output was full: call again from there with room (that pixel
     is untouched).

@@ -26,8 +26,8 @@ periodic in both axes so it can tile (sampling wraps around). Specs are dicts:
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np

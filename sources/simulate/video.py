@@ -50,7 +50,8 @@ def is_video_spec(text: str) -> bool:
 def _image_list(path: str) -> tuple[list[float], list[str]]:
     """``(t_seconds, paths)`` from an images.txt (``t path`` per line, ``#`` comments)."""
     base = os.path.dirname(path)
-    ts, files = [], []
+    ts: list[float] = []
+    files: list[str] = []
     with open(path, encoding="utf-8") as f:
         for lineno, line in enumerate(f, 1):
             line = line.strip()
@@ -97,7 +98,7 @@ class FrameReader:
             self._times, self._files = _image_list(self.path)
         if self._times is not None and fps <= 0:
             t0 = self._times[self.start] if self.start < len(self._times) else 0.0
-            self._us = [(t - t0) * 1e6 for t in self._times[self.start:]]
+            self._us: list[float] | None = [(t - t0) * 1e6 for t in self._times[self.start:]]
             n_frames = len(self._us)
         else:
             if self._files is None:

@@ -106,7 +106,7 @@ def _imu_skip(state: np.ndarray, c: np.int64) -> None:
 
 
 @njit(cache=True)
-def _imu_byte(state: np.ndarray, mdata: np.int64) -> tuple[np.int64, np.int64]:
+def _imu_byte(state: np.ndarray, mdata: np.int64) -> tuple[int, int]:
     """One IMU data byte (high byte first, then low): returns the sample
     component 0..6 (device order) and its int16 value once a pair is
     complete, else (-1, 0). Advances the byte count, skipping sensors not sent."""

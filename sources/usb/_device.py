@@ -232,8 +232,8 @@ class Camera:
             if family == "DAVIS240" and param == 144:  # ADC test: DAVIS346/640 only
                 continue
             self.config_set(P.MOD_BIAS, param, value)
-        for param, value in self.davis_fpga_defaults().items():
-            self.config_set(param[0], param[1], value)
+        for (module, param), value in self.davis_fpga_defaults().items():
+            self.config_set(module, param, value)
         self._aps_defaults()
 
     def davis_fpga_defaults(self) -> dict[tuple[int, int], int]:

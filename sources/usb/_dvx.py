@@ -30,8 +30,24 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._decode import _BAD, _CUR, _IMU_BAD, _IMU_ON, _LAST, _SPECIAL, _WRAP, _WRAPS, \
-    Decoded, _Base, _emit_time, _imu_byte, _imu_end, _imu_start, _imu_type, _reset
+from ._decode import (
+    _BAD,
+    _CUR,
+    _IMU_BAD,
+    _IMU_ON,
+    _LAST,
+    _SPECIAL,
+    _WRAP,
+    _WRAPS,
+    Decoded,
+    _Base,
+    _emit_time,
+    _imu_byte,
+    _imu_end,
+    _imu_start,
+    _imu_type,
+    _reset,
+)
 
 __all__ = ["DvxDecoder", "dvx_kernel"]
 

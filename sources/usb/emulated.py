@@ -100,7 +100,7 @@ class EmulatedCamera(DvxEmulation):
         self.imu_flips, self.mipi, self.filters = imu_flips, mipi, filters
         self.endpoint = P.DVS128_ENDPOINT if model == "dvs128" else P.DAVIS_ENDPOINT
         self.duration_us, self.window_us = duration_us, window_us
-        self.pattern = dict(speed=speed, period_px=24, bar_px=8, noise_hz=noise_hz, jitter_us=20.0)
+        self.pattern: dict[str, Any] = dict(speed=speed, period_px=24, bar_px=8, noise_hz=noise_hz, jitter_us=20.0)
         self.seed, self.reset_at_us = seed, reset_at_us
         self.overrun_reads = set(overrun_reads)
         self.disconnect_after, self.replug_after_polls = disconnect_after, replug_after_polls
@@ -311,13 +311,14 @@ class EmulatedCamera(DvxEmulation):
             imu_times = list(range(self._next_imu, t_end, self.imu_period_us)) if self.imu_period_us else []
             if imu_times:
                 self._next_imu = imu_times[-1] + self.imu_period_us
-            *events, words = self._encode_dvx(t, x, y, p, imu_times)
+            tt, tx, ty, tp, words = self._encode_dvx(t, x, y, p, imu_times)
             self._buf += pack_words(words)
-            return tuple(events)  # type: ignore[return-value]
+            return tt, tx, ty, tp
         if self.model == "dvs128":
             self._encode_dvs128(t, x, y, p)
         else:
             self._encode_davis(t, x, y, p, t_end)
+        return None
 
     def _words_reset(self) -> None:
         self._buf += b"\x00\x00\x00\x40" if self.model == "dvs128" else struct.pack("<H", 0x0001)
@@ -353,7 +354,7 @@ class EmulatedCamera(DvxEmulation):
         marks = [(ti, 1, 0) for ti in imu_times] + self._frame_marks(t_end)
         marks.sort()
         ts, j = t.tolist(), 0
-        for mark in marks + [None]:  # type: ignore[list-item]
+        for mark in marks + [None]:
             stop = len(ts) if mark is None else int(np.searchsorted(t, mark[0], side="left"))
             for i in range(j, stop):
                 self._davis_time(out, ts[i] - self._dev_origin)
@@ -456,8 +457,8 @@ class EmulatedCamera(DvxEmulation):
             out += [0x5000 | (v >> 8), 0x5000 | (v & 0xFF)]
         out.append(0x0007)
         self.truth.imu_t.append(t)
-        self.truth.accel.append(tuple(v * 4 / 65536 * 9.80665 for v in acc_raw))  # type: ignore[arg-type]
-        self.truth.gyro.append(tuple(v * 500 / 65536 * np.pi / 180 for v in gyr_raw))  # type: ignore[arg-type]
+        self.truth.accel.append(tuple(v * 4 / 65536 * 9.80665 for v in acc_raw))
+        self.truth.gyro.append(tuple(v * 500 / 65536 * np.pi / 180 for v in gyr_raw))
         if (t // self.imu_period_us) % 10 == 0 and self._aps_timing() is None:
             out += [0x000B, 0x4123, 0x4456, 0x000D, 0x000A]  # stray APS words (no frame start): skipped
 
@@ -466,7 +467,7 @@ class EmulatedCamera(DvxEmulation):
 class _Desc:
     def __init__(self, **kw: Any) -> None:
         self.__dict__.update(kw)
-        self.extra_descriptors = []
+        self.extra_descriptors: list[Any] = []
 
 
 class EmulatedBackend(usb.backend.IBackend):

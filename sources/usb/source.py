@@ -21,8 +21,8 @@ import usb.core
 from tectum import EventPacket, FramePacket, ImuPacket, Kind, Packet, Source
 from tectum.errors import TectumError
 
-from ._decode import Decoded, Frame
 from . import _protocol as P
+from ._decode import Decoded, Frame
 from ._device import Camera, DeviceDisconnected, UsbUnavailable, default_backend, find_cameras
 
 __all__ = ["UsbSource"]
@@ -63,7 +63,8 @@ class UsbSource(Source):
                  exposure_us: int = 0, frame_interval_us: int = 0) -> None:
         kind = url.split(":", 1)[1].strip("/").lower() if ":" in url else ""
         if kind not in _MODEL_FILTER:
-            raise ValueError(f"unknown camera kind {kind!r} in {url!r}; known: usb:, usb:davis, usb:dvs128, usb:dvxplorer")
+            raise ValueError(f"unknown camera kind {kind!r} in {url!r}; "
+                             "known: usb:, usb:davis, usb:dvs128, usb:dvxplorer")
         if not 512 <= read_size <= 1 << 22:
             raise ValueError("read_size must be within 512 B .. 4 MiB")
         if timeout_ms <= 0 or duration_us < 0 or reconnect_s < 0 or idle_s < 0 or exposure_us < 0 \
@@ -221,7 +222,8 @@ class UsbSource(Source):
         s = self._end[Kind.EVENTS]
         start = s if s is not None else (int(t[0]) if i else cut)
         if cut > start or i:
-            out.append(EventPacket(t[:i], x[:i], y[:i], p[:i], sensor=self.sensor, t_start=start, t_end=max(cut, start)))
+            out.append(EventPacket(t[:i], x[:i], y[:i], p[:i], sensor=self.sensor, t_start=start,
+                                   t_end=max(cut, start)))
             self._end[Kind.EVENTS] = max(cut, start)
         if j:
             s = self._end[Kind.IMU]
