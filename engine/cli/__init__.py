@@ -40,6 +40,8 @@ def _parser() -> argparse.ArgumentParser:
                 continue  # verb not built (yet)
             raise
         p = sub.add_parser(verb, help=mod.HELP, description=mod.HELP)
+        p.add_argument("-q", "--quiet", action="store_true",
+                       help="no progress line (it is shown only on a terminal anyway)")
         mod.add_arguments(p)
         p.set_defaults(_main=mod.main)
     return parser

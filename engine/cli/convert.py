@@ -22,20 +22,28 @@ def main(args: argparse.Namespace) -> int:
     from tectum import EventPacket
 
     from ._args import open_source, split_query
+    from ._progress import Progress, wanted
 
     src, sink = open_source(args.input, args.output, sensor=args.sensor, skip_bad=args.skip_bad or None,
                             t_start_us=args.start_us, t_end_us=args.end_us)
     out = split_query(args.output)[0]
     n = 0
+    known = args.start_us is not None and args.end_us is not None
+    progress = Progress(args.end_us - args.start_us if known else None) if wanted(args.quiet) else None
     sink.open()
     try:
         for pkt in src.packets():
+            if progress is not None:
+                progress.update(pkt)
             if pkt.kind in sink.consumes:
                 sink.write(pkt)
                 n += len(pkt) if isinstance(pkt, EventPacket) else 0
     except BaseException:
         sink.abort()
         raise
+    finally:
+        if progress is not None:
+            progress.done()
     sink.close()
     skipped = getattr(src, "skipped_events", 0)
     extra = f", skipped {skipped}" if skipped else ""

@@ -78,6 +78,8 @@ def main(args: argparse.Namespace) -> int:
     import tectum
     from tectum.testing import ListSink
 
+    from ._progress import attach
+
     reg = tectum.get_registry()
     op = "filter.background_activity" if "filter.background_activity" in reg.operators else "filter.refractory"
     out = Path(args.out)
@@ -86,6 +88,7 @@ def main(args: argparse.Namespace) -> int:
     cam = p.source(f"simulate:{args.scene}", id="camera", duration_us=args.duration_us, preset="realistic")
     raw = ListSink()
     p.sink(raw, cam, id="raw")
+    attach(p, args.quiet, total_us=args.duration_us)
     den = p.op(op, cam, id="denoise")
     kept = ListSink()
     p.sink(kept, den, id="kept")

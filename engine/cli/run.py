@@ -8,6 +8,7 @@ import json
 from tectum import BatchPolicy, Pipeline, run
 
 from ._args import split_op, split_query
+from ._progress import attach
 
 HELP = "run SOURCE through operators into sinks, or run PIPELINE.toml"
 
@@ -57,12 +58,28 @@ def build(args: argparse.Namespace) -> Pipeline:
     return p
 
 
+def _span(p: Pipeline) -> int | None:
+    """The stream time the first source covers, when its parameters say
+    (``duration_us``, or ``t_start_us`` and ``t_end_us``), in µs."""
+    src = next((n for n in p.nodes if n.role == "source"), None)
+    params = src.params if src is not None else {}
+    try:
+        if "duration_us" in params:
+            return int(params["duration_us"])
+        if "t_start_us" in params and "t_end_us" in params:
+            return int(params["t_end_us"]) - int(params["t_start_us"])
+    except (TypeError, ValueError):  # validation will name the bad value
+        pass
+    return None
+
+
 def main(args: argparse.Namespace) -> int:
     p = build(args)
     if p.nodes and not any(n.role == "sink" for n in p.nodes):
         from tectum.sinks.null import NullSink
 
         p.sink(NullSink(), p.nodes[-1].id, id="count")
+    attach(p, args.quiet, total_us=_span(p))
     stats = run(p)
     if args.stats:
         print(stats.report())

@@ -51,6 +51,8 @@ def main(args: argparse.Namespace) -> int:
     from tectum.sinks.null import NullSink
     from tectum.sources.simulate import SimulateSource
 
+    from ._progress import attach
+
     model = {}
     for kv in args.set:
         if "=" not in kv:
@@ -64,6 +66,7 @@ def main(args: argparse.Namespace) -> int:
                          truth_fps=args.truth_fps, model=model, fps=args.fps)
     p = Pipeline()
     node = p.source(src, id="simulate")
+    attach(p, args.quiet, total_us=int(src.sim.T))
     if args.out:
         get_registry().sink_for(args.out)  # fails early, naming the known extensions
         p.sink(args.out, node, id="out")
