@@ -14,9 +14,8 @@ import numpy as np
 
 import tectum
 from tectum import EventPacket, Kind, Operator, Pipeline, Port, PosePacket
-from tectum.testing import ListSource
-
 from tectum.evaluation.harness import TARGET_COLUMNS, table, target, target_row
+from tectum.testing import ListSource
 
 
 class Identity(Operator):
@@ -32,9 +31,9 @@ def stream(n: int, rate_hz: float = 1e6, sensor: tuple[int, int] = (346, 260), s
     """``n`` events at ``rate_hz`` (distinct timestamps when rate <= 1 MHz)."""
     rng = np.random.default_rng(seed)
     t = np.floor(np.arange(n) * (1e6 / rate_hz)).astype(np.int64)
-    return EventPacket(t, rng.integers(0, sensor[0], n).astype(np.uint16), rng.integers(0, sensor[1], n).astype(np.uint16),
-                       np.where(rng.random(n) < 0.5, 1, -1).astype(np.int8), sensor=sensor,
-                       t_start=0, t_end=int(t[-1]) + 1)
+    x, y = rng.integers(0, sensor[0], n).astype(np.uint16), rng.integers(0, sensor[1], n).astype(np.uint16)
+    p = np.where(rng.random(n) < 0.5, 1, -1).astype(np.int8)
+    return EventPacket(t, x, y, p, sensor=sensor, t_start=0, t_end=int(t[-1]) + 1)
 
 
 def _chain(pk: EventPacket, n_ops: int, **batch: Any) -> Pipeline:
@@ -180,7 +179,7 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
     n_mb = 1_000_000 if quick else 5_000_000
     ebe = chain_rate(stream(n_ebe), 3, 1)
     mb = chain_rate(stream(n_mb), 3, 4096)
-    res = {
+    res: dict[str, Any] = {
         "event_by_event_3ops": ebe,
         "micro_batch_4096_3ops": mb,
         "overhead_us_per_packet_per_op_ebe": per_operator_overhead(stream(n_ebe // 2), 1),
