@@ -18,7 +18,8 @@ __all__ = ["SUITES"]
 
 #: suite -> the line ``tectum bench --list`` shows
 SUITES = {
-    "engine": "scheduler overhead per packet and operator, event-by-event and micro-batch rates, paced latency",
+    "engine": "scheduler overhead per packet and operator, event-by-event and micro-batch rates, paced latency, "
+              "port joins",
     "io": "decode and encode Mev/s per file format, beside dv-processing, expelliarmus, faery, numpy.loadtxt",
     "filters": "filter and representation speed beside peers; denoising ROC and AUC on labelled noise",
     "flow": "flow and lifetime speed and accuracy (analytic edges, simulator, gyro truth), failure maps",

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-HELP = "run benchmark suites (engine, io, filters, flow, simulate, net, and plugins') and write JSON/PNG results"
+HELP = "run benchmark suites (engine, io, filters, flow, simulate, net and plugins' own) and write JSON/PNG results"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -38,7 +38,7 @@ def main(args: argparse.Namespace) -> int:
         res = suites[name].run(out, args.quick)
         if not isinstance(res, dict):
             raise RegistryError(f"bench suite {name!r} (plugin {suites[name].owner!r}) returned "
-                            f"{type(res).__name__}, not a dict")
+                                f"{type(res).__name__}, not a dict")
         print(f"-> {write_results(out, name, res)}")
         targets = res.get("targets", [])
         missed = [t["name"] for t in targets if not t["met"]]
