@@ -42,23 +42,16 @@ def split_op(arg: str) -> tuple[str, dict[str, Any]]:
 def open_source(arg: str, sink: str | None = None, **flags: Any) -> tuple[Any, Any]:
     """The source for ``arg`` (a path or URL, parameters after ``?``) and the
     sink for ``sink`` fed from it, made as ``tectum run`` makes them: chosen
-    by the registry, ``?k=v`` parameters checked and converted by pipeline
-    validation. ``flags`` (typed values from the command line's options) go
-    to the source as they are; those that are None are left out. Returns
-    ``(source, sink or None)``, not yet opened."""
+    by the registry, parameters (``?k=v`` and the ``flags`` of the command
+    line that are not None) checked and converted by pipeline validation.
+    Returns ``(source, sink or None)``, not yet opened."""
     from tectum import Pipeline
 
     p = Pipeline()
     uri, params = split_query(arg)
-    p.source(uri, id="input", **params)
+    p.source(uri, id="input", **params, **{k: v for k, v in flags.items() if v is not None})
     if sink is not None:
         out, sparams = split_query(sink)
         p.sink(out, "input", id="output", **sparams)
     plan = p.validate()
-    node = plan.nodes["input"]
-    given = {k: v for k, v in flags.items() if v is not None}
-    try:
-        src = node.cls(uri, **node.params, **given)
-    except TypeError as e:  # a flag this format has no option for
-        raise PipelineError(f"{node.cls.name} source ({uri}): {e}") from None
-    return src, plan.nodes["output"].instantiate() if sink is not None else None
+    return plan.nodes["input"].instantiate(), plan.nodes["output"].instantiate() if sink is not None else None

@@ -112,25 +112,21 @@ class Param(typing.NamedTuple):
 
 
 def parameters(cls: type, skip_first: bool) -> list[Param]:
-    """The keyword parameters of ``cls(...)``: those of its ``__init__`` and,
-    where it passes ``**kw`` on, of its bases' (a file source's ``sensor``).
-    ``skip_first`` leaves out a source's or sink's path/URL argument."""
-    out: dict[str, Param] = {}
-    for i, base in enumerate(c for c in cls.__mro__ if "__init__" in vars(c) and c is not object):
-        sig = inspect.signature(base.__init__)  # type: ignore[misc]
-        try:
-            hints = typing.get_type_hints(base.__init__)  # type: ignore[misc]
-        except Exception:  # an annotation that does not resolve here: show the raw one
-            hints = {}
-        items = list(sig.parameters.values())[1 + (skip_first and i == 0):]
-        for p in items:
-            if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) and p.name not in out:
-                if i and p.name in ("path", "url"):
-                    continue
-                tp = type_name(hints[p.name]) if p.name in hints else (
-                    "" if p.annotation is p.empty else str(p.annotation))
-                default = "required" if p.default is p.empty else repr(p.default)
-                out[p.name] = Param(p.name, tp, default, unit_of(p.name))
-        if not any(p.kind == p.VAR_KEYWORD for p in items):
-            break
-    return list(out.values())
+    """The keyword parameters of ``cls(...)``, as pipelines accept them
+    (those passed on to a base class through ``**kw`` included: a file
+    source's ``sensor``). ``skip_first`` leaves out a source's or sink's
+    path/URL argument."""
+    from tectum._operator import component_params
+
+    hints: dict[str, Any] = {}
+    for owner in reversed(cls.__mro__):  # the most derived annotation wins
+        if "__init__" in vars(owner) and owner is not object:
+            try:
+                hints.update(typing.get_type_hints(owner.__init__))  # type: ignore[misc]
+            except Exception:  # an annotation that does not resolve here: shown as written
+                pass
+    out = []
+    for p in list(component_params(cls).values())[int(skip_first):]:
+        tp = type_name(hints[p.name]) if p.name in hints else ("" if p.annotation is p.empty else str(p.annotation))
+        out.append(Param(p.name, tp, "required" if p.default is p.empty else repr(p.default), unit_of(p.name)))
+    return out

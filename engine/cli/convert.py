@@ -19,7 +19,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from tectum import EventPacket
+    from tectum import EventPacket, accepts
 
     from ._args import open_source, split_query
     from ._progress import Progress, wanted
@@ -35,7 +35,7 @@ def main(args: argparse.Namespace) -> int:
         for pkt in src.packets():
             if progress is not None:
                 progress.update(pkt)
-            if pkt.kind in sink.consumes:
+            if accepts(sink.consumes, pkt.kind):
                 sink.write(pkt)
                 n += len(pkt) if isinstance(pkt, EventPacket) else 0
     except BaseException:

@@ -1,9 +1,10 @@
-"""Every event file tectum writes opens again through ``tectum info``,
-``tectum convert`` and ``tectum run``: one way of choosing a source (the
-registry's), so a format written by a sink is never "unrecognised".
+"""Every file tectum writes opens again through ``tectum info``, ``tectum
+convert`` and ``tectum run``: one way of choosing a source (the registry's),
+so a format written by a sink is never "unrecognised".
 
-Parametrised over the registry's sinks, so a new file sink is covered as
-soon as it registers."""
+Parametrised over the registry's sinks with an extension, so a new file sink
+is covered as soon as it registers: an event sink gets moving bars, a sink of
+another kind (poses, points ...) a stream of the first kind it takes."""
 
 from __future__ import annotations
 
@@ -14,49 +15,77 @@ import numpy as np
 import pytest
 
 import tectum
+from tectum import Kind, accepts, packet_class
 from tectum.cli import main
+from tectum.sinks.files._common import write_all
+from tectum.sinks.npz import NpzSink
+from tectum.sources.files import open_file
+from tectum.testing import assert_streams_equal
 
-#: Sinks with an extension that write pictures, not events: nothing to reopen.
+#: Sinks with an extension that write pictures, not streams: nothing to reopen.
 PICTURES = {"video", "png"}
-SOURCE = "pattern:?duration_us=20000&sensor=32x24&noise_hz=2"
+BARS = "pattern:?duration_us=20000&sensor=32x24&noise_hz=2"
 
 
-def _file_sinks() -> list[tuple[str, str]]:
+def _kind(cls: type) -> Kind:
+    if accepts(cls.consumes, Kind.EVENTS):
+        return Kind.EVENTS
+    return next(k for k in cls.consumes if k != Kind.ANY)
+
+
+def _file_sinks() -> list[tuple[str, str, Kind]]:
     sinks = tectum.get_registry().sinks
     assert PICTURES <= set(sinks), "a picture sink was renamed: update PICTURES"
-    return [(e.name, e.cls.extensions[0]) for e in sinks.values() if e.cls.extensions and e.name not in PICTURES]
+    return [(e.name, e.cls.extensions[0], _kind(e.cls)) for e in sinks.values()
+            if e.cls.extensions and e.name not in PICTURES]
 
 
-def _events(path: Path) -> tectum.EventPacket:
-    from tectum.sources.npz import read_npz
+def _samples(kind: Kind, n: int = 25) -> tectum.Packet:
+    """``n`` samples of ``kind``, 1 ms apart: every required field, as plain
+    numbers (poses: unit quaternions)."""
+    cls = packet_class(kind)
+    t = np.arange(n, dtype=np.int64) * 1000 + 5000
+    data = {}
+    for name, spec in cls.fields.items():
+        if not spec.optional:
+            shape = (n, *(spec.shape or ()))
+            data[name] = (np.arange(np.prod(shape)).reshape(shape) % 97 / 8).astype(spec.dtype)
+    if kind == Kind.POSES:
+        data["orientation"] = np.tile([0.0, 0.0, 0.6, 0.8], (n, 1))
+    return cls(t, t_start=int(t[0]), t_end=int(t[-1]) + 1, **data)
 
-    return read_npz(str(path))
+
+def _stream(path: Path, kind: Kind) -> list[tectum.Packet]:
+    return [q for q in open_file(str(path)).packets() if q.kind == kind]
 
 
-@pytest.fixture(scope="module")
-def reference(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("ref") / "ref.npz"
-    assert main(["run", SOURCE, "--sink", str(out)]) == 0
-    return out
-
-
-@pytest.mark.parametrize("name, ext", _file_sinks(), ids=lambda v: v)
-def test_written_file_reopens_in_info_convert_and_run(name: str, ext: str, reference: Path, tmp_path: Path,
+@pytest.mark.parametrize("name, ext, kind", _file_sinks(), ids=lambda v: str(v))
+def test_written_file_reopens_in_info_convert_and_run(name: str, ext: str, kind: Kind, tmp_path: Path,
                                                       capsys: pytest.CaptureFixture[str]) -> None:
-    ref = _events(reference)
-    f = tmp_path / f"out{ext}"
-    assert main(["run", SOURCE, "--sink", str(f)]) == 0
-    sensor = ["--sensor", "32x24"]
+    ref, f = tmp_path / "ref.npz", tmp_path / f"out{ext}"
+    if kind == Kind.EVENTS:
+        assert main(["run", BARS, "--sink", str(ref)]) == 0
+    else:
+        write_all(NpzSink(str(ref)), [_samples(kind)])
+    assert main(["run", str(ref), "--sink", str(f)]) == 0
+    want = _stream(ref, kind)
+    n = sum(len(q) for q in want)
+    sensor = ["--sensor", "32x24"] if kind == Kind.EVENTS else []
     capsys.readouterr()
     assert main(["info", str(f), "--json", *sensor]) == 0, name
     info = json.loads(capsys.readouterr().out)
-    assert info["events"] == len(ref) and tuple(info["sensor"]) == (32, 24), info
+    assert info["streams"].get(str(kind)) == n, info
+    if kind == Kind.EVENTS:
+        assert info["events"] == n and tuple(info["sensor"]) == (32, 24), info
     assert main(["info", str(f), *sensor]) == 0  # the table form too
-    assert f"{len(ref):,}" in capsys.readouterr().out
-    conv = tmp_path / "converted.npz"
+    assert f"{n:,}" in capsys.readouterr().out
+    conv, again = tmp_path / "converted.npz", tmp_path / "run.npz"
     assert main(["convert", str(f), str(conv), *sensor]) == 0
-    again = tmp_path / "run.npz"
     assert main(["run", str(f), "--sink", str(again)]) == 0
-    for got in (_events(conv), _events(again)):
-        for c in "txyp":
-            assert np.array_equal(getattr(got, c), getattr(ref, c)), (name, c)
+    for back in (conv, again):
+        got = _stream(back, kind)
+        if kind == Kind.EVENTS:  # formats differ in what else they keep (extra columns, the sensor size)
+            a, b = tectum.concat(want), tectum.concat(got)
+            assert all(np.array_equal(getattr(a, c), getattr(b, c)) for c in "txyp"), name
+        else:
+            assert_streams_equal(want, got, f"{kind} via {name}")
