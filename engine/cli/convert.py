@@ -19,7 +19,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from tectum import EventPacket, accepts
+    from tectum import accepts
 
     from ._args import open_source, split_query
     from ._progress import Progress, wanted
@@ -27,7 +27,7 @@ def main(args: argparse.Namespace) -> int:
     src, sink = open_source(args.input, args.output, sensor=args.sensor, skip_bad=args.skip_bad or None,
                             t_start_us=args.start_us, t_end_us=args.end_us)
     out = split_query(args.output)[0]
-    n = 0
+    written: dict[str, int] = {}  # kind -> events or samples
     known = args.start_us is not None and args.end_us is not None
     progress = Progress(args.end_us - args.start_us if known else None) if wanted(args.quiet) else None
     sink.open()
@@ -37,7 +37,7 @@ def main(args: argparse.Namespace) -> int:
                 progress.update(pkt)
             if accepts(sink.consumes, pkt.kind):
                 sink.write(pkt)
-                n += len(pkt) if isinstance(pkt, EventPacket) else 0
+                written[str(pkt.kind)] = written.get(str(pkt.kind), 0) + len(pkt)
     except BaseException:
         sink.abort()
         raise
@@ -47,5 +47,6 @@ def main(args: argparse.Namespace) -> int:
     sink.close()
     skipped = getattr(src, "skipped_events", 0)
     extra = f", skipped {skipped}" if skipped else ""
-    print(f"{n:,} events -> {out}{extra}")
+    what = ", ".join(f"{n:,} {kind}" for kind, n in written.items() if n) or "0 events"
+    print(f"{what} -> {out}{extra}")
     return 0
