@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from tectum.hookspecs import hookimpl
 
-__all__ = ["SINKS"]
+__all__ = ["SINKS", "SAMPLE_SINKS"]
 
 
 def _classes() -> list[type]:
@@ -22,7 +22,18 @@ def _classes() -> list[type]:
 SINKS = _classes()
 
 
+def _sample_classes() -> list[type]:
+    from .samples_csv import CsvSink
+    from .tum import TumSink
+
+    return [CsvSink, TumSink]
+
+
+#: Sinks of one sample stream per file (CSV of any flat kind, TUM poses).
+SAMPLE_SINKS = _sample_classes()
+
+
 @hookimpl
 def tectum_register_sinks(registry) -> None:  # type: ignore[no-untyped-def]
-    for cls in SINKS:
+    for cls in (*SINKS, *SAMPLE_SINKS):
         registry.add_sink(cls)

@@ -95,7 +95,7 @@ class TextSink(FileSink):
 
     name = "text"
     format = "text"
-    extensions = (".txt", ".csv")
+    extensions = (".txt",)  # .csv: the csv sink, which writes events through this one
 
     def __init__(self, path: str, columns: str = "txyp", time_unit: str = "s", header: bool | None = None) -> None:
         super().__init__(path)

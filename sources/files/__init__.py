@@ -14,7 +14,7 @@ from typing import Any
 
 from tectum.hookspecs import hookimpl
 
-__all__ = ["SOURCES", "open_file"]
+__all__ = ["SOURCES", "SAMPLE_SOURCES", "open_file"]
 
 
 def _classes() -> list[type]:
@@ -34,6 +34,18 @@ def _classes() -> list[type]:
 SOURCES = _classes()
 
 
+def _sample_classes() -> list[type]:
+    from .samples_csv import CsvSource
+    from .tum import TumSource
+
+    return [TumSource, CsvSource]
+
+
+#: Sources of sample-stream files (TUM poses, CSV of any flat kind),
+#: registered before :data:`SOURCES` so a sample CSV is sniffed before event text.
+SAMPLE_SOURCES = _sample_classes()
+
+
 def open_file(path: str, **kw: Any) -> Any:
     """A source for ``path``, chosen as everywhere else in tectum by
     :meth:`tectum.Registry.source_for` (URL scheme, file content, then
@@ -45,5 +57,5 @@ def open_file(path: str, **kw: Any) -> Any:
 
 @hookimpl
 def tectum_register_sources(registry) -> None:  # type: ignore[no-untyped-def]
-    for cls in SOURCES:
+    for cls in (*SAMPLE_SOURCES, *SOURCES):
         registry.add_source(cls)

@@ -1,0 +1,40 @@
+"""Poses to TUM trajectory files (``.tum``): one line ``t tx ty tz qx qy
+qz qw`` per pose after a ``# t[s] tx ty tz qx qy qz qw`` comment, space
+separated; ``t`` in seconds with 6 decimals (exactly the integer µs), the
+other numbers with the fewest digits that read back to the same float64.
+Velocities a pose stream may carry have no column in the format and are not
+written. :class:`tectum.sources.files.tum.TumSource` reads the file back."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tectum import Kind, PosePacket, SamplePacket
+from tectum.tables import Group, layout
+
+from ._rows import SampleFileSink, text_rows
+
+__all__ = ["TumSink"]
+
+
+class TumSink(SampleFileSink):
+    """Poses (position m, orientation quaternion x y z w) to a TUM file."""
+
+    name = "tum"
+    format = "tum"
+    extensions = (".tum",)
+    consumes = (Kind.POSES,)
+    kind = Kind.POSES
+
+    def _layout(self, cls: type[SamplePacket], data: dict[str, np.ndarray]) -> list[Group]:
+        return layout(PosePacket, {f: data[f] for f in ("position", "orientation")})
+
+    def _fit(self, packet: SamplePacket) -> dict[str, np.ndarray]:
+        return {"position": packet.data["position"], "orientation": packet.data["orientation"]}
+
+    def _head(self) -> None:
+        self._put("# t[s] tx ty tz qx qy qz qw\n")
+
+    def _rows(self, t: np.ndarray, data: dict[str, np.ndarray]) -> None:
+        assert self.groups is not None
+        self._put(text_rows(t, data, self.groups, " ", time_digits=6))

@@ -1,0 +1,124 @@
+"""Sample streams written by the CSV and TUM sinks read back exactly
+(every built-in kind with flat fields, random values and splits); the
+sinks are atomic, keep one layout per file and refuse what they cannot
+store."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from sample_streams import FLAT_KINDS, sample_packet, splits
+
+from tectum import EventPacket, ImuPacket, Kind, PointPacket, PosePacket, TrackPacket
+from tectum.sinks.files import SAMPLE_SINKS
+from tectum.sinks.files._common import write_all
+from tectum.sinks.files.samples_csv import CsvSink
+from tectum.sinks.files.tum import TumSink
+from tectum.sources.files import open_file
+from tectum.testing import assert_streams_equal
+
+SETTINGS = settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+
+
+def _read(path: Path, **kw: object) -> list:
+    return list(open_file(str(path), **kw).packets())
+
+
+@pytest.mark.parametrize("kind", FLAT_KINDS, ids=str)
+@SETTINGS
+@given(data=st.data(), cuts=st.lists(st.integers(0, 40), max_size=4))
+def test_csv_round_trip_is_exact(kind: Kind, data: st.DataObject, cuts: list[int], tmp_path_factory) -> None:
+    pkt = data.draw(sample_packet(kind, extras=data.draw(st.booleans())))
+    f = tmp_path_factory.mktemp("csv") / "s.csv"
+    write_all(CsvSink(str(f)), splits(pkt, cuts))
+    got = _read(f)
+    assert {q.kind for q in got} <= {kind}
+    assert_streams_equal([pkt], got, f"{kind} via csv")
+    if len(pkt):
+        assert all(got[0].data[k].dtype == v.dtype for k, v in pkt.data.items())
+
+
+@SETTINGS
+@given(data=st.data(), cuts=st.lists(st.integers(0, 40), max_size=4))
+def test_tum_round_trip_is_exact(data: st.DataObject, cuts: list[int], tmp_path_factory) -> None:
+    pkt = data.draw(sample_packet(Kind.POSES, keep=("position", "orientation"), max_rows=60))
+    f = tmp_path_factory.mktemp("tum") / "s.tum"
+    write_all(TumSink(str(f)), splits(pkt, cuts))
+    assert_streams_equal([pkt], _read(f), "tum")
+
+
+def test_tum_text_is_the_format(tmp_path: Path) -> None:
+    """Seconds with 6 decimals (the exact µs, negative times too), the other
+    numbers in the fewest digits that read back to the same float64."""
+    pkt = PosePacket([-1, 1_403_636_579_763_556], position=[[0.1, -2.5, 1e-300], [3.0, 0.0, -0.0]],
+                     orientation=[[0, 0, 0, 1.0], [0.5, 0.5, 0.5, 0.5]])
+    f = tmp_path / "a.tum"
+    write_all(TumSink(str(f)), [pkt])
+    assert f.read_text().splitlines() == ["# t[s] tx ty tz qx qy qz qw",
+                                          "-0.000001 0.1 -2.5 1e-300 0.0 0.0 0.0 1.0",
+                                          "1403636579.763556 3.0 0.0 -0.0 0.5 0.5 0.5 0.5"]
+
+
+def test_csv_text_is_the_format(tmp_path: Path) -> None:
+    pkt = TrackPacket([10, 10, 25], id=[1, 2, -(1 << 63)], x=[0.5, 1.0, np.nan], y=[2.0, np.inf, 3.25],
+                      age=np.array([7, 8, 9], np.int32))
+    f = tmp_path / "t.csv"
+    write_all(CsvSink(str(f)), [pkt])
+    assert f.read_text().splitlines() == ["# tectum tracks age=int32", "t,id,x,y,age", "10,1,0.5,2.0,7",
+                                          "10,2,1.0,inf,8", f"25,{-(1 << 63)},nan,3.25,9"]
+
+
+def test_csv_writes_the_first_sample_kind_or_the_one_named(tmp_path: Path) -> None:
+    ev = EventPacket.from_arrays([1, 2], [0, 1], [0, 1], [1, -1], sensor=(4, 4), t_end=50)
+    imu = ImuPacket([5, 9], accel=np.ones((2, 3)), gyro=np.zeros((2, 3)))
+    poses = PosePacket([7], position=[[1.0, 2, 3]], orientation=[[0, 0, 0, 1.0]])
+    stream = [ev, imu, poses, ev.slice_time(60, 70)]
+    first = tmp_path / "first.csv"
+    write_all(CsvSink(str(first)), stream)
+    assert_streams_equal([imu], _read(first))
+    named = tmp_path / "named.csv"
+    write_all(CsvSink(str(named), kind="poses"), stream)
+    assert_streams_equal([poses], _read(named))
+    events = tmp_path / "events.csv"  # events alone: the RPG CSV layout, read by the text source
+    write_all(CsvSink(str(events)), [ev])
+    assert events.read_text().splitlines()[0] == "t,x,y,p"
+    assert_streams_equal([ev], [q for q in _read(events, sensor="4x4") if q.kind == Kind.EVENTS])
+    assert sorted(os.listdir(tmp_path)) == ["events.csv", "first.csv", "named.csv"]  # no temporary file left
+    with pytest.raises(ValueError, match="frames and maps go to .npz"):
+        CsvSink(str(tmp_path / "f.csv"), kind="frames")
+
+
+@pytest.mark.parametrize("cls", SAMPLE_SINKS, ids=lambda c: c.name)
+def test_abort_leaves_nothing(cls: type, tmp_path: Path) -> None:
+    f = tmp_path / ("o" + cls.extensions[0])
+    s = cls(str(f))
+    s.open()
+    s.write(PosePacket([1, 2], position=np.zeros((2, 3)), orientation=[[0, 0, 0, 1.0]] * 2))
+    s.write(PointPacket([3], position=np.zeros((1, 3))))
+    s.abort()
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("cls", SAMPLE_SINKS, ids=lambda c: c.name)
+def test_an_empty_stream_is_a_valid_empty_file(cls: type, tmp_path: Path) -> None:
+    f = tmp_path / ("o" + cls.extensions[0])
+    write_all(cls(str(f)), [])
+    assert all(len(q) == 0 for q in _read(f, sensor="4x4"))
+
+
+def test_an_optional_float_field_missing_later_is_nan_a_new_one_is_refused(tmp_path: Path) -> None:
+    a = TrackPacket([1, 2], id=[1, 2], x=[0.0, 1], y=[0.0, 1], quality=[0.5, 0.25])
+    b = TrackPacket([3], id=[3], x=[2.0], y=[2.0])
+    f = tmp_path / "t.csv"
+    write_all(CsvSink(str(f)), [a, b])
+    got = _read(f)
+    assert np.array_equal(np.concatenate([q.quality for q in got]), [0.5, 0.25, np.nan], equal_nan=True)
+    later = TrackPacket([4, 5], id=[1, 2], x=[0.0, 1], y=[0.0, 1], quality=[1.0, 2])
+    with pytest.raises(ValueError, match=r"\['quality'\] first appear at t=4"):
+        write_all(CsvSink(str(tmp_path / "u.csv")), [b, later])
+    assert sorted(os.listdir(tmp_path)) == ["t.csv"]
