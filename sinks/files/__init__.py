@@ -23,13 +23,14 @@ SINKS = _classes()
 
 
 def _sample_classes() -> list[type]:
+    from .ply import PlySink
     from .samples_csv import CsvSink
     from .tum import TumSink
 
-    return [CsvSink, TumSink]
+    return [CsvSink, TumSink, PlySink]
 
 
-#: Sinks of one sample stream per file (CSV of any flat kind, TUM poses).
+#: Sinks of one sample stream per file (CSV of any flat kind, TUM poses, PLY point clouds).
 SAMPLE_SINKS = _sample_classes()
 
 

@@ -35,13 +35,14 @@ SOURCES = _classes()
 
 
 def _sample_classes() -> list[type]:
+    from .ply import PlySource
     from .samples_csv import CsvSource
     from .tum import TumSource
 
-    return [TumSource, CsvSource]
+    return [TumSource, CsvSource, PlySource]
 
 
-#: Sources of sample-stream files (TUM poses, CSV of any flat kind),
+#: Sources of sample-stream files (TUM poses, CSV of any flat kind, PLY point clouds),
 #: registered before :data:`SOURCES` so a sample CSV is sniffed before event text.
 SAMPLE_SOURCES = _sample_classes()
 

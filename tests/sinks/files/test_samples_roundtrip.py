@@ -1,4 +1,4 @@
-"""Sample streams written by the CSV and TUM sinks read back exactly
+"""Sample streams written by the CSV, TUM and PLY sinks read back exactly
 (every built-in kind with flat fields, random values and splits); the
 sinks are atomic, keep one layout per file and refuse what they cannot
 store."""
@@ -17,6 +17,7 @@ from sample_streams import FLAT_KINDS, sample_packet, splits
 from tectum import EventPacket, ImuPacket, Kind, PointPacket, PosePacket, TrackPacket
 from tectum.sinks.files import SAMPLE_SINKS
 from tectum.sinks.files._common import write_all
+from tectum.sinks.files.ply import PlySink
 from tectum.sinks.files.samples_csv import CsvSink
 from tectum.sinks.files.tum import TumSink
 from tectum.sources.files import open_file
@@ -50,6 +51,16 @@ def test_tum_round_trip_is_exact(data: st.DataObject, cuts: list[int], tmp_path_
     f = tmp_path_factory.mktemp("tum") / "s.tum"
     write_all(TumSink(str(f)), splits(pkt, cuts))
     assert_streams_equal([pkt], _read(f), "tum")
+
+
+@pytest.mark.parametrize("binary", [False, True], ids=["ascii", "binary"])
+@SETTINGS
+@given(data=st.data(), cuts=st.lists(st.integers(0, 40), max_size=4))
+def test_ply_round_trip_is_exact(binary: bool, data: st.DataObject, cuts: list[int], tmp_path_factory) -> None:
+    pkt = data.draw(sample_packet(Kind.POINTS, t_max=1 << 53))
+    f = tmp_path_factory.mktemp("ply") / "s.ply"
+    write_all(PlySink(str(f), binary=binary), splits(pkt, cuts))
+    assert_streams_equal([pkt], _read(f), "ply")
 
 
 def test_tum_text_is_the_format(tmp_path: Path) -> None:
@@ -122,3 +133,11 @@ def test_an_optional_float_field_missing_later_is_nan_a_new_one_is_refused(tmp_p
     with pytest.raises(ValueError, match=r"\['quality'\] first appear at t=4"):
         write_all(CsvSink(str(tmp_path / "u.csv")), [b, later])
     assert sorted(os.listdir(tmp_path)) == ["t.csv"]
+
+
+def test_ply_refuses_what_it_cannot_store(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="'label'.*no place"):
+        write_all(PlySink(str(tmp_path / "a.ply")), [PointPacket([1], position=np.zeros((1, 3)), label=[3])])
+    with pytest.raises(ValueError, match="2\\*\\*53"):
+        write_all(PlySink(str(tmp_path / "b.ply")), [PointPacket([(1 << 53) + 1], position=np.zeros((1, 3)))])
+    assert os.listdir(tmp_path) == []
