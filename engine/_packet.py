@@ -31,7 +31,7 @@ import numpy as np
 
 from .errors import PacketError
 
-__all__ = ["Kind", "Packet", "EventPacket", "accepts", "register_kind", "packet_class"]
+__all__ = ["Kind", "Packet", "EventPacket", "accepts", "as_times", "register_kind", "packet_class"]
 
 _BASE = ("t", "x", "y", "p")
 _NO_COLUMNS: Mapping[str, np.ndarray] = MappingProxyType({})
@@ -139,6 +139,8 @@ class Packet:
         raise AttributeError(f"{type(self).__name__} is immutable")
 
     def _init_interval(self, t: np.ndarray, t_start: int | None, t_end: int | None) -> None:
+        if (t_start is None or t_end is None) and t.shape[0] > 1 and t[-1] < t[0]:
+            self._check_times_order(t)  # names the first decreasing index
         if t_start is None:
             t_start = int(t[0]) if t.shape[0] else 0
         if t_end is None:
@@ -148,6 +150,13 @@ class Packet:
             raise PacketError(f"interval [{t_start}, {t_end}) ends before it starts")
         object.__setattr__(self, "t_start", t_start)
         object.__setattr__(self, "t_end", t_end)
+
+    @staticmethod
+    def _check_times_order(t: np.ndarray) -> None:
+        bad = np.flatnonzero(t[1:] < t[:-1])
+        if bad.size:
+            i = int(bad[0]) + 1
+            raise PacketError(f"timestamps decrease at index {i}: {int(t[i - 1])} then {int(t[i])} µs", index=i)
 
     def _check_times(self) -> None:
         t = self.t
@@ -351,16 +360,29 @@ class EventPacket(Packet):
         t_end: int | None = None,
         columns: Mapping[str, Any] | None = None,
         validate: bool = True,
+        time_unit: str = "us",
     ) -> "EventPacket":
         """Build a packet from foreign arrays: converts dtypes and polarity.
 
-        Polarity given as {0, 1} or bool becomes {-1, +1}; any other value
-        than {-1, 0, +1} is an error. With ``validate`` (the default) the
-        result is checked with :meth:`validate`.
+        Times are integer µs; floats are accepted only when finite and
+        whole, or, with ``time_unit="s"`` (or ``"ms"``), as seconds (or
+        milliseconds) rounded to the nearest µs. Coordinates must be whole
+        numbers in 0..65535. Polarity given as {0, 1} or bool becomes {-1,
+        +1}; any other value than {-1, 0, +1} is an error. Errors name the
+        first bad value. With ``validate`` (the default) the result is
+        checked with :meth:`validate`.
         """
-        t = np.ascontiguousarray(t, dtype=np.int64)
+        t = as_times(t, time_unit)
         xs, ys = np.asarray(x), np.asarray(y)
         for name, a in (("x", xs), ("y", ys)):
+            if a.dtype.kind == "f":
+                bad = np.flatnonzero(~np.isfinite(a) | (a != np.round(a)))
+                if bad.size:
+                    i = int(bad[0])
+                    raise PacketError(f"column {name!r}: event {i} has {name}={float(a.ravel()[i])}, not a whole pixel",
+                                      index=i)
+            elif a.dtype.kind not in "iub" and a.size:
+                raise PacketError(f"column {name!r} must be numbers, got {a.dtype}")
             if a.size and (a.min() < 0 or a.max() > 65535):
                 raise PacketError(f"column {name!r} has values outside 0..65535")
         p = _polarity(np.asarray(p))
@@ -476,6 +498,36 @@ _set_t, _set_x, _set_y, _set_p, _set_sensor, _set_columns = (
     EventPacket.__dict__[n].__set__ for n in ("t", "x", "y", "p", "sensor", "columns")
 )
 _set_t_start, _set_t_end = (Packet.__dict__[n].__set__ for n in ("t_start", "t_end"))
+
+
+_UNITS_US = {"us": 1, "ms": 1_000, "s": 1_000_000}
+
+
+def as_times(t: Any, time_unit: str = "us") -> np.ndarray:
+    """``t`` as int64 µs. Integers are taken as they are (in ``time_unit``);
+    floats must be finite, and whole when in µs; in ``s`` or ``ms`` they are
+    rounded to the nearest µs. Raises :class:`PacketError` naming the first
+    bad sample."""
+    if time_unit not in _UNITS_US:
+        raise ValueError(f"time_unit must be one of {list(_UNITS_US)}, got {time_unit!r}")
+    scale = _UNITS_US[time_unit]
+    arr = np.asarray(t)
+    if arr.dtype.kind in "iub":
+        if arr.dtype.kind == "u" and arr.size and int(arr.max()) > np.iinfo(np.int64).max // scale:
+            raise PacketError("'t' has values above the int64 µs range")
+        out = np.ascontiguousarray(arr, dtype=np.int64)
+        return out * scale if scale != 1 else out
+    if arr.dtype.kind != "f":
+        raise PacketError(f"'t' must be numbers of {time_unit}, got {arr.dtype}")
+    us = arr * scale if scale != 1 else arr
+    if scale != 1:
+        us = np.round(us)
+    bad = np.flatnonzero(~np.isfinite(us) | (us != np.round(us)) | (np.abs(us) > 2.0**62))
+    if bad.size:
+        i = int(bad[0])
+        what = "whole µs (give time_unit='s' for seconds)" if scale == 1 else f"finite {time_unit}"
+        raise PacketError(f"'t' must be {what}; sample {i} has t={float(arr.ravel()[i])}", index=i)
+    return np.ascontiguousarray(us, dtype=np.int64)
 
 
 def _polarity(p: np.ndarray) -> np.ndarray:

@@ -32,7 +32,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ._packet import Kind, Packet, register_kind
+from ._packet import Kind, Packet, as_times, register_kind
 from .errors import PacketError
 
 __all__ = [
@@ -91,24 +91,6 @@ class Field:
         raise ValueError(f"field {name!r} of shape {self.shape} has no flat columns")
 
 
-def _times(t: Any) -> np.ndarray:
-    """``t`` as int64 µs: integers as they are, floats only when finite and whole."""
-    arr = np.asarray(t)
-    if arr.dtype == np.int64:
-        return np.ascontiguousarray(arr)
-    if arr.dtype.kind in "iub":
-        if arr.dtype.kind == "u" and arr.size and int(arr.max()) > np.iinfo(np.int64).max:
-            raise PacketError("'t' has values above the int64 range")
-        return np.ascontiguousarray(arr, dtype=np.int64)
-    if arr.dtype.kind == "f":
-        bad = np.flatnonzero(~np.isfinite(arr) | (arr != np.round(arr)) | (np.abs(arr) > 2.0**62))
-        if bad.size:
-            i = int(bad[0])
-            raise PacketError(f"'t' must be whole µs; sample {i} has t={arr.ravel()[i]!r}", index=i)
-        return np.ascontiguousarray(arr, dtype=np.int64)
-    raise PacketError(f"'t' must be integer µs, got {arr.dtype}")
-
-
 def _field_array(cls: type, name: str, value: Any, spec: Field | None, n: int) -> np.ndarray:
     arr = value if isinstance(value, np.ndarray) else np.asarray(value)
     where = f"{cls.__name__} field {name!r}"
@@ -144,7 +126,7 @@ class SamplePacket(Packet):
     data: Mapping[str, np.ndarray]
 
     def __init__(self, t: Any, *, t_start: int | None = None, t_end: int | None = None, **data: Any) -> None:
-        t = _times(t)
+        t = as_times(t)
         if t.ndim != 1:
             raise PacketError("'t' must be 1-D")
         fields = self.fields
@@ -170,7 +152,7 @@ class SamplePacket(Packet):
 
     def __getattr__(self, name: str) -> np.ndarray:
         try:
-            return object.__getattribute__(self, "data")[name]  # type: ignore[no-any-return]
+            return object.__getattribute__(self, "data")[name]
         except KeyError:
             raise AttributeError(f"{type(self).__name__} has no field {name!r}") from None
 

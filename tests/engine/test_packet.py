@@ -7,6 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import tectum
 from tectum.testing import assert_stream_contract
 from tectum import EventPacket, ImuPacket, PacketError, ResultPacket, concat, from_structured, to_structured
 
@@ -134,3 +135,30 @@ def test_structured_adapters_round_trip(layout):
 def test_from_structured_seconds():
     arr = np.array([(0.5, 1, 1, 1)], dtype=[("t", "f8"), ("x", "u2"), ("y", "u2"), ("p", "u1")])
     assert from_structured(arr, sensor=(2, 2), time_scale=1e6).t.tolist() == [500000]
+
+
+@pytest.mark.parametrize("t, message", [
+    ([0.0, float("nan"), 2.0], "sample 1 has t=nan"),
+    ([float("inf")], "sample 0 has t=inf"),
+    ([1e30], "sample 0"),
+    ([0.5, 1.0], "whole µs"),
+])
+def test_non_finite_or_fractional_times_are_rejected(t, message):
+    """Regression: NaN/inf/1e30 became INT64_MIN, 0.5 s truncated to 0."""
+    with pytest.raises(tectum.PacketError, match=message):
+        tectum.EventPacket.from_arrays(t, [0] * len(t), [0] * len(t), [1] * len(t), sensor=(4, 4))
+
+
+def test_seconds_only_when_asked():
+    pkt = tectum.EventPacket.from_arrays([0.5, 1.0000015], [0, 1], [0, 0], [1, 0], sensor=(4, 4), time_unit="s")
+    assert pkt.t.tolist() == [500_000, 1_000_002]
+
+
+def test_nan_coordinates_are_rejected_not_zeroed():
+    with pytest.raises(tectum.PacketError, match="event 1 has x=nan"):
+        tectum.EventPacket.from_arrays([0, 1], [0.0, float("nan")], [0, 0], [1, 1], sensor=(4, 4))
+
+
+def test_unsorted_times_name_the_first_decreasing_index():
+    with pytest.raises(tectum.PacketError, match="timestamps decrease at index 2: 30 then 21"):
+        tectum.EventPacket.from_arrays([20, 30, 21], [0, 0, 0], [0, 0, 0], [1, 1, 1], sensor=(4, 4))
