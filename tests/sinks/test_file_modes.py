@@ -1,6 +1,7 @@
 """Files a sink writes get the permissions the user's umask gives any new
 file (0o644 under umask 022), not the 0o600 of a private temporary file:
-every registered sink with an extension, so a new one is covered."""
+every registered sink with an extension, so a new one is covered (fed
+events, or a tick of the kind it takes)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,8 @@ from pathlib import Path
 import pytest
 
 import tectum
+from tectum import Kind, packet_class
+from tectum.testing import ListSource
 
 
 def _file_sinks() -> list[tuple[str, str]]:
@@ -31,7 +34,12 @@ def umask(request: pytest.FixtureRequest) -> Iterator[int]:
 def test_output_honours_the_umask(name: str, ext: str, umask: int, tmp_path: Path) -> None:
     out = tmp_path / f"out{ext}"
     p = tectum.Pipeline()
-    p.sink(str(out), p.source("pattern:", sensor="32x24", duration_us=100_000))
+    cls = tectum.get_registry().sinks[name].cls
+    if tectum.accepts(cls.consumes, Kind.EVENTS):
+        src = p.source("pattern:", sensor="32x24", duration_us=100_000)
+    else:  # a sink of another kind (poses, points ...): a tick of it
+        src = p.source(ListSource([packet_class(cls.consumes[0]).empty(0, 10)]))
+    p.sink(str(out), src)
     tectum.run(p)
     assert stat.S_IMODE(out.stat().st_mode) == 0o666 & ~umask, (name, oct(out.stat().st_mode))
     assert sorted(f.name for f in tmp_path.iterdir()) == [out.name]  # no temporary file left beside it
