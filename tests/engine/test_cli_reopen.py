@@ -13,46 +13,23 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from sink_inputs import BARS, sink_kind, write_input
 
 import tectum
-from tectum import Kind, accepts, packet_class
+from tectum import Kind
 from tectum.cli import main
-from tectum.sinks.files._common import write_all
-from tectum.sinks.npz import NpzSink
 from tectum.sources.files import open_file
 from tectum.testing import assert_streams_equal
 
 #: Sinks with an extension that write pictures, not streams: nothing to reopen.
 PICTURES = {"video", "png"}
-BARS = "pattern:?duration_us=20000&sensor=32x24&noise_hz=2"
-
-
-def _kind(cls: type) -> Kind:
-    if accepts(cls.consumes, Kind.EVENTS):
-        return Kind.EVENTS
-    return next(k for k in cls.consumes if k != Kind.ANY)
 
 
 def _file_sinks() -> list[tuple[str, str, Kind]]:
     sinks = tectum.get_registry().sinks
     assert PICTURES <= set(sinks), "a picture sink was renamed: update PICTURES"
-    return [(e.name, e.cls.extensions[0], _kind(e.cls)) for e in sinks.values()
+    return [(e.name, e.cls.extensions[0], sink_kind(e.cls)) for e in sinks.values()
             if e.cls.extensions and e.name not in PICTURES]
-
-
-def _samples(kind: Kind, n: int = 25) -> tectum.Packet:
-    """``n`` samples of ``kind``, 1 ms apart: every required field, as plain
-    numbers (poses: unit quaternions)."""
-    cls = packet_class(kind)
-    t = np.arange(n, dtype=np.int64) * 1000 + 5000
-    data = {}
-    for name, spec in cls.fields.items():
-        if not spec.optional:
-            shape = (n, *(spec.shape or ()))
-            data[name] = (np.arange(np.prod(shape)).reshape(shape) % 97 / 8).astype(spec.dtype)
-    if kind == Kind.POSES:
-        data["orientation"] = np.tile([0.0, 0.0, 0.6, 0.8], (n, 1))
-    return cls(t, t_start=int(t[0]), t_end=int(t[-1]) + 1, **data)
 
 
 def _stream(path: Path, kind: Kind) -> list[tectum.Packet]:
@@ -66,7 +43,7 @@ def test_written_file_reopens_in_info_convert_and_run(name: str, ext: str, kind:
     if kind == Kind.EVENTS:
         assert main(["run", BARS, "--sink", str(ref)]) == 0
     else:
-        write_all(NpzSink(str(ref)), [_samples(kind)])
+        write_input(ref, kind)
     assert main(["run", str(ref), "--sink", str(f)]) == 0
     want = _stream(ref, kind)
     n = sum(len(q) for q in want)
