@@ -23,7 +23,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scene", nargs="?", help="a built-in scene name (see --list), a scene .toml file, a video "
                    "file, an image folder or an images.txt list")
     p.add_argument("--list", action="store_true", help="list the built-in scenes and exit")
-    p.add_argument("--duration", type=parse_duration, help="simulated time, e.g. 2s, 150ms (default: the scene's or 1s)")
+    p.add_argument("--duration", type=parse_duration,
+                   help="simulated time, e.g. 2s, 150ms (default: the scene's or 1s)")
     p.add_argument("--out", help="event file; the writer is chosen by extension (.npz keeps per-event truth "
                    "columns); ground truth goes to OUT.truth.npz")
     p.add_argument("--seed", type=int, default=0, help="random seed (noise, threshold spread)")

@@ -4,12 +4,20 @@ beside the target and renames it into place on close; abort removes it."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from tectum.hookspecs import hookimpl
+
+if TYPE_CHECKING:
+    from tectum import Sink
+
+    from ._common import FileSink
+    from .hdf5 import Hdf5Sink
 
 __all__ = ["SINKS", "SAMPLE_SINKS"]
 
 
-def _classes() -> list[type]:
+def _classes() -> list[type[FileSink] | type[Hdf5Sink]]:  # each made from a path
     from .aedat4 import Aedat4Sink
     from .hdf5 import Hdf5Sink
     from .npy import NpySink
@@ -22,7 +30,7 @@ def _classes() -> list[type]:
 SINKS = _classes()
 
 
-def _sample_classes() -> list[type]:
+def _sample_classes() -> list[type[Sink]]:
     from .ply import PlySink
     from .samples_csv import CsvSink
     from .tum import TumSink
