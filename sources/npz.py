@@ -28,7 +28,7 @@ their ends. Each stream is read a chunk of rows at a time.
 from __future__ import annotations
 
 import zipfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from typing import IO, Any
 
 import numpy as np
@@ -49,8 +49,9 @@ class _Column:
         self.name = member[:-4]
         self.f: IO[bytes] = zf.open(member)
         try:
-            version = np.lib.format.read_magic(self.f)
-            read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            npy = np.lib.format
+            version = npy.read_magic(self.f)
+            read_header = npy.read_array_header_1_0 if version == (1, 0) else npy.read_array_header_2_0
             shape, fortran, dtype = read_header(self.f)
         except (ValueError, OSError, EOFError) as e:
             raise FormatError(f"column {self.name!r} is not a valid .npy array: {e}", path=path) from None
@@ -90,24 +91,15 @@ class _Stream:
         self.step = max(1, _SAMPLE_BYTES // (8 + sum(c.row for c in fields.values())))
 
     def packets(self) -> Iterator[SamplePacket]:
-        start = self.interval[0] if self.interval else None
-        t = _to_us(self.t.read(0), self.scale)
-        data = {n: c.read(0) for n, c in self.fields.items()}
-        left = self.t.rows
-        while left:
-            k = min(left, self.step)
-            left -= k
-            t = np.concatenate([t, _to_us(self.t.read(k), self.scale)])
-            data = {n: np.concatenate([data[n], c.read(k)]) for n, c in self.fields.items()}
-            start = int(t[0]) if start is None else start
-            i = int(np.searchsorted(t, t[-1], side="left")) if left else t.shape[0]
-            if i == 0:
-                continue
-            end = int(t[i]) if left else max(int(t[-1]) + 1, self.interval[1] if self.interval else 0)
-            yield self._packet(t[:i], {n: a[:i] for n, a in data.items()}, start, end)
-            t, data, start = t[i:], {n: a[i:] for n, a in data.items()}, end
-        if self.t.rows == 0 and self.interval:
-            yield self._packet(t, data, *self.interval)
+        def read(k: int) -> dict[str, np.ndarray]:
+            rows = {n: c.read(k) for n, c in self.fields.items()}
+            rows["t"] = _to_us(self.t.read(k), self.scale)
+            return rows
+
+        for rows, t0, t1 in _tiles(read, self.t.rows, self.step, self.interval):
+            yield self._packet(rows.pop("t"), rows, t0, t1)
+        if self.t.rows == 0 and self.interval:  # a stream of ticks only
+            yield self.cls.empty(*self.interval)
 
     def _packet(self, t: np.ndarray, data: dict[str, np.ndarray], t_start: int, t_end: int) -> SamplePacket:
         try:
@@ -293,31 +285,14 @@ class NpzSource(Source):
         if cols["t"].dtype.kind == "f" and self.time_unit == "us":
             raise FormatError("'t' is floating point: say its unit with time_unit (s, ms, us, ns)",
                               path=self.path)
-        names = ("t", "x", "y", "p", *(c for c in cols if c not in ("t", "x", "y", "p")))
-        start = interval[0] if interval else None
-        carry: dict[str, np.ndarray] | None = None
-        left = n
-        while left:
-            k = min(left, self.chunk_events)
-            left -= k
-            chunk = {c: cols[c].read(k) for c in names}
-            chunk["t"] = _to_us(chunk["t"], scale)
-            if carry is not None:
-                chunk = {c: np.concatenate([carry[c], chunk[c]]) for c in names}
-                carry = None
-            if left:  # the last timestamp's run may go on in the next chunk: hold it
-                t = chunk["t"]
-                i = int(np.searchsorted(t, t[-1], side="left"))
-                carry = {c: v[i:] for c, v in chunk.items()}
-                if i == 0:
-                    continue
-                chunk = {c: v[:i] for c, v in chunk.items()}
-                t_end = int(carry["t"][0])
-            else:
-                t_end = interval[1] if interval else int(chunk["t"][-1]) + 1
-            t_start = start if start is not None else int(chunk["t"][0])
-            yield self._packet(chunk, sensor, t_start, t_end)
-            start = t_end
+
+        def read(k: int) -> dict[str, np.ndarray]:
+            rows = {c: a.read(k) for c, a in cols.items()}
+            rows["t"] = _to_us(rows["t"], scale)
+            return rows
+
+        for rows, t0, t1 in _tiles(read, n, self.chunk_events, interval):
+            yield self._packet(rows, sensor, t0, t1)
         if n == 0 and interval:
             yield EventPacket.empty(sensor, interval[0], interval[1])
 
@@ -334,6 +309,37 @@ class NpzSource(Source):
         if self._zf is not None:
             self._zf.close()
             self._zf = None
+
+
+def _tiles(read: Callable[[int], dict[str, np.ndarray]], n: int, step: int,
+           interval: tuple[int, int] | None) -> Iterator[tuple[dict[str, np.ndarray], int, int]]:
+    """Rows of arrays read ``step`` at a time (``read(k)``: the next ``k``
+    rows of each, ``t`` in µs) as consecutive pieces ``(rows, t_start,
+    t_end)`` tiling ``interval`` (default: first time to last time + 1 µs);
+    the rows of a read's last timestamp wait for the next read, so a
+    timestamp is never split."""
+    start = interval[0] if interval else None
+    carry: dict[str, np.ndarray] | None = None
+    left = n
+    while left:
+        k = min(left, step)
+        left -= k
+        rows = read(k)
+        if carry is not None:
+            rows = {c: np.concatenate([carry[c], v]) for c, v in rows.items()}
+            carry = None
+        t = rows["t"]
+        if left:  # the last timestamp's run may go on in the next read: hold it
+            i = int(np.searchsorted(t, t[-1], side="left"))
+            carry = {c: v[i:] for c, v in rows.items()}
+            if i == 0:
+                continue
+            rows, t_end = {c: v[:i] for c, v in rows.items()}, int(t[i])
+        else:
+            t_end = interval[1] if interval else int(t[-1]) + 1
+        t_start = start if start is not None else int(t[0])
+        yield rows, t_start, t_end
+        start = t_end
 
 
 def _by_end(pieces: list[Iterator[SamplePacket]]) -> Iterator[SamplePacket]:

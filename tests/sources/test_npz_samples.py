@@ -14,8 +14,18 @@ from hypothesis import strategies as st
 from sample_streams import splits
 
 import tectum
-from tectum import (EventPacket, FramePacket, ImuPacket, Kind, MapPacket, Packet, PosePacket, ResultPacket,
-                    SamplePacket, TrackPacket)
+from tectum import (
+    EventPacket,
+    FramePacket,
+    ImuPacket,
+    Kind,
+    MapPacket,
+    Packet,
+    PosePacket,
+    ResultPacket,
+    SamplePacket,
+    TrackPacket,
+)
 from tectum.cli import main
 from tectum.sinks.npz import NpzSink
 from tectum.sources import npz as npz_source
@@ -167,6 +177,12 @@ def test_ticks_and_results_decide_nothing(tmp_path: Path) -> None:
     got = list(NpzSource(str(f)).packets())
     assert {q.kind for q in got} == {Kind.FRAMES} and (got[0].t_start, got[-1].t_end) == (0, 30)
     assert_streams_equal(frames, got)
+
+
+def test_a_stream_of_ticks_only_comes_back_as_a_tick(tmp_path: Path) -> None:
+    f = tmp_path / "f.npz"
+    _write(f, [FramePacket.empty(0, 10), FramePacket.empty(10, 25)])
+    assert [(q.kind, len(q), q.t_start, q.t_end) for q in NpzSource(str(f)).packets()] == [(Kind.FRAMES, 0, 0, 25)]
 
 
 def test_an_event_column_named_like_a_sample_array_is_refused(tmp_path: Path) -> None:

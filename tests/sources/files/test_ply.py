@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import decodes_or_names
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -19,6 +18,8 @@ from tectum.sinks.files.ply import PlySink
 from tectum.sources.files import open_file
 from tectum.sources.files.ply import PlySource
 from tectum.testing import assert_streams_equal
+
+from helpers import decodes_or_names
 
 CUBE = b"""ply
 format ascii 1.0

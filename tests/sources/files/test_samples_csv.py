@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import decodes_or_names
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -15,6 +14,8 @@ from tectum import FormatError, Kind, concat
 from tectum.sources.files import open_file
 from tectum.sources.files.samples_csv import CsvSource
 from tectum.sources.files.text import TextSource
+
+from helpers import decodes_or_names
 
 IMU = [b"# tectum imu", b"t,ax,ay,az,gx,gy,gz", b"10,0,0,9.81,0.1,0.2,0.3", b"20,0,0,9.8,0.1,0.2,0.3",
        b"30,1e-3,-0,9.8,0.1,0.2,0.3"]

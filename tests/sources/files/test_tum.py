@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import decodes_or_names
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -15,6 +14,8 @@ from tectum import FormatError, PosePacket, concat
 from tectum.cli import main
 from tectum.sources.files import open_file
 from tectum.sources.files.tum import TumSource
+
+from helpers import decodes_or_names
 
 GOOD = [b"# t[s] tx ty tz qx qy qz qw", b"1.0 0 0 0 0 0 0 1", b"1.5 1 2 3 0.5 0.5 0.5 0.5",
         b"2.25 -1 0.5 4 0 0.6 0 0.8", b"3 9 9 9 0 0 1 0"]
