@@ -37,7 +37,7 @@ yet emitted, plus one (H, W, 3) table of pixel rays.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 from numba import njit
@@ -49,7 +49,7 @@ __all__ = ["MotionCompensated", "warp_vote", "gyro_rotations"]
 
 
 @njit(cache=True, nogil=True)
-def gyro_rotations(t, knot_t, knot_w, t_ref):  # pragma: no cover - numba
+def gyro_rotations(t, knot_t, knot_w, t_ref):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     """Rotation ``R_ref_from_t`` (N, 3, 3) for each time ``t`` (int64 µs,
     sorted, all >= knot_t[0]) given gyro knots: ω ``knot_w[k]`` (rad/s,
     camera frame) held over ``[knot_t[k], knot_t[k+1])``; ``t_ref`` >= every
@@ -75,7 +75,7 @@ def gyro_rotations(t, knot_t, knot_w, t_ref):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def _exp(w, dt):  # pragma: no cover - numba
+def _exp(w, dt):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     """exp([w dt]x) (Rodrigues), w rad/s, dt s."""
     ax, ay, az = w[0] * dt, w[1] * dt, w[2] * dt
     th2 = ax * ax + ay * ay + az * az
@@ -91,7 +91,7 @@ def _exp(w, dt):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def warp_vote(x, y, p, R, rays, fx, fy, cx, cy, signed, img):  # pragma: no cover - numba
+def warp_vote(x, y, p, R, rays, fx, fy, cx, cy, signed, img):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     """Rotate each event's ray ``rays[y, x]`` by ``R[i]`` and vote it
     bilinearly into ``img`` (H, W) at its pinhole projection; returns the
     number of events that landed inside the image."""
@@ -367,8 +367,8 @@ def _rotating_points(duration_us: int, sensor: tuple[int, int], f: float, omega:
         t_all.append(np.full(int(ok.sum()), t))
         x_all.append(np.round(u[ok]))
         y_all.append(np.round(v[ok]))
-    t = np.concatenate(t_all)
-    ev = EventPacket.from_arrays(t, np.concatenate(x_all), np.concatenate(y_all), np.ones(len(t), np.int8),
+    t_ev = np.concatenate(t_all)
+    ev = EventPacket.from_arrays(t_ev, np.concatenate(x_all), np.concatenate(y_all), np.ones(len(t_ev), np.int8),
                                  sensor=sensor, t_start=0, t_end=duration_us)
     ti = np.arange(0, duration_us, int(1e6 / rate_hz), dtype=np.int64)
     imu = ImuPacket(ti, accel=np.zeros((len(ti), 3)), gyro=np.tile(omega, (len(ti), 1)), t_start=0,

@@ -169,13 +169,13 @@ class LiveViewSink(_Rendering):
                 png = buf.tobytes()
             return _http(200, "image/png", png)
         if path == "/stats.json":
-            body = dict(self._stats, tracks=len(r.tracks) + len(self._tracks))
+            stats = dict(self._stats, tracks=len(r.tracks) + len(self._tracks))
             if self._run_stats is not None:
                 try:
-                    body["pipeline"] = self._run_stats.as_dict()
+                    stats["pipeline"] = self._run_stats.as_dict()
                 except RuntimeError:  # a dict changed size while the pipeline runs: next time
                     pass
-            return _http(200, "application/json", json.dumps(body, default=float).encode())
+            return _http(200, "application/json", json.dumps(stats, default=float).encode())
         return _http(404, "text/plain", b"not found\n")
 
     async def _mjpeg(self, stream: trio.SocketStream) -> None:

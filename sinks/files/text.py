@@ -20,7 +20,7 @@ _UNIT_DIGITS = {"s": 6, "ms": 3, "us": 0}
 
 
 @njit(cache=True, nogil=True)
-def _put_uint(out, k, v):  # pragma: no cover - numba
+def _put_uint(out, k, v):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     if v == 0:
         out[k] = 48
         return k + 1
@@ -36,7 +36,7 @@ def _put_uint(out, k, v):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def format_events(t, x, y, p, order, digits, sep, pad_ns, out):  # pragma: no cover - numba
+def format_events(t, x, y, p, order, digits, sep, pad_ns, out):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     """Write lines into ``out`` (uint8); returns bytes used."""
     k = 0
     scale = np.int64(1)

@@ -47,18 +47,18 @@ _STATE = 3
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _at(buf, i):  # pragma: no cover - numba
+def _at(buf, i):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     """``buf[i]`` for ``i >= 0``: an unsigned index spares the negative-index check."""
     return buf[np.uint64(i)]
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _sep(c):  # pragma: no cover - numba
+def _sep(c):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     return c == 32 or c == 9 or c == 44 or c == 13
 
 
 @njit(cache=True, nogil=True)
-def parse_lines(buf, order, digits, state, t, x, y, p, where):  # pragma: no cover - numba
+def parse_lines(buf, order, digits, state, t, x, y, p, where):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     """Parse complete lines of ``buf`` (uint8) in one pass into the columns
     (t int64 µs, x and y uint16, p int8 ±1; ``where`` gets each line's
     offset unless it is empty). ``order[k]`` is the field (0 t, 1 x, 2 y,
