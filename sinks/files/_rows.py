@@ -15,7 +15,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from tectum import Kind, Packet, SamplePacket
+from tectum import Kind, Packet, SamplePacket, packet_class
 from tectum.tables import Group, float_text, layout, us_text
 
 from ._common import FileSink
@@ -67,9 +67,9 @@ class SampleFileSink(FileSink):
                     raise ValueError(f"{self.format}: field {g.field!r} is missing from a packet at "
                                      f"t={int(packet.t[0])} µs, and only optional float fields may be (NaN)")
                 a = np.full((len(packet),) if g.width is None else (len(packet), g.width), np.nan, g.dtype)
-            elif a.shape[1:] != (() if g.width is None else (g.width,)):
-                raise ValueError(f"{self.format}: field {g.field!r} changes shape to {a.shape[1:]} at "
-                                 f"t={int(packet.t[0])} µs")
+            elif a.dtype != g.dtype or a.shape[1:] != (() if g.width is None else (g.width,)):
+                raise ValueError(f"{self.format}: field {g.field!r} changes from {g.dtype} to {a.dtype} "
+                                 f"{a.shape[1:]} per sample at t={int(packet.t[0])} µs")
             out[g.field] = a
         known = {g.field for g in self.groups}
         new = [f for f in packet.data if f not in known]
@@ -81,8 +81,6 @@ class SampleFileSink(FileSink):
     def _empty(self) -> None:
         """No packet with samples came: the header of the kind's required fields."""
         if self.groups is None:
-            from tectum import packet_class
-
             cls = packet_class(self.kind)
             assert issubclass(cls, SamplePacket)
             self._start(cls, dict(cls.empty(0).data))

@@ -132,6 +132,10 @@ def test_an_optional_float_field_missing_later_is_nan_a_new_one_is_refused(tmp_p
     later = TrackPacket([4, 5], id=[1, 2], x=[0.0, 1], y=[0.0, 1], quality=[1.0, 2])
     with pytest.raises(ValueError, match=r"\['quality'\] first appear at t=4"):
         write_all(CsvSink(str(tmp_path / "u.csv")), [b, later])
+    wider = TrackPacket([6], id=[5], x=[0.0], y=[0.0], quality=[1.0], age=np.array([1], np.int64))
+    with pytest.raises(ValueError, match="field 'age' changes from int32 to int64"):
+        write_all(CsvSink(str(tmp_path / "v.csv")), [TrackPacket([1], id=[1], x=[0.0], y=[0.0], quality=[1.0],
+                                                                 age=np.array([1], np.int32)), wider])
     assert sorted(os.listdir(tmp_path)) == ["t.csv"]
 
 
