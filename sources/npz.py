@@ -376,4 +376,4 @@ def read_npz(path: str, **kw: Any) -> EventPacket:
 
     src = NpzSource(path, **kw)
     pkts = [q for q in src.packets() if isinstance(q, EventPacket)]
-    return concat(pkts)  # type: ignore[return-value]
+    return concat(pkts)

@@ -31,6 +31,7 @@ dropped and counted.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
@@ -152,13 +153,9 @@ class CsvSource(SampleFileSource):
         positions = [[where[c] for c in g.columns] for g in groups]
         parser = RowParser(self, groups, positions, len(names), _split, whole_us, _check(cls, groups))
         stream = RowStream(self, cls)
-        while True:
-            if lines:
-                t, data = parser.parse(lines)
-                yield from stream.push(t, data, lines[0].offset)
-            lines = next(chunks, None)  # type: ignore[arg-type]
-            if lines is None:
-                break
+        for chunk in itertools.chain([lines] if lines else [], chunks):
+            t, data = parser.parse(chunk)
+            yield from stream.push(t, data, chunk[0].offset)
         yield from stream.finish()
 
 
