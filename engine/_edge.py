@@ -101,7 +101,7 @@ class Edge:
             self._writers.unpark()
         return item
 
-    def __aiter__(self) -> "Edge":
+    def __aiter__(self) -> Edge:
         return self
 
     async def __anext__(self) -> Any:

@@ -85,7 +85,7 @@ class Stepper:
             for s in self._sinks.values():
                 s.close()
 
-    def __enter__(self) -> "Stepper":
+    def __enter__(self) -> Stepper:
         return self
 
     def __exit__(self, *exc: Any) -> None:
@@ -132,7 +132,7 @@ class ThreadedPipeline:
         with self._lock:
             return self._latest[node]
 
-    def start(self) -> "ThreadedPipeline":
+    def start(self) -> ThreadedPipeline:
         self._thread = threading.Thread(target=self._main, name="tectum-pipeline", daemon=True)
         self._thread.start()
         self._started.wait()
@@ -186,7 +186,7 @@ class ThreadedPipeline:
             raise self._error
         return self.stats
 
-    def __enter__(self) -> "ThreadedPipeline":
+    def __enter__(self) -> ThreadedPipeline:
         return self.start()
 
     def __exit__(self, *exc: Any) -> None:

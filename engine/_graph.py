@@ -164,7 +164,7 @@ class Merger:
             for k in sorted(kinds):
                 groups.setdefault(None if accepts(consumed, k) else k, []).append(_lane(i, k))
         self.joins = {g: PortJoin(lanes) for g, lanes in groups.items()}
-        for g, j in self.joins.items():
+        for j in self.joins.values():
             for lane in j.ports:
                 self.lanes[_unlane(lane)] = j
 
@@ -186,7 +186,7 @@ class Merger:
         out: list[Packet] = []
         for batch in batches:
             by_kind: dict[Kind, list[Packet]] = {}
-            for lane, pkt in batch.items():
+            for pkt in batch.values():
                 by_kind.setdefault(pkt.kind, []).append(pkt)
             for kind in sorted(by_kind, key=lambda k: (k == Kind.EVENTS, k)):
                 parts = by_kind[kind]

@@ -68,8 +68,9 @@ class Operator:
     #: (a node's ``offload=`` overrides this).
     heavy: ClassVar[bool] = False
 
-    def process(self, packet: Packet) -> Sequence[Packet]:
-        """Handle one packet (possibly empty: a tick); return the outputs."""
+    def process(self, packet: Any) -> Sequence[Packet]:
+        """Handle one packet (possibly empty: a tick); return the outputs.
+        (Typed ``Any`` so that subclasses name the packet class they consume.)"""
         raise NotImplementedError
 
     def process_ports(self, ports: Mapping[str, Packet]) -> Sequence[Packet]:

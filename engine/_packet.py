@@ -23,7 +23,7 @@ The packet contract
 from __future__ import annotations
 
 import re
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping
 from types import MappingProxyType
 from typing import Any, ClassVar
 
@@ -39,7 +39,7 @@ _DTYPES = {"t": np.dtype(np.int64), "x": np.dtype(np.uint16), "y": np.dtype(np.u
 
 
 class _KindMeta(type):
-    def __iter__(cls) -> Iterator["Kind"]:
+    def __iter__(cls) -> Iterator[Kind]:
         """Every registered kind (built-in and plugin), in registration order."""
         return iter(tuple(_KIND_CLASSES))
 
@@ -54,20 +54,20 @@ class Kind(str, metaclass=_KindMeta):
 
     __slots__ = ()
 
-    EVENTS: ClassVar["Kind"]
-    FRAMES: ClassVar["Kind"]
-    IMU: ClassVar["Kind"]
-    POSES: ClassVar["Kind"]
-    TRIGGERS: ClassVar["Kind"]
-    RESULTS: ClassVar["Kind"]
-    ANGULAR_VELOCITY: ClassVar["Kind"]
-    TRACKS: ClassVar["Kind"]
-    CLUSTERS: ClassVar["Kind"]
-    MAPS: ClassVar["Kind"]
-    POINTS: ClassVar["Kind"]
-    ANY: ClassVar["Kind"]
+    EVENTS: ClassVar[Kind]
+    FRAMES: ClassVar[Kind]
+    IMU: ClassVar[Kind]
+    POSES: ClassVar[Kind]
+    TRIGGERS: ClassVar[Kind]
+    RESULTS: ClassVar[Kind]
+    ANGULAR_VELOCITY: ClassVar[Kind]
+    TRACKS: ClassVar[Kind]
+    CLUSTERS: ClassVar[Kind]
+    MAPS: ClassVar[Kind]
+    POINTS: ClassVar[Kind]
+    ANY: ClassVar[Kind]
 
-    def __new__(cls, name: str) -> "Kind":
+    def __new__(cls, name: str) -> Kind:
         if not isinstance(name, str) or not _KIND_NAME.match(name):
             raise ValueError(f"a stream kind is a lower-case identifier, got {name!r}")
         return super().__new__(cls, name)
@@ -81,7 +81,7 @@ class Kind(str, metaclass=_KindMeta):
 
 _KIND_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 #: Packet class of every registered kind (filled by ``register_kind``).
-_KIND_CLASSES: dict[Kind, type["Packet"]] = {}
+_KIND_CLASSES: dict[Kind, type[Packet]] = {}
 for _name in ("events", "frames", "imu", "poses", "triggers", "results", "angular_velocity", "tracks",
               "clusters", "maps", "points", "any"):
     setattr(Kind, _name.upper(), Kind(_name))
@@ -92,7 +92,7 @@ def accepts(consumes: Iterable[Kind], kind: Kind) -> bool:
     return kind in consumes or Kind.ANY in consumes
 
 
-def register_kind(cls: type["Packet"]) -> type["Packet"]:
+def register_kind(cls: type[Packet]) -> type[Packet]:
     """Register a packet class as the class of its ``kind`` (usable as a
     class decorator). A kind registered twice by different classes raises
     :class:`tectum.DuplicateNameError` naming both."""
@@ -110,7 +110,7 @@ def register_kind(cls: type["Packet"]) -> type["Packet"]:
     return cls
 
 
-def packet_class(kind: Kind | str) -> type["Packet"]:
+def packet_class(kind: Kind | str) -> type[Packet]:
     """The packet class registered for ``kind``; raises KeyError naming the known kinds."""
     try:
         return _KIND_CLASSES[Kind(kind)]
@@ -185,7 +185,7 @@ class Packet:
         j = int(np.searchsorted(self.t, hi, side="left"))
         return lo, hi, i, j
 
-    def slice_time(self, t0: int | None = None, t1: int | None = None) -> "Packet":
+    def slice_time(self, t0: int | None = None, t1: int | None = None) -> Packet:
         """Zero-copy view of the samples with ``t0 <= t < t1`` (µs).
 
         The result's interval is ``[t0, t1)`` clipped to this packet's interval.
@@ -193,15 +193,15 @@ class Packet:
         lo, hi, i, j = self._bounds(t0, t1)
         return self._take_slice(i, j, lo, hi)
 
-    def _take_slice(self, i: int, j: int, t_start: int, t_end: int) -> "Packet":
+    def _take_slice(self, i: int, j: int, t_start: int, t_end: int) -> Packet:
         raise NotImplementedError
 
-    def split_at(self, t: int) -> tuple["Packet", "Packet"]:
+    def split_at(self, t: int) -> tuple[Packet, Packet]:
         """Two zero-copy views: ``[t_start, t)`` and ``[t, t_end)`` (µs)."""
         t = min(max(int(t), self.t_start), self.t_end)
         return self.slice_time(None, t), self.slice_time(t, None)
 
-    def batches(self, max_samples: int) -> Iterator["Packet"]:
+    def batches(self, max_samples: int) -> Iterator[Packet]:
         """Split into zero-copy views of at most ``max_samples`` samples each.
 
         Samples sharing a timestamp stay together (a run longer than
@@ -324,7 +324,7 @@ class EventPacket(Packet):
     # -- construction -------------------------------------------------------
     @classmethod
     def _trusted(cls, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, sensor: tuple[int, int],
-                 t_start: int, t_end: int, columns: Mapping[str, np.ndarray]) -> "EventPacket":
+                 t_start: int, t_end: int, columns: Mapping[str, np.ndarray]) -> EventPacket:
         """Internal: build from arrays already known to satisfy the contract
         (views and selections of a valid packet); skips every check."""
         pkt = _new(cls)
@@ -339,7 +339,7 @@ class EventPacket(Packet):
         return pkt
 
     @classmethod
-    def empty(cls, sensor: tuple[int, int], t_start: int, t_end: int | None = None) -> "EventPacket":
+    def empty(cls, sensor: tuple[int, int], t_start: int, t_end: int | None = None) -> EventPacket:
         """A packet with no events covering ``[t_start, t_end)`` µs (a tick)."""
         z = np.empty(0, np.int64)
         return cls(
@@ -361,7 +361,7 @@ class EventPacket(Packet):
         columns: Mapping[str, Any] | None = None,
         validate: bool = True,
         time_unit: str = "us",
-    ) -> "EventPacket":
+    ) -> EventPacket:
         """Build a packet from foreign arrays: converts dtypes and polarity.
 
         Times are integer µs; floats are accepted only when finite and
@@ -401,7 +401,7 @@ class EventPacket(Packet):
         return pkt
 
     # -- checks ---------------------------------------------------------------
-    def validate(self) -> "EventPacket":
+    def validate(self) -> EventPacket:
         """Check the whole contract (order, interval, geometry, polarity).
 
         Raises :class:`PacketError` naming the first bad event; returns self.
@@ -425,14 +425,14 @@ class EventPacket(Packet):
         return self
 
     # -- views ----------------------------------------------------------------
-    def _take_slice(self, i: int, j: int, t_start: int, t_end: int) -> "EventPacket":
+    def _take_slice(self, i: int, j: int, t_start: int, t_end: int) -> EventPacket:
         cols = self.columns
         return EventPacket._trusted(
             self.t[i:j], self.x[i:j], self.y[i:j], self.p[i:j], self.sensor, t_start, t_end,
             {k: v[i:j] for k, v in cols.items()} if cols else cols,
         )
 
-    def select(self, mask: np.ndarray) -> "EventPacket":
+    def select(self, mask: np.ndarray) -> EventPacket:
         """The events where ``mask`` (bool, one per event) is true (a copy),
         same interval."""
         mask = np.asarray(mask)
@@ -441,14 +441,14 @@ class EventPacket(Packet):
         idx = np.flatnonzero(mask)  # scan the mask once, not once per column
         return self.take(idx)
 
-    def take(self, idx: np.ndarray) -> "EventPacket":
+    def take(self, idx: np.ndarray) -> EventPacket:
         """The events at the increasing indices ``idx`` (a copy), same interval."""
         return EventPacket._trusted(
             self.t[idx], self.x[idx], self.y[idx], self.p[idx], self.sensor, self.t_start, self.t_end,
             {k: v[idx] for k, v in self.columns.items()},
         )
 
-    def with_columns(self, **columns: np.ndarray) -> "EventPacket":
+    def with_columns(self, **columns: np.ndarray) -> EventPacket:
         """A new packet sharing every array, with these columns added or replaced."""
         cols = dict(self.columns)
         cols.update(columns)
@@ -457,7 +457,7 @@ class EventPacket(Packet):
             t_start=self.t_start, t_end=self.t_end, columns=cols,
         )
 
-    def without_columns(self, *names: str) -> "EventPacket":
+    def without_columns(self, *names: str) -> EventPacket:
         """A new packet sharing every array, without the named extra columns."""
         cols = {k: v for k, v in self.columns.items() if k not in names}
         return EventPacket(
@@ -465,7 +465,7 @@ class EventPacket(Packet):
             t_start=self.t_start, t_end=self.t_end, columns=cols,
         )
 
-    def with_interval(self, t_start: int, t_end: int) -> "EventPacket":
+    def with_interval(self, t_start: int, t_end: int) -> EventPacket:
         """The same events with another interval (checked)."""
         pkt = EventPacket(
             self.t, self.x, self.y, self.p, sensor=self.sensor,

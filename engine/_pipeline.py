@@ -185,7 +185,7 @@ class Pipeline:
 
     # -- files ----------------------------------------------------------------
     @classmethod
-    def from_toml(cls, path: str | os.PathLike[str]) -> "Pipeline":
+    def from_toml(cls, path: str | os.PathLike[str]) -> Pipeline:
         """Read a pipeline file; relative paths in it are taken from its folder."""
         with open(path, "rb") as f:
             try:
@@ -196,7 +196,7 @@ class Pipeline:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], *, base_dir: str | None = None,
-                  origin: str = "pipeline") -> "Pipeline":
+                  origin: str = "pipeline") -> Pipeline:
         """Build from the TOML structure::
 
             [pipeline]            # optional batch policy
@@ -259,7 +259,7 @@ class Pipeline:
                    buffer=d.get("buffer", 64), **d.get("params", {}))
         return p
 
-    def validate(self, registry: Registry | None = None) -> "Plan":
+    def validate(self, registry: Registry | None = None) -> Plan:
         """Check the DAG and resolve it; raises :class:`PipelineError`."""
         return _validate(self, registry or get_registry())
 

@@ -63,7 +63,8 @@ class Registry:
     def add(self, role: Role, cls: type, owner: str) -> None:
         base = {"operator": Operator, "source": Source, "sink": Sink}[role]
         if not (isinstance(cls, type) and issubclass(cls, base)):
-            raise RegistryError(f"plugin {owner!r} registered {cls!r} as a {role}, but it is not a {base.__name__} subclass")
+            raise RegistryError(f"plugin {owner!r} registered {cls!r} as a {role}, "
+                                f"but it is not a {base.__name__} subclass")
         name: str = getattr(cls, "name", "")
         if role == "operator":
             m = _OP_NAME.match(name or "")

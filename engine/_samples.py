@@ -141,7 +141,7 @@ class SamplePacket(Packet):
         self._check_times()
 
     @classmethod
-    def _trusted(cls, t: np.ndarray, data: Mapping[str, np.ndarray], t_start: int, t_end: int) -> "SamplePacket":
+    def _trusted(cls, t: np.ndarray, data: Mapping[str, np.ndarray], t_start: int, t_end: int) -> SamplePacket:
         """Internal: build from arrays known to satisfy the contract (views of a valid packet)."""
         pkt = object.__new__(cls)
         object.__setattr__(pkt, "t", t)
@@ -164,7 +164,7 @@ class SamplePacket(Packet):
     def column_names(self) -> tuple[str, ...]:
         return ("t", *self.data)
 
-    def validate(self) -> "SamplePacket":
+    def validate(self) -> SamplePacket:
         """Check the contract (times in order inside the interval, one row
         per sample in every field, declared dtypes and shapes); raises
         :class:`PacketError`, returns self."""
@@ -174,8 +174,8 @@ class SamplePacket(Packet):
         return self
 
     @classmethod
-    def empty(cls, t_start: int, t_end: int | None = None, *, like: "SamplePacket | None" = None,
-              **shapes: tuple[int, ...]) -> "SamplePacket":
+    def empty(cls, t_start: int, t_end: int | None = None, *, like: SamplePacket | None = None,
+              **shapes: tuple[int, ...]) -> SamplePacket:
         """An empty packet (a tick) of this kind covering ``[t_start, t_end)``
         µs. Its fields have no rows; dtype and trailing shape come from
         ``like`` (another packet of the stream), else from the declaration
@@ -192,14 +192,14 @@ class SamplePacket(Packet):
         t1 = t_start if t_end is None else t_end
         return cls._trusted(np.empty(0, np.int64), data, int(t_start), int(max(t1, t_start)))
 
-    def _take_slice(self, i: int, j: int, t_start: int, t_end: int) -> "SamplePacket":
+    def _take_slice(self, i: int, j: int, t_start: int, t_end: int) -> SamplePacket:
         return self._trusted(self.t[i:j], {k: v[i:j] for k, v in self.data.items()}, t_start, t_end)
 
-    def take(self, idx: np.ndarray) -> "SamplePacket":
+    def take(self, idx: np.ndarray) -> SamplePacket:
         """The samples at the increasing indices ``idx`` (a copy), same interval."""
         return self._trusted(self.t[idx], {k: v[idx] for k, v in self.data.items()}, self.t_start, self.t_end)
 
-    def with_interval(self, t_start: int, t_end: int) -> "SamplePacket":
+    def with_interval(self, t_start: int, t_end: int) -> SamplePacket:
         """The same samples with another interval (checked)."""
         pkt = self._trusted(self.t, self.data, t_start, t_end)
         if t_end < t_start:
@@ -207,14 +207,15 @@ class SamplePacket(Packet):
         pkt._check_times()
         return pkt
 
-    def with_fields(self, **fields: Any) -> "SamplePacket":
+    def with_fields(self, **fields: Any) -> SamplePacket:
         """A new packet sharing every array, with these fields added or replaced."""
         data = dict(self.data)
         data.update(fields)
         return type(self)(self.t, t_start=self.t_start, t_end=self.t_end, **data)
 
     def __repr__(self) -> str:
-        return f"{type(self).__name__}({len(self)} samples, [{self.t_start}, {self.t_end}) µs, fields={list(self.data)})"
+        return (f"{type(self).__name__}({len(self)} samples, [{self.t_start}, {self.t_end}) µs, "
+                f"fields={list(self.data)})")
 
 
 def _fields(**fields: Field) -> Mapping[str, Field]:

@@ -110,7 +110,7 @@ async def open_pipeline(
     except BaseExceptionGroup as eg:
         err = _unwrap(eg)
         err.__suppress_context__ = True  # keep __cause__ (the node's own error)
-        raise err
+        raise err from err.__cause__
     finally:
         stats.wall_s = time.perf_counter() - t_wall
         graph.collect_counters()

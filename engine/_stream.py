@@ -5,6 +5,7 @@ and empty packets shaped like a stream's."""
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator, Sequence
+from typing import TypeVar
 
 import numpy as np
 
@@ -15,7 +16,10 @@ from .errors import PacketError
 __all__ = ["concat", "merge", "empty_like", "interleave"]
 
 
-def concat(packets: Iterable[Packet]) -> Packet:
+P = TypeVar("P", bound=Packet)
+
+
+def concat(packets: Iterable[P]) -> P:
     """Concatenate consecutive packets of one stream into one packet.
 
     The packets must be of one kind, in order (``next.t_start >= prev.t_end``)
@@ -36,10 +40,10 @@ def concat(packets: Iterable[Packet]) -> Packet:
             raise PacketError(f"cannot concatenate {type(first).__name__} with {type(b).__name__}")
         if b.t_start < a.t_end:
             raise PacketError(f"packets overlap: [{a.t_start}, {a.t_end}) then [{b.t_start}, {b.t_end})")
-    return _join(pkts, first.t_start, pkts[-1].t_end, sort=False)
+    return _join(pkts, first.t_start, pkts[-1].t_end, sort=False)  # type: ignore[return-value]
 
 
-def merge(parts: Sequence[Packet], t_start: int, t_end: int) -> Packet:
+def merge(parts: Sequence[P], t_start: int, t_end: int) -> P:
     """Merge packets of one kind from several streams into one packet
     covering ``[t_start, t_end)``, sorted by time; equal timestamps keep the
     order of ``parts``."""
@@ -49,10 +53,10 @@ def merge(parts: Sequence[Packet], t_start: int, t_end: int) -> Packet:
     for q in parts:
         if type(q) is not type(first):
             raise PacketError(f"cannot merge {type(first).__name__} with {type(q).__name__}")
-    return _join(list(parts), t_start, t_end, sort=len(parts) > 1)
+    return _join(list(parts), t_start, t_end, sort=len(parts) > 1)  # type: ignore[return-value]
 
 
-def empty_like(pkt: Packet, t_start: int, t_end: int) -> Packet:
+def empty_like(pkt: P, t_start: int, t_end: int) -> P:
     """A packet with no samples of ``pkt``'s stream (same sensor, columns,
     field dtypes and shapes) covering ``[t_start, t_end)`` µs."""
     if isinstance(pkt, EventPacket):

@@ -22,7 +22,7 @@ hookimpl = pluggy.HookimplMarker(PROJECT)
 
 
 @hookspec
-def tectum_register_operators(registry: "RegistryView") -> None:
+def tectum_register_operators(registry: RegistryView) -> None:
     """Register operator classes with ``registry.add_operator(cls)``.
 
     Each class is a :class:`tectum.Operator` subclass whose ``name`` is
@@ -32,7 +32,7 @@ def tectum_register_operators(registry: "RegistryView") -> None:
 
 
 @hookspec
-def tectum_register_kinds(registry: "RegistryView") -> None:
+def tectum_register_kinds(registry: RegistryView) -> None:
     """Register new kinds of sample stream with ``registry.add_kind(cls)``.
 
     ``cls`` is a :class:`tectum.SamplePacket` subclass with ``kind =
@@ -45,7 +45,7 @@ def tectum_register_kinds(registry: "RegistryView") -> None:
 
 
 @hookspec
-def tectum_register_sources(registry: "RegistryView") -> None:
+def tectum_register_sources(registry: RegistryView) -> None:
     """Register source classes with ``registry.add_source(cls)``.
 
     A source declares the URL ``schemes`` and file ``extensions`` it opens and
@@ -54,13 +54,13 @@ def tectum_register_sources(registry: "RegistryView") -> None:
 
 
 @hookspec
-def tectum_register_sinks(registry: "RegistryView") -> None:
+def tectum_register_sinks(registry: RegistryView) -> None:
     """Register sink classes with ``registry.add_sink(cls)``, chosen the same
     way as sources (scheme, then extension)."""
 
 
 @hookspec
-def tectum_register_bench_suites(registry: "RegistryView") -> None:
+def tectum_register_bench_suites(registry: RegistryView) -> None:
     """Register suites of ``tectum bench`` with
     ``registry.add_bench_suite(name, run, description)``.
 

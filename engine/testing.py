@@ -52,7 +52,8 @@ def feed(op: Operator, packets: Sequence[Packet]) -> list[Packet]:
     return out
 
 
-def feed_ports(op: Operator, streams: Mapping[str, Sequence[Packet]], order: Sequence[str] | None = None) -> list[Packet]:
+def feed_ports(op: Operator, streams: Mapping[str, Sequence[Packet]],
+               order: Sequence[str] | None = None) -> list[Packet]:
     """Push each port's packets through an operator with named ports, joined
     by watermark as the engine joins them, then end every port; all outputs.
 

@@ -5,9 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from helpers import bars, shared_data
 
 from tectum import EventPacket
+
+from helpers import bars, shared_data
 
 
 @pytest.fixture

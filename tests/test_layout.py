@@ -33,7 +33,7 @@ def test_every_package_folder_is_listed():
 def test_every_plugin_entry_point_imports():
     import importlib
 
-    for name, target in _config()["project"]["entry-points"]["tectum"].items():
+    for target in _config()["project"]["entry-points"]["tectum"].values():
         importlib.import_module(target)
 
 

@@ -12,7 +12,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-
 from tectum.cli._progress import Progress
 
 TECTUM = [sys.executable, "-m", "tectum"]

@@ -31,7 +31,7 @@ def test_stepper_push_and_end(small_stream):
 def test_threaded_pipeline_latest_and_callbacks():
     p = Pipeline(pace=1.0)
     s = p.source("pattern:", id="cam", duration_us=3_000_000, sensor="64x48", window_us=1000)
-    rf = p.op("filter.refractory", s, id="rf", period_us=300)
+    p.op("filter.refractory", s, id="rf", period_us=300)
     seen = []
     tp = ThreadedPipeline(p, watch=["rf"])
     tp.on_output("rf", lambda pkt: seen.append(pkt.t_end))

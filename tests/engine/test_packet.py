@@ -8,8 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import tectum
-from tectum.testing import assert_stream_contract
 from tectum import EventPacket, ImuPacket, PacketError, ResultPacket, concat, from_structured, to_structured
+from tectum.testing import assert_stream_contract
 
 
 def make(t, sensor=(10, 10), **kw):

@@ -9,14 +9,12 @@ import numpy as np
 import pytest
 
 import tectum
-from tectum import (EventPacket, FramePacket, Kind, Operator, Pipeline, PipelineError, Port, PosePacket, Stepper,
-                    concat)
+from tectum import EventPacket, FramePacket, Kind, Operator, Pipeline, PipelineError, Port, PosePacket, Stepper, concat
 from tectum.testing import ListSink, ListSource, assert_batch_invariant, feed_ports
 
 
 def events(t0: int, t1: int, step: int = 10, sensor: tuple[int, int] = (8, 6)) -> EventPacket:
     t = np.arange(t0, t1, step, dtype=np.int64)
-    n = len(t)
     return EventPacket(t, (t % sensor[0]).astype(np.uint16), (t % sensor[1]).astype(np.uint16),
                        np.where(t % 20 == 0, 1, -1).astype(np.int8), sensor=sensor, t_start=t0, t_end=t1)
 

@@ -77,6 +77,7 @@ def test_sources_and_sinks_are_chosen_by_scheme_content_and_extension(tmp_path):
     assert reg.source_for("pattern:?speed=3").name == "pattern"
     f = tmp_path / "recording.bin"
     from tectum.sinks.npz import write_npz
+
     from helpers import bars
 
     write_npz(str(tmp_path / "x.npz"), bars(2000))

@@ -13,11 +13,12 @@ per port; each port is split on its own and the ports interleaved.
 from __future__ import annotations
 
 import pytest
-from helpers import bars
 
 import tectum
 from tectum import Kind
 from tectum.testing import assert_batch_invariant
+
+from helpers import bars
 
 BUILTIN = sorted(
     name for name, e in tectum.get_registry().operators.items()

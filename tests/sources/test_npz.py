@@ -6,7 +6,6 @@ import zipfile
 
 import numpy as np
 import pytest
-from helpers import bars
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -14,6 +13,8 @@ from tectum import EventPacket, FormatError, concat
 from tectum.sinks.npz import NpzSink, write_npz
 from tectum.sources.npz import NpzSource, read_npz
 from tectum.testing import assert_stream_contract, assert_streams_equal
+
+from helpers import bars
 
 
 def test_round_trip_keeps_every_column_and_the_interval(tmp_path):

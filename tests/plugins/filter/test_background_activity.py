@@ -7,7 +7,6 @@ from tectum.plugins.filter._state import padded_timestamps
 from tectum.testing import assert_batch_invariant, feed
 
 
-
 def reference(ev, dt_us):
     """Slow and obvious: keep if one of the 8 neighbours fired in [t - dt, t]."""
     last = {}

@@ -15,12 +15,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from helpers import shared_data
-
 from tectum import concat
 from tectum.evaluation.imu_truth import gyro_flow, imu_full_scale_factor, normal_flow_vs_rotation, read_events_and_imu
 from tectum.plugins.flow import PlaneFit
 from tectum.testing import feed
+
+from helpers import shared_data
 
 AXES = np.diag([1.0, 1.0, -1.0])  # camera = AXES @ imu
 

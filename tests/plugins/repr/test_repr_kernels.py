@@ -1,13 +1,13 @@
 """The plain functions (tonic style) against slow obvious references."""
 
-import math
 
 import numpy as np
 import pytest
-from helpers import bars
 
 from tectum.plugins import repr as R
 from tectum.plugins.repr.kernels import NEVER
+
+from helpers import bars
 
 
 @pytest.fixture

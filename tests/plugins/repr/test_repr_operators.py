@@ -2,12 +2,13 @@
 
 import numpy as np
 import pytest
-from helpers import bars
 
 import tectum
 from tectum import concat
 from tectum.plugins import repr as R
 from tectum.testing import ListSink, ListSource, assert_batch_invariant, feed
+
+from helpers import bars
 
 
 @pytest.fixture

@@ -8,7 +8,8 @@ import struct
 import zlib
 
 import numpy as np
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import tectum
 from tectum import FramePacket, ImuPacket, Kind, PosePacket, TriggerPacket

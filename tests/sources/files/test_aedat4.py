@@ -9,14 +9,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import decodes_or_names, mutate
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from tectum import EventPacket, FormatError, concat
 from tectum.sinks.files import SINKS
 from tectum.sinks.files._common import write_all
 from tectum.sources.files import _lz4, aedat4
 from tectum.sources.files.aedat4 import Aedat4Source
+
+from helpers import decodes_or_names, mutate
 
 pytest.importorskip("lz4")
 pytest.importorskip("zstandard")

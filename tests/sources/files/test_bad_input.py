@@ -8,13 +8,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import decodes_or_names, mutate
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from tectum import EventPacket, FormatError, concat
 from tectum.sinks.files import SINKS
 from tectum.sinks.files._common import write_all
 from tectum.sources.files import SOURCES, open_file
+
+from helpers import decodes_or_names, mutate
 
 EXT = {"text": ".txt", "aedat4": ".aedat4", "evt2": ".raw", "evt3": ".evt3.raw", "dat": ".dat", "hdf5": ".h5",
        "npy": ".npy"}

@@ -12,11 +12,12 @@ import pytest
 
 pytest.importorskip("rosbags")
 
-from helpers import decodes_or_names  # noqa: E402
 from tectum import EventPacket, FormatError, concat, get_registry  # noqa: E402
-from tectum.sources.files import open_file  # noqa: E402
 from tectum.sources.files import _ros_kernels as R  # noqa: E402
+from tectum.sources.files import open_file  # noqa: E402
 from tectum.sources.files.rosbag import RosbagSource, typestore  # noqa: E402
+
+from helpers import decodes_or_names  # noqa: E402
 
 
 def read(path, **kw):

@@ -6,7 +6,8 @@ import socket
 import zlib
 
 import numpy as np
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import tectum
 from tectum.sources.net._wire import HEADER, Receiver, chunks, encode_end, encode_events, encode_hello

@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import run_camera
 
 import tectum
 from tectum import Kind
 from tectum.sources.usb import _protocol as P
 from tectum.sources.usb._decode import DavisDecoder
 from tectum.sources.usb.emulated import EmulatedCamera
+
+from helpers import run_camera
 
 
 def ref_frame(reset: np.ndarray, signal: np.ndarray) -> np.ndarray:
@@ -76,7 +77,7 @@ def test_emulated_camera_frames_equal_what_it_saw(model: str, orientation: int) 
     fr = tectum.concat([q for q in sink.packets if q.kind == Kind.FRAMES])
     assert len(fr) == len(cam.truth.frames) == 3
     assert fr.images.shape[1:] == cam.sensor[::-1] and fr.images.dtype == np.uint8
-    for k, (sof, sexp, eexp, _eof) in enumerate(cam.truth.frame_times):
+    for k, (_sof, sexp, eexp, _eof) in enumerate(cam.truth.frame_times):
         assert np.array_equal(fr.images[k], cam.truth.frames[k])
         assert (fr.exposure_start[k], fr.exposure_end[k], fr.t[k]) == (sexp, eexp, (sexp + eexp) // 2)
     assert src.decoder.counts["aps_bad_frames"] == 0

@@ -6,10 +6,11 @@ from __future__ import annotations
 import struct
 
 import pytest
-from helpers import run_camera
 
 from tectum.sources.usb import _protocol as P
 from tectum.sources.usb.emulated import EmulatedCamera
+
+from helpers import run_camera
 
 
 def written(cam: EmulatedCamera) -> list[tuple[int, int, int]]:

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
-from helpers import run_camera
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import tectum
 from tectum import Kind
@@ -16,6 +16,8 @@ from tectum.sources.usb._dvx import DvxDecoder
 from tectum.sources.usb.emulated import EmulatedBackend, EmulatedCamera
 from tectum.sources.usb.source import UsbSource
 from tectum.testing import ListSink
+
+from helpers import run_camera
 
 
 def ref_dvx(words: list[int], w: int, h: int, flips: int = 0) -> tuple[list, list]:

@@ -6,7 +6,6 @@ import json
 
 import numpy as np
 import pytest
-from helpers import run_camera
 
 import tectum
 from tectum import Kind
@@ -16,6 +15,8 @@ from tectum.sources.usb._device import DeviceDisconnected, list_devices
 from tectum.sources.usb.emulated import EmulatedBackend, EmulatedCamera
 from tectum.sources.usb.source import UsbSource
 from tectum.testing import ListSink
+
+from helpers import run_camera
 
 SMALL = dict(duration_us=110_000, speed=400.0, noise_hz=1.0)
 
