@@ -50,7 +50,8 @@ class PortJoin:
     Data are released up to ``W``, the smallest watermark of the ports still
     open (once all have ended: the largest seen), as one batch per release:
     a packet per port, all covering ``[previous W, W)`` (empty where a port
-    had nothing; a port that has never delivered a packet is absent).
+    had nothing; a port that has never delivered a packet, or whose stream
+    ended before ``previous W``, is absent).
     Memory: what a port holds beyond the slowest open port's watermark.
     """
 
@@ -104,7 +105,8 @@ class PortJoin:
         batch: Batch = {}
         for port in self.ports:
             proto = self.proto[port]
-            if proto is None:
+            mark = self.marks[port]
+            if proto is None or (self.ended[port] and mark is not None and mark <= start):
                 continue
             batch[port] = self._take(port, start, w, proto)
         self.released = w

@@ -76,7 +76,8 @@ class Operator:
     def process_ports(self, ports: Mapping[str, Packet]) -> Sequence[Packet]:
         """Operators with :attr:`inputs`: handle one joined batch, one packet
         per port (possibly empty), all covering the same interval. A port
-        whose stream has not yet delivered any packet is absent."""
+        whose stream has not yet delivered any packet, or has ended before
+        the interval, is absent."""
         raise NotImplementedError
 
     def on_tick(self, watermark: int) -> Sequence[Packet]:

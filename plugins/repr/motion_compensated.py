@@ -9,7 +9,9 @@ of where the scene is *now* (the latest instant a control loop cares
 about). Translation is not compensated (it needs depth): the image is exact
 for pure rotation or a distant scene.
 
-Rotation sources (one of the two ports, besides ``events``):
+Rotation sources (besides ``events``, the port ``imu`` or ``poses``; with
+both connected, as from an ECD folder holding ``imu.txt`` and
+``groundtruth.txt``, the gyro is used and the poses are ignored):
 
 * ``imu``: the gyro ω (rad/s), rotated into the camera frame by
   ``imu_rotation`` (camera-from-IMU, a rotation vector in rad or a 3x3
@@ -204,7 +206,7 @@ class MotionCompensated(Operator):
         self._knot_v = np.empty((0, 3))       # gyro ω in the camera frame (rad/s) or ...
         self._knot_q = np.empty((0, 4))       # ... pose orientations (x, y, z, w)
         self._use_imu: bool | None = None
-        self._mark = 0                        # input watermark, µs
+        self._mark = 0                        # the events' watermark, µs
 
     #: For the conformance check: inline intrinsics of a 48x36 sensor.
     conformance_params = {"calib": "40;40;24;18", "window_us": 4000}
@@ -223,8 +225,8 @@ class MotionCompensated(Operator):
 
     @classmethod
     def check_ports(cls, connected: frozenset[str]) -> str | None:
-        if ("imu" in connected) == ("poses" in connected):
-            return "connect exactly one of the ports 'imu' (gyro) and 'poses' (orientations) besides 'events'"
+        if "imu" not in connected and "poses" not in connected:
+            return "connect the port 'imu' (gyro) or 'poses' (orientations) besides 'events'"
         return None
 
     # -- input ------------------------------------------------------------------
@@ -233,9 +235,13 @@ class MotionCompensated(Operator):
         first = next(iter(ports.values()))
         if self._end is None:
             self._end = first.t_start + self.window_us
-        if ev is not None and len(ev):
-            self._events.append(ev)  # type: ignore[arg-type]
+        if ev is not None:
+            self._mark = ev.t_end  # windows follow the events: none past their stream's end
+            if len(ev):
+                self._events.append(ev)  # type: ignore[arg-type]
         imu, poses = ports.get("imu"), ports.get("poses")
+        if imu is not None or self._use_imu:
+            poses = None  # the gyro wins: measured at the camera, no interpolation between samples
         if imu is not None:
             self._use_imu = True
             if len(imu):
@@ -247,7 +253,6 @@ class MotionCompensated(Operator):
             if len(poses):
                 self._knot_t = np.concatenate([self._knot_t, poses.t])
                 self._knot_q = np.concatenate([self._knot_q, poses.orientation])  # type: ignore[attr-defined]
-        self._mark = first.t_end
         return self._emit(final=False)
 
     def finish(self) -> list[FramePacket]:
