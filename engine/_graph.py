@@ -146,7 +146,7 @@ def _reinterval(pkt: Packet, t0: int, t1: int) -> Packet:
     """``pkt``'s samples with the interval ``[t0, t1)``, which holds them (no check)."""
     if isinstance(pkt, EventPacket):
         return EventPacket._trusted(pkt.t, pkt.x, pkt.y, pkt.p, pkt.sensor, t0, t1, pkt.columns)
-    return pkt._trusted(pkt.t, pkt.data, t0, t1)  # type: ignore[attr-defined,no-any-return]
+    return pkt._trusted(pkt.t, pkt.data, t0, t1)  # type: ignore[attr-defined]
 
 
 class Merger:
@@ -416,7 +416,7 @@ class Graph:
         except Exception as e:
             raise NodeError(rec.id, e) from e
         st.busy_ns += perf_counter_ns() - t0
-        return res  # type: ignore[no-any-return]
+        return res
 
     def _finish(self, rec: _Node) -> list[Packet]:
         try:

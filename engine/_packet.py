@@ -25,7 +25,7 @@ from __future__ import annotations
 import re
 from collections.abc import Iterable, Iterator, Mapping
 from types import MappingProxyType
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Self, cast
 
 import numpy as np
 
@@ -185,23 +185,23 @@ class Packet:
         j = int(np.searchsorted(self.t, hi, side="left"))
         return lo, hi, i, j
 
-    def slice_time(self, t0: int | None = None, t1: int | None = None) -> Packet:
+    def slice_time(self, t0: int | None = None, t1: int | None = None) -> Self:
         """Zero-copy view of the samples with ``t0 <= t < t1`` (µs).
 
         The result's interval is ``[t0, t1)`` clipped to this packet's interval.
         """
         lo, hi, i, j = self._bounds(t0, t1)
-        return self._take_slice(i, j, lo, hi)
+        return self._take_slice(i, j, lo, hi)  # type: ignore[return-value]  # subclasses slice to their class
 
     def _take_slice(self, i: int, j: int, t_start: int, t_end: int) -> Packet:
         raise NotImplementedError
 
-    def split_at(self, t: int) -> tuple[Packet, Packet]:
+    def split_at(self, t: int) -> tuple[Self, Self]:
         """Two zero-copy views: ``[t_start, t)`` and ``[t, t_end)`` (µs)."""
         t = min(max(int(t), self.t_start), self.t_end)
         return self.slice_time(None, t), self.slice_time(t, None)
 
-    def batches(self, max_samples: int) -> Iterator[Packet]:
+    def batches(self, max_samples: int) -> Iterator[Self]:
         """Split into zero-copy views of at most ``max_samples`` samples each.
 
         Samples sharing a timestamp stay together (a run longer than
@@ -216,13 +216,14 @@ class Packet:
             yield self
             return
         t = self.t
-        take = self._take_slice
+        take: Any = self._take_slice  # makes packets of this class
         if max_samples == 1:  # one timestamp per packet: walk the runs
             runs = (np.flatnonzero(t[1:] != t[:-1]) + 1).tolist()
             ts = t[runs].tolist()
             lo, start = self.t_start, 0
-            if type(self) is EventPacket and not self.columns:  # the hot case, inlined
-                x, y, p, sensor, trusted = self.x, self.y, self.p, self.sensor, EventPacket._trusted
+            ev: Any = self
+            if type(self) is EventPacket and not ev.columns:  # the hot case, inlined
+                x, y, p, sensor, trusted = ev.x, ev.y, ev.p, ev.sensor, cast(Any, EventPacket._trusted)
                 for stop, hi in zip(runs, ts):
                     yield trusted(t[start:stop], x[start:stop], y[start:stop], p[start:stop], sensor, lo, hi,
                                   _NO_COLUMNS)

@@ -114,12 +114,12 @@ class Registry:
         CLI's ``info``, ``convert`` and ``run`` and the Python API all come
         here). Raises :class:`RegistryError` for a missing file or unknown
         scheme, :class:`FormatError` for a file nothing recognises."""
-        return self._resolve(arg, self.sources, "source")  # type: ignore[return-value]
+        return self._resolve(arg, self.sources, "source")
 
     def sink_for(self, arg: str) -> type[Sink]:
         """The sink class that writes ``arg``: by URL scheme, else by extension
         (an existing file is not sniffed: it will be replaced)."""
-        return self._resolve(arg, self.sinks, "sink")  # type: ignore[return-value]
+        return self._resolve(arg, self.sinks, "sink")
 
     def _resolve(self, arg: str, table: dict[str, Entry], role: str) -> type:
         scheme = _scheme(arg)
@@ -145,7 +145,7 @@ class Registry:
                 raise FormatError(f"cannot open: {e.strerror}", path=arg) from None
             for entry in table.values():
                 if entry.cls.sniff(head):
-                    return entry.cls  # type: ignore[no-any-return]
+                    return entry.cls
         lower = arg.lower()
         best = None
         for entry in table.values():

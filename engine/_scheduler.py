@@ -427,7 +427,7 @@ class _Pacer:
         while cursor < pkt.t_end:
             now = self.sensor_now()
             if win:
-                upto = self.t0 + math.floor((now - self.t0) / win) * win  # type: ignore[operator]
+                upto = self.t0 + math.floor((now - self.t0) / win) * win
             else:
                 upto = math.floor(now) + 1
             upto = min(upto, pkt.t_end)
@@ -439,7 +439,7 @@ class _Pacer:
                     yield b, due
                 continue
             if win:
-                nxt = self.t0 + (math.floor((now - self.t0) / win) + 1) * win  # type: ignore[operator]
+                nxt = self.t0 + (math.floor((now - self.t0) / win) + 1) * win
             else:
                 i = int(t.searchsorted(cursor))
                 nxt = int(t[i]) if i < len(t) else pkt.t_end - 1

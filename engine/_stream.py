@@ -61,9 +61,10 @@ def empty_like(pkt: P, t_start: int, t_end: int) -> P:
     field dtypes and shapes) covering ``[t_start, t_end)`` µs."""
     if isinstance(pkt, EventPacket):
         return EventPacket._trusted(pkt.t[:0], pkt.x[:0], pkt.y[:0], pkt.p[:0], pkt.sensor, int(t_start),
-                                    int(max(t_end, t_start)), {k: v[:0] for k, v in pkt.columns.items()})
+                                    int(max(t_end, t_start)),
+                                    {k: v[:0] for k, v in pkt.columns.items()})  # type: ignore[return-value]
     assert isinstance(pkt, SamplePacket)
-    return type(pkt).empty(t_start, t_end, like=pkt)
+    return type(pkt).empty(t_start, t_end, like=pkt)  # type: ignore[return-value]
 
 
 def interleave(primary: Iterable[Packet], others: Sequence[Iterable[Packet]]) -> Iterator[Packet]:
@@ -101,7 +102,7 @@ def interleave(primary: Iterable[Packet], others: Sequence[Iterable[Packet]]) ->
         yield from upto(k, None)
 
 
-def _join(pkts: list[Packet], t0: int, t1: int, *, sort: bool) -> Packet:
+def _join(pkts: Sequence[Packet], t0: int, t1: int, *, sort: bool) -> Packet:
     first = pkts[0]
     if isinstance(first, EventPacket):
         return _join_events(pkts, t0, t1, sort)  # type: ignore[arg-type]

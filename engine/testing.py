@@ -269,7 +269,7 @@ class ListSink(Sink):
     def events(self) -> EventPacket:
         """Every event received, as one packet."""
         ev = [p for p in self.packets if isinstance(p, EventPacket)]
-        return concat(ev)  # type: ignore[return-value]
+        return concat(ev)
 
 
 

@@ -40,7 +40,7 @@ def read_events_and_imu(path: str) -> tuple[EventPacket, ImuPacket]:
         src.close()
     ev = concat([p for p in pk if isinstance(p, EventPacket)])
     imu = concat([p for p in pk if isinstance(p, ImuPacket)])
-    return ev, imu  # type: ignore[return-value]
+    return ev, imu
 
 
 def imu_full_scale_factor(imu: ImuPacket) -> float:

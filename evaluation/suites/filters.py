@@ -22,7 +22,7 @@ import datetime
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -79,14 +79,14 @@ def labelled_stream(n_events: int | None = None, *, sensor: tuple[int, int] = SE
         duration_us = int(n_events / rate * 1e6 * 1.05) + CHUNK_US
     src = PatternSource(sensor=f"{sensor[0]}x{sensor[1]}", duration_us=duration_us, noise_hz=noise_hz, speed=speed,
                         seed=seed, window_us=50_000)
-    ev: EventPacket = concat(list(src.packets()))  # type: ignore[assignment]
+    ev: EventPacket = concat(list(src.packets()))
     if n_events is not None and len(ev) > n_events:
-        ev = ev.slice_time(None, int(ev.t[n_events]))  # type: ignore[assignment]
+        ev = ev.slice_time(None, int(ev.t[n_events]))
     return ev
 
 
 def chunks(ev: EventPacket, chunk_us: int = CHUNK_US) -> list[EventPacket]:
-    return [ev.slice_time(a, a + chunk_us) for a in range(ev.t_start, ev.t_end, chunk_us)]  # type: ignore[misc]
+    return [ev.slice_time(a, a + chunk_us) for a in range(ev.t_start, ev.t_end, chunk_us)]
 
 
 def _dv_stores(dv: Any, pieces: list[EventPacket]) -> list[Any]:
@@ -283,7 +283,7 @@ def at_defaults(ev: EventPacket, t_from: int | None = None) -> dict[str, dict[st
     for name, op in ops:
         keep = np.zeros(len(ev), np.bool_)
         for q in [*op.process(idx), *op.finish()]:
-            keep[q.columns["index"]] = True
+            keep[cast(EventPacket, q).columns["index"]] = True
         tpr, fpr = denoise_rates(ev, keep, t_from=t_from)
         params: dict[str, Any] = {"dt_us": op.dt_us}
         if isinstance(op, SpatioTemporalCorrelation):
@@ -337,7 +337,7 @@ def peer_roc(ev: EventPacket, quick: bool, t_from: int | None = None) -> dict[st
         out["tonic denoise"] = []
         for dt in BA_DTS[::2]:
             a = tonic.denoise_numpy(arr, filter_time=dt)
-            tpr, fpr = denoise_rates(small, _kept_mask(small, a["t"], a["x"], a["y"]), t_from=t_from)  # type: ignore[arg-type]
+            tpr, fpr = denoise_rates(small, _kept_mask(small, a["t"], a["x"], a["y"]), t_from=t_from)
             out["tonic denoise"].append({"dt_us": dt, "signal_kept": tpr, "noise_passed": fpr})
     return out
 
@@ -485,7 +485,7 @@ def real_recordings(out: Path) -> dict[str, Any]:
         if d.parent.name == "slider_depth":
             kept = BackgroundActivity().process(ev)[0]
             t1 = ev.t_start + 30_000  # 30 ms: long enough to see edges, short enough not to saturate
-            res["picture"] = str(_before_after(ev.slice_time(None, t1), kept.slice_time(None, t1),  # type: ignore[arg-type]
+            res["picture"] = str(_before_after(ev.slice_time(None, t1), kept.slice_time(None, t1),
                                                out / "filters-real-before-after.png"))
     return res
 

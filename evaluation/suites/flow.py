@@ -23,7 +23,7 @@ import time
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -111,7 +111,7 @@ def speed(quick: bool) -> list[dict[str, Any]]:
     els = []
     for _ in range(2):
         c0 = time.process_time()  # CPU time: the machine may be shared
-        out = concat(feed(ContrastMax(), [tex.without_columns("vx", "vy")]))
+        out = cast(EventPacket, concat(feed(ContrastMax(), [tex.without_columns("vx", "vy")])))
         els.append(time.process_time() - c0)
     el = min(els)
     e = _score(out, tex, "full")
@@ -199,7 +199,7 @@ def _imu_rotation(quick: bool) -> list[dict[str, Any]]:
                        scale=imu_full_scale_factor(imu))
     rows = []
     for name, (make, kind) in METHODS.items():
-        out = concat(feed(make(), [ev]))
+        out = cast(EventPacket, concat(feed(make(), [ev])))
         if kind == "normal":
             r = normal_flow_vs_rotation(out["vx"], out["vy"], out["valid"], tx, ty)
             rows.append({"method": name, "scene": "davis240 rotdisk + gyro (normal vs projected truth)",

@@ -109,7 +109,7 @@ def _encode(quick: bool) -> list[dict[str, Any]]:
     with tempfile.TemporaryDirectory() as d:
         for cls in SINKS:
             f = os.path.join(d, "o" + EXT[cls.name])
-            parts = list(pkt.batches(1 << 18))
+            parts: list[Packet] = list(pkt.batches(1 << 18))
             r = throughput(partial(_encode_file, cls, f, parts), n, repeat=2 if quick else 3)
             rows.append({"format": cls.name, "op": "encode", "reader": "tectum", "events": n, "mev_s": r["mev_s"],
                          "cpu_mev_s": r["cpu_mev_s"]})

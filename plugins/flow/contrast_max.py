@@ -422,9 +422,9 @@ class ContrastMax(FlowOperator):
             if upto is not None and upto < end:
                 break
             head, buf = buf.split_at(end)
-            out.append(self._run_window(head, self._win))  # type: ignore[arg-type]
+            out.append(self._run_window(head, self._win))
             self._win = end
-        self._pending = [buf] if len(buf) else []  # type: ignore[list-item]
+        self._pending = [buf] if len(buf) else []
         return out
 
     def process(self, packet: EventPacket) -> list[EventPacket]:

@@ -285,8 +285,8 @@ class MotionCompensated(Operator):
         whole = concat(self._events)
         assert isinstance(whole, EventPacket)
         now, later = whole.split_at(end)
-        self._events = [later] if len(later) else []  # type: ignore[list-item]
-        return now if len(now) else None  # type: ignore[return-value]
+        self._events = [later] if len(later) else []
+        return now if len(now) else None
 
     def _frame(self, start: int, end: int, ev: EventPacket | None) -> FramePacket:
         sensor = ev.sensor if ev is not None else self._sensor

@@ -53,7 +53,8 @@ def open_file(path: str, **kw: Any) -> Any:
     extension), so this also opens tectum's own ``.npz``."""
     from tectum import get_registry
 
-    return get_registry().source_for(path)(path, **kw)
+    cls: Any = get_registry().source_for(path)  # a file source: constructed from its path
+    return cls(path, **kw)
 
 
 @hookimpl

@@ -50,7 +50,7 @@ class NetSource(Source):
         self.dropped_connections = 0
 
     @property
-    def counts(self) -> dict[str, int]:
+    def counts(self) -> dict[str, int]:  # type: ignore[override]  # read-only: derived from the receiver's counters
         """Integer counters (the run's stats show them): accepted, events,
         lost, late, sessions, rejected_total, ``rejected_<reason>`` and
         dropped_connections."""
