@@ -54,6 +54,18 @@ class Recorder(Operator):
         return [ev.with_columns(poses_before=seen)]
 
 
+class Passing(Operator):
+    """Passes the packets of one kind on (what its inputs' merge gave it)."""
+
+    name = "filter.passing_test"
+
+    def __init__(self, kind: Kind) -> None:
+        self.consumes = self.produces = (kind,)  # type: ignore[misc]
+
+    def process(self, packet):
+        return [packet]
+
+
 def _registry_with(*classes):
     reg = tectum.get_registry()
     for c in classes:
@@ -132,14 +144,6 @@ def test_merging_frame_streams_with_empty_ticks():
     """Regression: the (0, 0, 0) placeholder image of an empty repr tick
     made merging frame streams raise ValueError."""
 
-    class Frames(Operator):
-        name = "repr.frames_test"
-        consumes = (Kind.FRAMES,)
-        produces = (Kind.FRAMES,)
-
-        def process(self, packet):
-            return [packet]
-
     def frames(ts, t0, t1):
         return FramePacket(np.array(ts, np.int64), images=np.ones((len(ts), 3, 4), np.float32),
                            t_start=t0, t_end=t1)
@@ -147,7 +151,7 @@ def test_merging_frame_streams_with_empty_ticks():
     p = Pipeline()
     a = p.source(ListSource([FramePacket.empty(0, 100), frames([150], 100, 200)]), id="a")
     b = p.source(ListSource([frames([50], 0, 100), FramePacket.empty(100, 200)]), id="b")
-    p.op(Frames(), [a, b], id="m")
+    p.op(Passing(Kind.FRAMES), [a, b], id="m")
     sink = ListSink()
     p.sink(sink, "m")
     tectum.run(p)
@@ -161,16 +165,7 @@ def test_merging_pose_streams_whose_optional_fields_differ():
     p = Pipeline()
     a = p.source(ListSource([poses(0, 100)]), id="a")
     b = p.source(ListSource([poses(10, 100, angular_velocity=w)]), id="b")
-
-    class Pass(Operator):
-        name = "filter.pass_test"
-        consumes = (Kind.POSES,)
-        produces = (Kind.POSES,)
-
-        def process(self, packet):
-            return [packet]
-
-    p.op(Pass(), [a, b], id="m")
+    p.op(Passing(Kind.POSES), [a, b], id="m")
     sink = ListSink()
     p.sink(sink, "m")
     tectum.run(p)
