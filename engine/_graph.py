@@ -51,7 +51,8 @@ class PortJoin:
     open (once all have ended: the largest seen), as one batch per release:
     a packet per port, all covering ``[previous W, W)`` (empty where a port
     had nothing; a port that has never delivered a packet, or whose stream
-    ended before ``previous W``, is absent).
+    ended before ``previous W``, is absent; a release is cut where an ended
+    stream stopped, so no packet reaches past its stream's end).
     Memory: what a port holds beyond the slowest open port's watermark.
     """
 
@@ -100,17 +101,22 @@ class PortJoin:
             if not starts:
                 return []
             start = min(starts)
-        if w <= start:
-            return []
-        batch: Batch = {}
-        for port in self.ports:
-            proto = self.proto[port]
-            mark = self.marks[port]
-            if proto is None or (self.ended[port] and mark is not None and mark <= start):
-                continue
-            batch[port] = self._take(port, start, w, proto)
-        self.released = w
-        return [batch]
+        out: list[Batch] = []
+        while w > start:
+            # an ended stream is released up to its own end, then left out:
+            # no batch stretches a finished stream beyond where it stopped
+            ends = [m for p, m in self.marks.items() if self.ended[p] and m is not None and start < m < w]
+            upto = min(ends, default=w)
+            batch: Batch = {}
+            for port in self.ports:
+                proto = self.proto[port]
+                mark = self.marks[port]
+                if proto is None or (self.ended[port] and mark is not None and mark <= start):
+                    continue
+                batch[port] = self._take(port, start, upto, proto)
+            out.append(batch)
+            start = self.released = upto
+        return out
 
     def _take(self, port: str, t0: int, t1: int, proto: Packet) -> Packet:
         """The port's data in ``[t0, t1)`` as one packet with that interval."""

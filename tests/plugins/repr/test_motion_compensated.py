@@ -124,3 +124,13 @@ def test_with_both_the_gyro_is_used():
     both = _frames({"events": s["events"], "imu": s["imu"], "poses": wrong})
     for a, b in zip(both, _frames(s)):
         np.testing.assert_array_equal(a.images, b.images)
+
+
+def test_windows_follow_the_events_not_a_longer_motion_stream():
+    s = _scene()  # 30 ms of events
+    t = np.arange(0, 200_001, 2_000, dtype=np.int64)  # 200 ms of poses
+    q = rot_to_quat(so3_exp(np.outer(t * 1e-6, OMEGA)))
+    long_poses = PosePacket(t, position=np.zeros((len(t), 3)), orientation=q, t_start=0, t_end=200_001)
+    out = feed_ports(MotionCompensated(calib=CALIB, window_us=10_000),
+                     {"events": [s["events"]], "poses": [long_poses]})
+    assert [int(f.t[0]) for f in out] == [9_999, 19_999, 29_999]
