@@ -17,9 +17,9 @@ interval, so an operator never sees a kind run ahead of another.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Hashable, Iterable, Mapping, Sequence
 from time import perf_counter_ns
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 from ._operator import Operator, as_packets
 from ._packet import EventPacket, Kind, Packet, accepts
@@ -39,12 +39,13 @@ class _End:
 #: Marker delivered to a sink (or an offloaded node) when all of its input has ended.
 END: Any = _End()
 Delivery = tuple[str, Any]  # (sink id, "tap:" + id or "offload:" + id; packet, port batch or END)
-Batch = dict[str, Packet]
+Batch = dict[str, Packet]  # one packet per port
+K = TypeVar("K", bound=Hashable)
 _OP, _SINK, _MERGE, _PORT = 0, 1, 2, 3
 
 
-class PortJoin:
-    """Join named streams (ports) by watermark.
+class PortJoin(Generic[K]):
+    """Join named streams (ports; any hashable keys) by watermark.
 
     Each port's watermark is the ``t_end`` of the last packet pushed on it.
     Data are released up to ``W``, the smallest watermark of the ports still
@@ -56,15 +57,15 @@ class PortJoin:
     Memory: what a port holds beyond the slowest open port's watermark.
     """
 
-    def __init__(self, ports: Iterable[str]) -> None:
+    def __init__(self, ports: Iterable[K]) -> None:
         self.ports = tuple(ports)
-        self.pending: dict[str, list[Packet]] = {p: [] for p in self.ports}
-        self.marks: dict[str, int | None] = {p: None for p in self.ports}
-        self.proto: dict[str, Packet | None] = {p: None for p in self.ports}
-        self.ended: dict[str, bool] = {p: False for p in self.ports}
+        self.pending: dict[K, list[Packet]] = {p: [] for p in self.ports}
+        self.marks: dict[K, int | None] = {p: None for p in self.ports}
+        self.proto: dict[K, Packet | None] = {p: None for p in self.ports}
+        self.ended: dict[K, bool] = {p: False for p in self.ports}
         self.released: int | None = None
 
-    def push(self, port: str, pkt: Packet) -> list[Batch]:
+    def push(self, port: K, pkt: Packet) -> list[dict[K, Packet]]:
         if self.ended[port]:
             raise TectumError(f"port {port!r} received a packet after its end")
         mark = self.marks[port]
@@ -76,7 +77,7 @@ class PortJoin:
         self.proto[port] = pkt
         return self._release()
 
-    def end(self, port: str) -> list[Batch]:
+    def end(self, port: K) -> list[dict[K, Packet]]:
         self.ended[port] = True
         return self._release()
 
@@ -91,7 +92,7 @@ class PortJoin:
         seen = [m for m in self.marks.values() if m is not None]
         return max(seen) if seen else None
 
-    def _release(self) -> list[Batch]:
+    def _release(self) -> list[dict[K, Packet]]:
         w = self._watermark()
         if w is None:
             return []
@@ -101,13 +102,13 @@ class PortJoin:
             if not starts:
                 return []
             start = min(starts)
-        out: list[Batch] = []
+        out: list[dict[K, Packet]] = []
         while w > start:
             # an ended stream is released up to its own end, then left out:
             # no batch stretches a finished stream beyond where it stopped
             ends = [m for p, m in self.marks.items() if self.ended[p] and m is not None and start < m < w]
             upto = min(ends, default=w)
-            batch: Batch = {}
+            batch: dict[K, Packet] = {}
             for port in self.ports:
                 proto = self.proto[port]
                 mark = self.marks[port]
@@ -118,7 +119,7 @@ class PortJoin:
             start = self.released = upto
         return out
 
-    def _take(self, port: str, t0: int, t1: int, proto: Packet) -> Packet:
+    def _take(self, port: K, t0: int, t1: int, proto: Packet) -> Packet:
         """The port's data in ``[t0, t1)`` as one packet with that interval."""
         pending = self.pending[port]
         if pending:  # the common case: a sparse stream with nothing before t1
@@ -166,31 +167,31 @@ class Merger:
 
     def __init__(self, carries: Sequence[frozenset[Kind]], consumes: Iterable[Kind]) -> None:
         consumed = frozenset(consumes)
-        self.lanes: dict[tuple[int, Kind], PortJoin] = {}
-        groups: dict[Kind | None, list[str]] = {}
+        groups: dict[Kind | None, list[tuple[int, Kind]]] = {}  # lanes (input, kind) joined together
         for i, kinds in enumerate(carries):
             for k in sorted(kinds):
-                groups.setdefault(None if accepts(consumed, k) else k, []).append(_lane(i, k))
-        self.joins = {g: PortJoin(lanes) for g, lanes in groups.items()}
-        for j in self.joins.values():
-            for lane in j.ports:
-                self.lanes[_unlane(lane)] = j
+                groups.setdefault(None if accepts(consumed, k) else k, []).append((i, k))
+        self.lanes: dict[tuple[int, Kind], PortJoin[tuple[int, Kind]]] = {}
+        for lanes in groups.values():
+            join = PortJoin(lanes)
+            for lane in lanes:
+                self.lanes[lane] = join
 
     def push(self, i: int, pkt: Packet) -> list[Packet]:
         join = self.lanes.get((i, pkt.kind))
         if join is None:
             raise TectumError(f"input {i} delivered {pkt.kind}, which it does not declare")
-        return self._merged(join.push(_lane(i, pkt.kind), pkt))
+        return self._merged(join.push((i, pkt.kind), pkt))
 
     def end(self, i: int) -> list[Packet]:
         out: list[Packet] = []
-        for (j, k), join in self.lanes.items():
-            if j == i:
-                out += self._merged(join.end(_lane(i, k)))
+        for lane, join in self.lanes.items():
+            if lane[0] == i:
+                out += self._merged(join.end(lane))
         return out
 
     @staticmethod
-    def _merged(batches: list[Batch]) -> list[Packet]:
+    def _merged(batches: list[dict[tuple[int, Kind], Packet]]) -> list[Packet]:
         out: list[Packet] = []
         for batch in batches:
             by_kind: dict[Kind, list[Packet]] = {}
@@ -201,15 +202,6 @@ class Merger:
                 first = parts[0]
                 out.append(first if len(parts) == 1 else merge(parts, first.t_start, first.t_end))
         return out
-
-
-def _lane(i: int, k: Kind) -> str:
-    return f"{i}:{k}"
-
-
-def _unlane(lane: str) -> tuple[int, Kind]:
-    i, k = lane.split(":", 1)
-    return int(i), Kind(k)
 
 
 class _Node:
@@ -224,7 +216,7 @@ class _Node:
         self.consumes: tuple[Kind, ...] = ()
         self.routes: tuple[tuple[int, Any, Any], ...] = ()
         self.tapped = False
-        self.join: PortJoin | Merger | None = None
+        self.join: PortJoin[str] | Merger | None = None
         self.ports: Mapping[str, str] = {}
         self.offload = False
         self.ticks = False

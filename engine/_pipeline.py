@@ -318,6 +318,7 @@ def _validate(p: Pipeline, reg: Registry) -> Plan:
         raise PipelineError("the pipeline has no source")
     classes = {nid: _resolve(s, reg) for nid, s in specs.items()}
     named: dict[str, dict[str, str]] = {}  # operator id -> port -> node id, as given by name
+    ports_of: dict[str, Mapping[str, Port]] = {}  # operator id -> its declared ports
     params_of: dict[str, dict[str, Any]] = {}
     inputs_of: dict[str, tuple[str, ...]] = {}
     for nid, s in specs.items():
@@ -335,6 +336,7 @@ def _validate(p: Pipeline, reg: Registry) -> Plan:
             if unknown:
                 raise PipelineError(f"node {nid!r} ({s.name}) has no port(s) {unknown}; ports: {sorted(ports)}")
             named[nid] = given
+            ports_of[nid] = ports
         params_of[nid] = params
         inputs_of[nid] = tuple(dict.fromkeys((*s.inputs, *given.values())))
     children: dict[str, list[str]] = {i: [] for i in specs}
@@ -375,7 +377,7 @@ def _validate(p: Pipeline, reg: Registry) -> Plan:
         if s.role == "source":
             provides = frozenset(decl.produces if s.component is not None else decl.kinds_for(s.name, params))
         elif nid in named:
-            wired = _wire_ports(s, _ports_of(s, cls) or {}, named[nid], s.inputs, nodes)
+            wired = _wire_ports(s, ports_of[nid], named[nid], s.inputs, nodes)
             problem = decl.check_ports(frozenset(wired))
             if problem:
                 raise PipelineError(f"node {nid!r} ({s.name}): {problem}")
