@@ -86,7 +86,11 @@ class Progress:
         self.stream.flush()
 
     def done(self) -> None:
-        """Clear the line (the command prints its own summary)."""
+        """Clear the line (the command prints its own summary). Work done
+        before the first redraw still shows its line once, so what a
+        terminal shows does not depend on how fast the machine is."""
+        if not self._width and self.t0 is not None:
+            self._draw(self.line(time.monotonic() - self.started))
         if self._width:
             self.stream.write("\r" + " " * self._width + "\r")
             self.stream.flush()
