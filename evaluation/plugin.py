@@ -23,6 +23,8 @@ SUITES = {
     "io": "decode and encode Mev/s per file format, beside dv-processing, expelliarmus, faery, numpy.loadtxt",
     "filters": "filter and representation speed beside peers; denoising ROC and AUC on labelled noise",
     "flow": "flow and lifetime speed and accuracy (analytic edges, simulator, gyro truth), failure maps",
+    "map": "map reconstruction, panoramic mosaic and EMVS depth: speed, and accuracy against simulator truth "
+           "(Pearson/SSIM, AbsRel), failure maps",
     "simulate": "simulator generation speed (Mev/s at 346x260)",
     "net": "TCP rate and UDP loss and latency on loopback",
 }

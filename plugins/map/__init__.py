@@ -1,0 +1,15 @@
+"""Family ``map``: events (and the camera's motion) become maps: log-intensity
+images (``map.high_pass``, ``map.complementary``), a panoramic mosaic under
+pure rotation (``map.poisson_mosaic``) and semi-dense depth by event-based
+multi-view stereo (``map.emvs``). Each emits :class:`tectum.MapPacket`s."""
+
+from __future__ import annotations
+
+from tectum.hookspecs import hookimpl
+
+__all__: list[str] = []
+
+
+@hookimpl
+def tectum_register_operators(registry) -> None:  # type: ignore[no-untyped-def]
+    pass
