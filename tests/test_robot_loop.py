@@ -7,10 +7,13 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import pytest
 
 import tectum
 from tectum.sources.usb.emulated import EmulatedBackend, EmulatedCamera
 from tectum.sources.usb.source import UsbSource
+
+pytestmark = pytest.mark.timing  # kernels compiled before the 0.5 s loop (conftest's warm_kernels)
 
 
 def control_loop(tp: tectum.ThreadedPipeline, node: str, capture_time, seconds: float = 0.5,
