@@ -344,6 +344,8 @@ class Graph:
             elif how == _SINK:
                 if pkt.kind in extra or Kind.ANY in extra:
                     out.append((child, pkt))
+                else:  # a kind the sink does not take: counted as not written
+                    self.stats.nodes[child].refuse(pkt)
             elif how == _MERGE:
                 try:
                     merged = child.join.push(extra, pkt)
@@ -370,7 +372,7 @@ class Graph:
             return
         st = rec.st
         st.packets_in += 1
-        st.events_in += pkt.t.shape[0]
+        st.took(pkt)
         t0 = perf_counter_ns()
         try:
             res = rec.op.process(pkt)  # type: ignore[union-attr]
@@ -383,7 +385,7 @@ class Graph:
         st.busy_ns += perf_counter_ns() - t0
         for q in res if type(res) is list else as_packets(res):
             st.packets_out += 1
-            st.events_out += q.t.shape[0]
+            st.gave(q)
             self._emit(rec, q, out)
 
     def _dispatch(self, rec: _Node, item: Packet | Batch, out: list[Delivery]) -> None:
@@ -399,11 +401,12 @@ class Graph:
         t0 = perf_counter_ns()
         try:
             if isinstance(item, dict):
-                st.events_in += sum(q.t.shape[0] for q in item.values())
+                for q in item.values():
+                    st.took(q)
                 res = op.process_ports(item)
                 mark = next(iter(item.values())).t_end
             else:
-                st.events_in += item.t.shape[0]
+                st.took(item)
                 res = op.process(item)
                 mark = item.t_end
             res = res if type(res) is list else list(as_packets(res))
@@ -428,7 +431,7 @@ class Graph:
         st = rec.st
         for q in res:
             st.packets_out += 1
-            st.events_out += q.t.shape[0]
+            st.gave(q)
             self._emit(rec, q, out)
 
     def _end(self, nid: str, out: list[Delivery]) -> None:

@@ -195,7 +195,7 @@ async def _sink_task(sid: str, sink: Sink, edge: Edge, stats: Stats) -> None:
         t0 = time.perf_counter_ns()
         for pkt, _ in items:
             st.packets_in += 1
-            st.events_in += pkt.t.shape[0]
+            st.took(pkt)
             try:
                 if sync_write is not None:
                     sync_write(pkt)
@@ -313,7 +313,7 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                 if pacer is not None:
                     async for piece, arrival in pacer.release(pkt):
                         st.packets_out += 1
-                        st.events_out += piece.t.shape[0]
+                        st.gave(piece)
                         out.add(graph.push(sid, piece), arrival)
                         await out.flush()  # paced: hand over at once, latency counts
                     continue
@@ -322,7 +322,7 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                 # than pushing one event through the operators.
                 # (Arrival is read once per slice: latency errs on the high side.)
                 arrival = trio.current_time()
-                st.events_out += pkt.t.shape[0]
+                st.gave(pkt)
                 push, add, clock = graph.push, out.add, time.perf_counter
                 for piece in pkt.batches(batch.max_events):
                     st.packets_out += 1

@@ -8,13 +8,21 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["NodeStats", "LatencyRecorder", "Stats"]
+from ._packet import Kind
+
+__all__ = ["NodeStats", "LatencyRecorder", "Stats", "amounts"]
 
 
 @dataclass(slots=True)
 class NodeStats:
-    """Counters of one node. ``busy_ns`` is the time spent inside the node's
-    own code (operator calls, sink writes), in ns."""
+    """Counters of one node. ``events_in``/``events_out`` count events only;
+    the samples of every other stream are counted by kind in
+    ``samples_in``/``samples_out`` (``{"imu": 2363, "frames": 59}``: IMU
+    samples, frames...). ``packets_*`` count packets of every kind.
+    ``busy_ns`` is the time spent inside the node's own code (operator
+    calls, sink writes), in ns. ``not_written`` (sinks) counts, by kind,
+    what reached the sink and was not stored (a kind its format does not
+    hold); ``counters`` are the node's own (a file source's skipped events)."""
 
     packets_in: int = 0
     events_in: int = 0
@@ -24,11 +32,54 @@ class NodeStats:
     drops: int = 0
     repairs: dict[str, int] = field(default_factory=dict)
     counters: dict[str, int] = field(default_factory=dict)
+    samples_in: dict[str, int] = field(default_factory=dict)
+    samples_out: dict[str, int] = field(default_factory=dict)
+    not_written: dict[str, int] = field(default_factory=dict)
+
+    def took(self, pkt: Any) -> None:
+        """Count the rows of a packet that came in (events, or samples of its kind)."""
+        if pkt.kind is _EVENTS:
+            self.events_in += pkt.t.shape[0]
+        else:
+            _add(self.samples_in, pkt.kind, pkt.t.shape[0])
+
+    def gave(self, pkt: Any) -> None:
+        """Count the rows of a packet that went out (events, or samples of its kind)."""
+        if pkt.kind is _EVENTS:
+            self.events_out += pkt.t.shape[0]
+        else:
+            _add(self.samples_out, pkt.kind, pkt.t.shape[0])
+
+    def refuse(self, pkt: Any) -> None:
+        """Count a packet that reached this sink and was not written."""
+        if pkt.t.shape[0]:
+            _add(self.not_written, pkt.kind, pkt.t.shape[0])
 
     def as_dict(self) -> dict[str, Any]:
         from dataclasses import asdict
 
         return asdict(self)
+
+
+_EVENTS = Kind.EVENTS
+
+
+def _add(counts: dict[str, int], kind: str, n: int) -> None:
+    key = str(kind)
+    counts[key] = counts.get(key, 0) + n
+
+
+def amounts(counts: dict[str, int]) -> str:
+    """``{"imu": 2363, "frames": 59}`` -> ``"2,363 imu samples, 59 frames"``."""
+    return ", ".join(f"{n:,} {_noun(k, n)}" for k, n in counts.items() if n)
+
+
+def _noun(kind: str, n: int) -> str:
+    """How a count of ``kind`` reads: frames, events and maps count
+    themselves, other kinds count samples."""
+    if kind in ("events", "frames", "maps", "points", "tracks", "clusters", "triggers", "poses"):
+        return kind if n != 1 else kind[:-1]
+    return f"{kind} sample" + ("s" if n != 1 else "")
 
 
 class LatencyRecorder:
@@ -100,7 +151,10 @@ class Stats:
         }
 
     def report(self) -> str:
-        """A human-readable table."""
+        """A human-readable table: packets in, events in and out, busy time
+        and drops per node; under a node, its samples of other streams by
+        kind, what a sink did not write, repairs and the node's own counters
+        (a file source's skipped events)."""
         w = max([24, *(len(n) + 2 for n in self.nodes)])
         lines = [f"{'node':<{w}}{'pk in':>9}{'ev in':>12}{'ev out':>12}{'ms busy':>10}{'drops':>8}"]
         for nid, s in self.nodes.items():
@@ -108,6 +162,10 @@ class Stats:
                 f"{nid:<{w}}{s.packets_in:>9}{s.events_in:>12}{s.events_out:>12}"
                 f"{s.busy_ns / 1e6:>10.1f}{s.drops:>8}"
             )
+            for label, counts in (("samples in", s.samples_in), ("samples out", s.samples_out),
+                                  ("not written", s.not_written)):
+                if any(counts.values()):
+                    lines.append(f"  {label}: {amounts(counts)}")
             for k, v in s.repairs.items():
                 lines.append(f"  repaired: {k} = {v}")
             for k, v in s.counters.items():

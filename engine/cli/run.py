@@ -6,6 +6,7 @@ import argparse
 import json
 
 from tectum import BatchPolicy, Pipeline, run
+from tectum._stats import amounts
 
 from ._args import split_op, split_query
 from ._progress import attach
@@ -87,7 +88,8 @@ def main(args: argparse.Namespace) -> int:
         last = [n.id for n in p.nodes if n.role != "sink"][-1]
         s = stats.nodes.get(last)
         if s is not None:
-            print(f"{s.events_out} events out of {last!r} in {stats.wall_s:.2f} s")
+            what = amounts({"events": s.events_out, **s.samples_out}) or "0 events"
+            print(f"{what} out of {last!r} in {stats.wall_s:.2f} s")
     if args.stats_json:
         with open(args.stats_json, "w") as f:
             json.dump(stats.as_dict(), f, indent=1)

@@ -563,6 +563,14 @@ class FileSource(Source):
                 "streams": {k: v for k, v in counts.items()}, "t0_offset_us": self.t0_offset,
                 "skipped_events": self.skipped_events}
 
+    @property
+    def counts(self) -> dict[str, int]:
+        """What ``--stats`` shows under the source: with ``skip_bad``, the
+        events (or records) dropped and the byte ranges they came from."""
+        if not self.skip_bad and not self.skipped_events:
+            return {}
+        return {"skipped_events": self.skipped_events, "skipped_ranges": len(self.skipped_ranges)}
+
     def close(self) -> None:
         for f in self._files:
             try:
