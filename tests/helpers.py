@@ -75,3 +75,36 @@ def run_camera(cam: Any, uri: str = "usb:", sinks: int = 1, **kw: Any) -> tuple[
         p.sink(k, s)
     tectum.run(p)
     return src, out
+
+
+def builtin_operators() -> list[str]:
+    """Registry names of every built-in operator (a newly registered one is
+    picked up without touching the tests that use this)."""
+    import tectum
+
+    return sorted(name for name, e in tectum.get_registry().operators.items() if e.cls.__module__.startswith("tectum."))
+
+
+def conformance_case(name: str) -> tuple[type, Any, dict[str, Any]]:
+    """(class, stream, parameters) to check operator ``name`` with.
+
+    An operator that needs another input than events gives its own stream
+    through a class attribute ``conformance_stream`` (a callable returning a
+    packet, or one packet per port for operators with named ports); one with
+    required parameters gives ``conformance_params`` (a dict). Others get a
+    small moving-bars stream with noise. Raises AssertionError (naming the
+    operator) where neither fits."""
+    import tectum
+    from tectum import Kind
+
+    cls = tectum.get_registry().operator(name)
+    make_stream = getattr(cls, "conformance_stream", None)
+    if make_stream is not None:
+        stream = make_stream()
+    elif cls.inputs is not None:
+        raise AssertionError(f"{name} has ports {sorted(cls.inputs)}: give it a conformance_stream (one packet per port)")
+    elif Kind.EVENTS in cls.consumes:
+        stream = bars(duration_us=40_000, sensor="48x36", noise_hz=20.0, speed=300.0)
+    else:
+        raise AssertionError(f"{name} consumes {cls.consumes}: give it a conformance_stream")
+    return cls, stream, dict(getattr(cls, "conformance_params", {}))
