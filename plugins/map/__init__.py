@@ -7,9 +7,13 @@ from __future__ import annotations
 
 from tectum.hookspecs import hookimpl
 
-__all__: list[str] = []
+from .complementary import Complementary
+from .high_pass import HighPass
+
+__all__: list[str] = ["Complementary", "HighPass"]
 
 
 @hookimpl
 def tectum_register_operators(registry) -> None:  # type: ignore[no-untyped-def]
-    pass
+    registry.add_operator(HighPass)
+    registry.add_operator(Complementary)
