@@ -8,11 +8,10 @@ from __future__ import annotations
 from tectum.hookspecs import hookimpl
 
 from .complementary import Complementary
-from .emvs import Emvs
 from .high_pass import HighPass
 from .poisson_mosaic import PoissonMosaic
 
-__all__: list[str] = ["Complementary", "Emvs", "HighPass", "PoissonMosaic"]
+__all__: list[str] = ["Complementary", "HighPass", "PoissonMosaic"]
 
 
 @hookimpl
@@ -20,4 +19,3 @@ def tectum_register_operators(registry) -> None:  # type: ignore[no-untyped-def]
     registry.add_operator(HighPass)
     registry.add_operator(Complementary)
     registry.add_operator(PoissonMosaic)
-    registry.add_operator(Emvs)
