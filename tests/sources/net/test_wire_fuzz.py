@@ -96,8 +96,10 @@ def test_hostile_tcp_sender_is_counted_and_the_source_survives() -> None:
     def frame(m: bytes) -> bytes:
         return len(m).to_bytes(4, "little") + m
 
-    with socket.create_connection(("127.0.0.1", port), timeout=5) as c:  # garbage inside valid frames
-        c.sendall(frame(b"\x00" * 60) + frame(msgs[0]) + frame(msgs[1][:-3]) + frame(b"TQ" + b"\xff" * 50))
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as c:  # garbage first: not a sender
+        c.sendall(frame(b"\x00" * 60))
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as c:  # a sender, then garbage in valid frames
+        c.sendall(frame(msgs[0]) + frame(msgs[1][:-3]) + frame(b"TQ" + b"\xff" * 50))
         c.sendall((1 << 31).to_bytes(4, "little"))  # a 2 GiB frame: refused, connection dropped
     with socket.create_connection(("127.0.0.1", port), timeout=5) as c:  # the real sender reconnects
         c.sendall(b"".join(frame(m) for m in msgs))
@@ -108,4 +110,5 @@ def test_hostile_tcp_sender_is_counted_and_the_source_survives() -> None:
     got = sink.events()
     assert np.array_equal(got.t, pk.t) and np.array_equal(got.y, pk.y)
     r = src.counts
-    assert r["rejected_magic"] >= 1 and r["rejected_length"] >= 2 and src.counts["dropped_connections"] == 1
+    assert r["rejected_magic"] == 1 and r["rejected_length"] == 1 and r["rejected_version"] == 1
+    assert r["dropped_first_message"] == 1 and r["dropped_length"] == 1 and r["dropped_connections"] == 2
