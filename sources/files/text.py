@@ -18,10 +18,11 @@ coordinates (a first pass over the file).
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 from collections.abc import Callable, Iterator, Mapping
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numba import njit
@@ -36,12 +37,14 @@ __all__ = ["TextSource", "parse_lines"]
 
 _UNIT_DIGITS = {"s": 6, "ms": 3, "us": 0, "ns": -3}
 _HOLD = 1 << 21  # events held in memory while inferring the sensor size
+_HOLD_BYTES = 1 << 26  # text held (for error offsets) while inferring the sensor size
+_RUNS = 4096  # runs of bad lines one parse_lines call records
 _DTYPES = (np.int64, np.uint16, np.uint16, np.int8)  # t, x, y, p
 
 
 #: ``parse_lines`` reasons for a bad line
 _REASONS = {1: "line is not 4 numbers", 2: "negative coordinate", 3: "coordinate above 65535",
-            4: "polarity is not 0/1 or -1/+1 (or mixes the two)"}
+            4: "polarity is not 0/1 or -1/+1 (or mixes the two)", 5: "time out of the int64 µs range"}
 #: ``parse_lines`` state: polarity convention (0 not seen yet, 1 is 0/1, 2 is -1/+1), largest x, largest y
 _STATE = 3
 
@@ -58,7 +61,7 @@ def _sep(c):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def parse_lines(buf, order, digits, state, t, x, y, p, where):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+def parse_lines(buf, order, digits, state, skip, t, x, y, p, where, bad):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     """Parse complete lines of ``buf`` (uint8) in one pass into the columns
     (t int64 µs, x and y uint16, p int8 ±1; ``where`` gets each line's
     offset unless it is empty). ``order[k]`` is the field (0 t, 1 x, 2 y,
@@ -67,11 +70,25 @@ def parse_lines(buf, order, digits, state, t, x, y, p, where):  # type: ignore[n
     1 µs round half up (on the first dropped digit; away from zero for
     negative times). ``state`` (see ``_STATE``) carries the polarity
     convention, set by the first 0 or -1, and the largest coordinates.
-    Returns (n_events, bytes consumed, bad line offset or -1, reason)."""
+
+    Bad lines go to ``bad`` (int64, at least one row of three): runs of
+    them, each (offset of the first, offset of the last one's line end,
+    lines), blank and comment lines inside a run belonging to it. Without
+    ``skip`` parsing stops at the first bad line; with it parsing goes on
+    past bad lines until a new run finds ``bad`` full, so one pass over the
+    bytes parses any input in bounded memory.
+    Returns (n_events, bytes consumed, runs in ``bad``, reason of the
+    first bad line or 0)."""
     n = 0
     i = 0
     m = buf.shape[0]
     track = where.shape[0] > 0
+    runs = 0
+    why = 0
+    big = np.int64(9223372036854775807)  # the largest whole part of a time in the unit
+    for _ in range(max(digits, 0)):
+        big //= 10
+    joined = False  # the next bad line joins the last run (nothing good since)
     # the last complete line ends at the last newline
     last = m - 1
     while last >= 0 and _at(buf, last) != 10:
@@ -85,7 +102,7 @@ def parse_lines(buf, order, digits, state, t, x, y, p, where):  # type: ignore[n
             i += 1
             continue
         col = 0
-        bad = 0
+        code = 0
         tv = np.int64(0)
         xv = np.int64(0)
         yv = np.int64(0)
@@ -108,6 +125,7 @@ def parse_lines(buf, order, digits, state, t, x, y, p, where):  # type: ignore[n
                 ip = ip * 10 + (_at(buf, i) - 48)
                 i += 1
                 nd += 1
+            nint = nd
             frac = np.int64(0)
             fd = 0
             up = 0
@@ -135,7 +153,13 @@ def parse_lines(buf, order, digits, state, t, x, y, p, where):  # type: ignore[n
                             break
             c = _at(buf, i)
             if nd == 0 or not (c == 10 or _sep(c)) or col >= 4:
-                bad = 1
+                code = 1
+                break
+            if order[col] == 0 and (nint > 18 or ip >= big):  # int64 µs would wrap
+                code = 5
+                break
+            if nint > 18:  # a coordinate or polarity far out of range: kept from wrapping
+                code = 4 if order[col] == 3 else 3
                 break
             f = order[col]
             if f == 0:
@@ -152,7 +176,7 @@ def parse_lines(buf, order, digits, state, t, x, y, p, where):  # type: ignore[n
                 tv = -v if neg else v
             else:
                 if nzfrac:
-                    bad = 1
+                    code = 1
                     break
                 v = -ip if neg else ip
                 if f == 1:
@@ -162,26 +186,45 @@ def parse_lines(buf, order, digits, state, t, x, y, p, where):  # type: ignore[n
                 else:
                     pv = v
             col += 1
-        if bad == 0 and col != 4 and col != 0:
-            bad = 1
-        if bad == 0 and col == 4:
+        if code == 0 and col != 4 and col != 0:
+            code = 1
+        if code == 0 and col == 4:
             if xv < 0 or yv < 0:
-                bad = 2
+                code = 2
             elif xv > 65535 or yv > 65535:
-                bad = 3
+                code = 3
             elif pv == 0 or pv == -1:
                 conv = 1 if pv == 0 else 2
                 if state[0] == 0:
                     state[0] = conv
                 elif state[0] != conv:
-                    bad = 4
+                    code = 4
             elif pv != 1:
-                bad = 4
-        if bad:
-            return n, start, start, bad
+                code = 4
+        if code:
+            if runs == 0:
+                why = code
+            while _at(buf, i) != 10:
+                i += 1
+            if joined:
+                bad[runs - 1, 1] = i
+                bad[runs - 1, 2] += 1
+            elif runs == bad.shape[0]:
+                return n, start, runs, why
+            else:
+                bad[runs, 0] = start
+                bad[runs, 1] = i
+                bad[runs, 2] = 1
+                runs += 1
+                joined = True
+            if not skip:
+                return n, start, runs, why
+            i += 1
+            continue
         i += 1  # past the newline
         if col == 0:  # blank line
             continue
+        joined = False
         t[n] = tv
         x[n] = xv
         y[n] = yv
@@ -193,7 +236,7 @@ def parse_lines(buf, order, digits, state, t, x, y, p, where):  # type: ignore[n
         if track:
             where[n] = start
         n += 1
-    return n, last + 1, -1, 0
+    return n, last + 1, runs, why
 
 
 _NUM = rb"[+-]?(?:\d+\.?\d*|\.\d+)"
@@ -215,6 +258,18 @@ def looks_like_events_text(head: bytes) -> bool:
         if re.split(rb"[ \t,]+", ln.strip())[3] not in (b"0", b"1", b"-1", b"+1"):
             return False
     return True
+
+
+class _Chunk(NamedTuple):
+    """Lines parsed by :meth:`TextSource._parse`: ``n`` events in ``cols``
+    from byte ``pos``, a function giving each event's byte offset, and the
+    bytes consumed."""
+
+    pos: int
+    n: int
+    cols: tuple[np.ndarray, ...]
+    where: Callable[[], np.ndarray]
+    size: int
 
 
 class TextSource(FileSource):
@@ -264,25 +319,29 @@ class TextSource(FileSource):
         beside = {Kind.IMU: "imu.txt", Kind.POSES: "groundtruth.txt", Kind.FRAMES: "images.txt"}
         return (Kind.EVENTS, *(k for k, n in beside.items() if os.path.isfile(os.path.join(folder, n))))
 
-    def _parse(self, columns: Callable[[int], tuple[np.ndarray, ...]],
-               state: np.ndarray) -> Iterator[tuple[int, int, tuple[np.ndarray, ...], Callable[[], np.ndarray]]]:
-        """(byte offset, events, columns, line offsets) per chunk: the events
-        are parsed into the columns ``columns(capacity)`` gives (t, x, y, p,
-        from index 0); the line offsets are a function, computed (by parsing
-        the chunk again) only when something is wrong."""
+    def _parse(self, columns: Callable[[int], tuple[np.ndarray, ...]], state: np.ndarray) -> Iterator[_Chunk]:
+        """The file's lines parsed a chunk at a time: the events go into the
+        columns ``columns(capacity)`` gives (t, x, y, p, from index 0). Bad
+        lines raise, or with ``skip_bad`` are counted and passed over in the
+        same pass: time is linear and memory bounded by the chunk size
+        whatever the input."""
         f = self._open()
-        self.layout = lay = text_layout(f.read(1 << 16), self.columns, self.time_unit)
+        head = f.read(1 << 16)
+        if not head.strip():
+            self._fail("empty file: no events" if not head else "empty file: only blank lines", 0)
+        self.layout = lay = text_layout(head, self.columns, self.time_unit)
         f.seek(0)
         order = np.array(["txyp".index(c) for c in lay.columns], np.int64)
         digits = _UNIT_DIGITS[lay.time_unit]
         no_where = np.empty(0, np.int64)
+        runs = np.empty((_RUNS, 3), np.int64)
         pos = 0
         rest = b""
         first = True
         eof = False
-        while True:
-            data = b"" if eof else f.read(self.chunk_bytes)
-            eof = eof or not data
+        while not eof:
+            data = f.read(max(self.chunk_bytes, len(rest)))  # a long line: reads double, time stays linear
+            eof = not data
             buf = rest + data
             if eof:
                 if not buf.strip():
@@ -296,29 +355,36 @@ class TextSource(FileSource):
                     pos += nl + 1
                     buf = buf[nl + 1:]
             arr = np.frombuffer(buf, np.uint8)
-            cols = columns(len(buf) // 8 + 2)  # a line has at least 8 bytes ("0 0 0 0\n")
-            before = state.copy()
-            n, used, bad, reason = parse_lines(arr, order, digits, state, *cols, no_where)
-
-            def where(arr: np.ndarray = arr, used: int = used, before: np.ndarray = before,
-                      pos: int = pos) -> np.ndarray:
-                out = [np.empty(used // 8 + 2, d) for d in (np.int64, np.uint16, np.uint16, np.int8, np.int64)]
-                k, *_ = parse_lines(arr[:used], order, digits, before.copy(), *out)
-                return pos + out[4][:k]
-
-            if bad >= 0:
-                end = buf.find(b"\n", bad)
-                if not self.skip_bad:
-                    self._fail(f"{_REASONS[reason]}: {bytes(buf[bad:end])[:80]!r}", pos + bad)
-                self._note_skip(pos + bad, pos + end, 1)
-                used = end + 1
-            elif used == 0 and len(buf) > self.chunk_bytes + (1 << 20):
+            at = 0
+            while True:
+                view = arr[at:]
+                cols = columns(view.shape[0] // 8 + 2)  # a line has at least 8 bytes ("0 0 0 0\n")
+                before = state.copy()
+                n, used, nruns, reason = parse_lines(view, order, digits, state, self.skip_bad, *cols, no_where, runs)
+                if nruns and not self.skip_bad:
+                    a, b = int(runs[0, 0]), int(runs[0, 1])
+                    self._fail(f"{_REASONS[reason]}: {bytes(view[a:b])[:80]!r}", pos + at + a)
+                for a, b, k in runs[:nruns].tolist():
+                    self._note_skip(pos + at + a, pos + at + b, k)
+                yield _Chunk(pos + at, n, cols, functools.partial(self._where, view[:used], before, pos + at), used)
+                at += used
+                if nruns < _RUNS:
+                    break
+            if at == 0 and len(buf) > self.chunk_bytes + (1 << 20):
                 self._fail("no line end in the last MiB: not a text event file", pos)
-            yield pos, n, cols, where
-            rest = buf[used:]
-            pos += used
-            if eof and bad < 0:
-                return
+            rest = buf[at:]
+            pos += at
+
+    def _where(self, view: np.ndarray, state: np.ndarray, pos: int) -> np.ndarray:
+        """The byte offsets of the events of ``view`` (parsed again from
+        ``state``): asked for only when something is wrong."""
+        lay = self.layout
+        assert lay is not None
+        out = [np.empty(view.shape[0] // 8 + 2, d) for d in (*_DTYPES, np.int64)]
+        order = np.array(["txyp".index(c) for c in lay.columns], np.int64)
+        k, *_ = parse_lines(view, order, _UNIT_DIGITS[lay.time_unit], state.copy(), self.skip_bad, *out,
+                            np.empty((_RUNS, 3), np.int64))
+        return pos + out[4][:k]
 
     def info(self) -> dict[str, Any]:
         """:meth:`FileSource.info` with the time unit and column order used,
@@ -365,33 +431,37 @@ class TextSource(FileSource):
 
     def _event_packets(self) -> Iterator[Packet]:
         """Without a sensor size from the option or an image, the extent of
-        the coordinates: a small file (up to ``_HOLD`` events) is parsed once
-        and held, a larger one is read twice (bounded memory)."""
+        the coordinates: a small file (up to ``_HOLD`` events and
+        ``_HOLD_BYTES`` of text) is parsed once and held, a larger one is
+        read twice (bounded memory)."""
         sensor = self._sensor(None) or self._sensor_guess()
         state = np.zeros(_STATE, np.int64)
-        held: list[tuple[int, int, tuple[np.ndarray, ...], Callable[[], np.ndarray]]] = []
+        held: list[_Chunk] = []
         if sensor is None:
-            total = 0
+            events = size = 0
             for c in self._parse(lambda n: tuple(np.empty(n, d) for d in _DTYPES), state):
-                held.append(c)
-                total += c[1]
-                if total > _HOLD:  # too many to hold: a pass for the extent only
+                held.append(c._replace(cols=tuple(a[:c.n].copy() for a in c.cols)))
+                events += c.n
+                size += c.size
+                if events > _HOLD or size > _HOLD_BYTES:  # too much to hold: a pass for the extent only
                     held = []
+                    self.skipped_events, self.skipped_ranges = 0, []  # counted in the pass that keeps the events
                     for _ in self._parse(lambda n: _POOL.take(n), state):
                         pass
+                    self.skipped_events, self.skipped_ranges = 0, []
                     break
             self.close()
             sensor = (int(state[1]) + 1, int(state[2]) + 1)
             state[:] = 0
         asm = EventAssembler(self, sensor)
         if held:
-            for pos, n, cols, where in held:
-                for a, b in zip(asm.reserve(n), cols):
-                    a[:n] = b[:n]
-                yield from asm.commit(n, pos, where)
+            for c in held:
+                for a, b in zip(asm.reserve(c.n), c.cols):
+                    a[:] = b
+                yield from asm.commit(c.n, c.pos, c.where)
         else:
-            for pos, n, _, where in self._parse(asm.reserve, state):
-                yield from asm.commit(n, pos, where)
+            for c in self._parse(asm.reserve, state):
+                yield from asm.commit(c.n, c.pos, c.where)
                 if asm.past_end():
                     break
         yield from asm.finish()
@@ -428,7 +498,7 @@ class TextSource(FileSource):
 def _to_us(s: bytes) -> int:
     arr = np.frombuffer(s + b" 0 0 1\n", np.uint8)
     out = [np.empty(1, d) for d in (*_DTYPES, np.int64)]
-    n, *_ = parse_lines(arr, np.arange(4), 6, np.zeros(_STATE, np.int64), *out)
+    n, *_ = parse_lines(arr, np.arange(4), 6, np.zeros(_STATE, np.int64), False, *out, np.empty((1, 3), np.int64))
     return int(out[0][0]) if n else 0
 
 
