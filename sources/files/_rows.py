@@ -11,6 +11,7 @@ line; with ``skip_bad=True`` they are dropped and counted
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import IO, Any
@@ -43,6 +44,14 @@ class SampleFileSource(FileSource):
         super().__init__(path, **kw)
         #: Counters for the run's stats: rows dropped with ``skip_bad``.
         self.counts = {"skipped_rows": 0}
+
+    def _open(self) -> Any:
+        """The file, which must not be empty: no bytes is no file of the
+        format, never a stream of no samples."""
+        f = super()._open()
+        if os.fstat(f.fileno()).st_size == 0:
+            self._fail("empty file: no header and no rows", 0)
+        return f
 
     def _note_skip(self, first: int, last: int, n: int) -> None:
         super()._note_skip(first, last, n)
