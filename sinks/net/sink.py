@@ -4,7 +4,9 @@
 TCP connects when the pipeline opens (retrying for ``connect_s`` s, so the
 receiver may start a moment later), sends every event losslessly with
 back-pressure, reconnects and resends the current message if the
-connection drops, and sends END when the run ends. UDP sends datagrams of
+connection drops, and sends END when the run ends. With ``secret`` (or the
+``TECTUM_NET_SECRET`` environment variable) it answers the receiver's
+challenge on each connection (:mod:`tectum.sources.net._auth`). UDP sends datagrams of
 at most ``datagram`` bytes (under the MTU), a HELLO every ``hello_every``
 datagrams so a late receiver can join, and can pace itself to
 ``rate_mev_s``; what the network drops the receiver counts.
@@ -22,6 +24,7 @@ import trio
 
 from tectum import EventPacket, Kind, Packet, SamplePacket, Sink
 from tectum.sources.net._addr import parse
+from tectum.sources.net._auth import auth, nonce_of, secret_of
 from tectum.sources.net._samples import FRAG, SAMPLES, encode_samples, fragments, sample_pieces, schema_of
 from tectum.sources.net._samples import row_bytes as sample_row_bytes
 from tectum.sources.net._wire import HEADER, _header, chunks, encode_end, encode_events, encode_hello, row_bytes
@@ -35,7 +38,8 @@ class NetSink(Sink):
     Parameters (units): ``connect_s`` seconds to keep trying to connect
     (TCP); ``datagram`` bytes per UDP datagram (576..65000); ``frame_events``
     events per TCP frame; ``rate_mev_s`` UDP pacing in million events/s (0:
-    as fast as possible); ``hello_every`` datagrams between UDP HELLOs.
+    as fast as possible); ``hello_every`` datagrams between UDP HELLOs;
+    ``secret`` the receiver's shared secret (TCP).
     """
 
     name = "net"
@@ -43,8 +47,11 @@ class NetSink(Sink):
     consumes = (Kind.EVENTS, Kind.IMU, Kind.FRAMES, Kind.POSES, Kind.TRIGGERS)
 
     def __init__(self, url: str, connect_s: float = 5.0, datagram: int = 1400, frame_events: int = 65536,
-                 rate_mev_s: float = 0.0, hello_every: int = 64) -> None:
+                 rate_mev_s: float = 0.0, hello_every: int = 64, secret: str = "") -> None:
         self.scheme, self.host, self.port = parse(url)
+        self.secret = secret_of(secret)
+        if self.secret and self.scheme == "udp":
+            raise ValueError(f"{url!r}: a secret needs tcp:// (UDP datagrams cannot be bound to a handshake)")
         if not 576 <= datagram <= 65000 or frame_events < 1 or rate_mev_s < 0 or hello_every < 1:
             raise ValueError("need 576 <= datagram <= 65000, frame_events >= 1, rate_mev_s >= 0, hello_every >= 1")
         self.connect_s, self.datagram, self.frame_events = connect_s, datagram, frame_events
@@ -72,6 +79,8 @@ class NetSink(Sink):
             try:
                 s.connect((self.host, self.port))
                 s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                if self.secret:
+                    self._answer(s, deadline)
                 return s
             except OSError as e:
                 s.close()
@@ -79,6 +88,21 @@ class NetSink(Sink):
                     raise ConnectionError(f"cannot connect to tcp://{self.host}:{self.port} "
                                           f"within {self.connect_s} s: {e}") from None
                 time.sleep(0.02)
+
+    def _answer(self, s: socket.socket, deadline: float) -> None:
+        """Read the receiver's challenge and prove the secret."""
+        s.settimeout(max(1.0, deadline - time.monotonic()))
+        head = b""
+        while len(head) < 4 + HEADER + 16:
+            got = s.recv(4 + HEADER + 16 - len(head))
+            if not got:
+                raise ConnectionError(f"tcp://{self.host}:{self.port} closed before its challenge")
+            head += got
+        nonce = nonce_of(head[4:])
+        if nonce is None:
+            raise ConnectionError(f"tcp://{self.host}:{self.port} sent no challenge (has it a secret?)")
+        s.sendall(_framed(auth(self.secret, nonce, self.session)))
+        s.settimeout(None)
 
     def open(self) -> None:
         if self.scheme == "tcp":

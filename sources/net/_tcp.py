@@ -19,7 +19,7 @@ from collections import deque
 
 import trio
 
-from ._auth import check, challenge
+from ._auth import challenge, check
 from ._session import Run, log
 from ._wire import HEADER
 
@@ -170,11 +170,12 @@ async def _connection(run: Run, slot: _Slot, stream: trio.SocketStream, cid: int
         return
     session = struct.unpack_from("<I", first, 4)[0]
     run.arrived()
-    finished = False
+    finished = admitted = False
     try:
         if not pol.merge:
             await slot.take(cid, session, peer)
         run.merger.join(cid)
+        admitted = True
         log.info("tcp: sender %s connected", peer)
         ok = await run.emit(cid, pkts)
         while ok and not recv.ended:
@@ -187,8 +188,10 @@ async def _connection(run: Run, slot: _Slot, stream: trio.SocketStream, cid: int
             _drop(run, "schema_mismatch", peer)
         finished = recv.ended
     finally:
-        with trio.CancelScope(shield=True):
-            await run.leave(cid)
+        if admitted:
+            with trio.CancelScope(shield=True):
+                await run.emit(cid, recv.flush())  # what it held back at its last timestamp
+                await run.leave(cid)
         slot.release(cid, session, finished, nursery)
         run.departed(finished)
         run.retire(recv)

@@ -11,6 +11,7 @@ has nothing to bind a secret to).
 
 from __future__ import annotations
 
+import math
 import struct
 
 import trio
@@ -23,52 +24,71 @@ __all__ = ["serve_udp"]
 
 async def serve_udp(run: Run, sock: trio.socket.SocketType) -> None:
     """Receive datagrams (until cancelled)."""
-    pol = run.policy
-    owner: tuple[object, int] | None = None
-    recv: Receiver | None = None
-    heard = 0.0
-    ended: set[tuple[object, int]] = set()
-    sid = 0
-    while True:
-        wait = heard + pol.timeout_s if owner is not None else trio.current_time() + 3600.0
+    u = _Udp(run)
+    try:
+        while True:
+            await u.step(sock)
+    finally:
+        if u.recv is not None:  # cancelled with a sender live: what it held back goes out
+            with trio.CancelScope(shield=True):
+                await u.gone(False)
+
+
+class _Udp:
+    """The UDP receiver's state: the live sender (address, session), its receiver."""
+
+    def __init__(self, run: Run) -> None:
+        self.run = run
+        self.owner: tuple[object, int] | None = None
+        self.recv: Receiver | None = None
+        self.heard = 0.0
+        self.ended: set[tuple[object, int]] = set()
+        self.sid = 0
+
+    async def step(self, sock: trio.socket.SocketType) -> None:
+        run = self.run
+        wait = self.heard + run.policy.timeout_s if self.recv is not None else math.inf
         data: bytes | None = None
         with trio.move_on_at(wait):
             data, addr = await sock.recvfrom(65536)
         if data is None:  # the sender has gone silent
             run.counters["dropped_timeout"] += 1
-            await run.leave(sid)
-            run.departed(False)
-            if recv is not None:
-                run.retire(recv)
-            owner = recv = None
-            continue
+            await self.gone(False)
+            return
         key = (addr, struct.unpack_from("<I", data, 4)[0] if len(data) >= HEADER else -1)
-        if owner is None:
-            if key in ended:
+        if self.recv is None:
+            if key in self.ended:
                 run.counters["late"] += 1
-                continue
+                return
             recv = run.receiver()
             pkts = recv.feed(data)
             if not recv.accepted and not recv.ended:
                 run.retire(recv)
-                continue
-            owner, sid = key, sid + 1
+                return
+            self.owner, self.recv, self.sid = key, recv, self.sid + 1
             run.arrived()
-            run.merger.join(sid)
+            run.merger.join(self.sid)
             log.info("udp: sender %s session %08x", addr, key[1])
-        elif key != owner:
+        elif key != self.owner:
             run.counters["dropped_other_sender"] += 1
-            continue
+            return
         else:
-            assert recv is not None
-            pkts = recv.feed(data)
-        heard = trio.current_time()
-        fits = await run.emit(sid, pkts)
-        if not fits:
+            pkts = self.recv.feed(data)
+        self.heard = trio.current_time()
+        if not await run.emit(self.sid, pkts):
             run.counters["dropped_schema_mismatch"] += 1
-        if recv.ended or not fits:
-            ended.add(owner)
-            await run.leave(sid)
-            run.departed(recv.ended)
-            run.retire(recv)
-            owner = recv = None
+            self.ended.add(key)  # refused for good
+            await self.gone(False)
+        elif self.recv.ended:
+            await self.gone(True)
+
+    async def gone(self, finished: bool) -> None:
+        """The sender has finished (END), gone silent or been refused."""
+        assert self.recv is not None and self.owner is not None
+        await self.run.emit(self.sid, self.recv.flush())
+        await self.run.leave(self.sid)
+        self.run.departed(finished)
+        self.run.retire(self.recv)
+        if finished:
+            self.ended.add(self.owner)  # its repeated ENDs are late, not a new sender
+        self.owner = self.recv = None
