@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 from tectum import BatchPolicy, Pipeline, run
 from tectum._stats import amounts
@@ -93,4 +94,7 @@ def main(args: argparse.Namespace) -> int:
     if args.stats_json:
         with open(args.stats_json, "w") as f:
             json.dump(stats.as_dict(), f, indent=1)
+    if any(s.counters.get("interrupted") for s in stats.nodes.values()):  # a live source ended on Ctrl-C
+        print("tectum run: interrupted (what was received before it is kept)", file=sys.stderr)
+        return 130
     return 0

@@ -566,10 +566,18 @@ class FileSource(Source):
     @property
     def counts(self) -> dict[str, int]:
         """What ``--stats`` shows under the source: with ``skip_bad``, the
-        events (or records) dropped and the byte ranges they came from."""
+        events (or records) dropped and the byte ranges they came from,
+        unless a format keeps counters of its own (set ``counts``)."""
+        own: dict[str, int] | None = getattr(self, "_own_counts", None)
+        if own is not None:
+            return own
         if not self.skip_bad and not self.skipped_events:
             return {}
         return {"skipped_events": self.skipped_events, "skipped_ranges": len(self.skipped_ranges)}
+
+    @counts.setter
+    def counts(self, value: dict[str, int]) -> None:
+        self._own_counts = value
 
     def close(self) -> None:
         for f in self._files:
