@@ -16,6 +16,11 @@ RAW files start with ``% key value`` header lines (``% evt 2.0`` or
 * DAT: 8-byte records, uint32 time (µs, wraps unrolled), uint32 with x in
   bits 0-13, y in bits 14-27, polarity in bits 28-31.
 
+A RAW file must say its format (``% evt`` / ``% format`` header lines): a
+file without one (random bytes named ``.raw``, a damaged header) is refused
+rather than guessed, unless the ``format`` option names it
+(``recording.raw?format=evt3``).
+
 Events before the first time base (EVT ``TIME_HIGH``) have no time and are
 dropped (counted in :attr:`RawSource.untimed_events`). External triggers
 (``EXT_TRIGGER``) come out as :class:`tectum.TriggerPacket` (``channel`` =
@@ -59,16 +64,48 @@ def raw_format_of(h: dict[str, str]) -> str | None:
     return None
 
 
+#: RAW event formats: (word type, decoder state size, events a word yields at most)
+_LAYOUTS: dict[str, tuple[type, int, int]] = {"evt2": (np.uint32, K.EVT2_STATE, 1),
+                                               "evt3": (np.uint16, K.EVT3_STATE, 12)}
+
+
+def format_option(value: str | None) -> str | None:
+    """The ``format`` option of a RAW source: ``"evt2"``/``"evt3"`` (also
+    written ``EVT 2.0``, ``evt3.0``...), or None."""
+    if value is None or not str(value).strip():
+        return None
+    fmt = raw_format_of({"evt": str(value).lower().replace("evt", "").strip()})
+    if fmt is None:
+        raise ValueError(f"format {value!r} is not a RAW event format (evt2 or evt3)")
+    return fmt
+
+
 class RawSource(FileSource):
-    """Common part of the EVT 2.0 and EVT 3.0 readers."""
+    """Common part of the EVT 2.0 and EVT 3.0 readers.
+
+    Parameters (besides :class:`FileSource`'s)
+    ------------------------------------------
+    format:
+        ``evt2`` or ``evt3``: the event format of a RAW file whose header
+        does not name it (without this, such a file is refused: bytes of one
+        format decode as plausible but invented events in the other).
+    """
 
     extensions: ClassVar[tuple[str, ...]] = (".raw",)
-    word: ClassVar[type] = np.uint32
-    state_size: ClassVar[int] = 0
+    #: the format this class reads when the header names none (the ``format`` option's default)
     evt: ClassVar[str] = ""
-    #: events a word can yield at most
-    fanout: ClassVar[int] = 1
     produces = (Kind.EVENTS, Kind.TRIGGERS)
+
+    def __init__(self, path: str, format: str | None = None, **kw: Any) -> None:
+        super().__init__(path, **kw)
+        #: The format named by the option, None to take the header's.
+        self.named_format = format_option(format)
+        self._use(self.named_format or self.evt)
+
+    def _use(self, evt: str) -> None:
+        """Decode ``evt`` (``"evt2"``/``"evt3"``)."""
+        self.evt_format = evt
+        self.word, self.state_size, self.fanout = _LAYOUTS[evt]
 
     @classmethod
     def sniff(cls, head: bytes) -> bool:
@@ -81,14 +118,24 @@ class RawSource(FileSource):
         lines, start = read_prefixed_header(f, b"%", self.path)
         h = header_dict(lines)
         fmt = raw_format_of(h)
-        if fmt is not None and fmt != self.evt:
-            self._fail(f"the header says {fmt}, this reader reads {self.evt}")
+        if fmt is not None and self.named_format is not None and fmt != self.named_format:
+            self._fail(f"the header says {fmt}, the format option says {self.named_format}", 0)
+        if fmt is None and self.named_format is None:
+            what = "has no header" if not lines else "has a header naming no event format (% evt / % format)"
+            self._fail(f"{what}: not a RAW file, or a damaged one; if it holds raw EVT words, name their "
+                       "format: FILE?format=evt2 or FILE?format=evt3", 0)
+        self._use(fmt or self.evt_format)
         self.t0_offset = t0_from_header(h, self.path)
         self.header = h
         return h, start, sensor_from_header(h)
 
     def _kernel(self) -> Any:
-        return K.decode_evt2 if self.evt == "evt2" else K.decode_evt3
+        return K.decode_evt2 if self.evt_format == "evt2" else K.decode_evt3
+
+    def info(self) -> dict[str, Any]:
+        out = super().info()
+        out["format"] = self.evt_format  # what was decoded (the option can differ from the class's)
+        return out
 
     def _decode(self, words: np.ndarray,
                 state: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int,
@@ -170,7 +217,7 @@ class RawSource(FileSource):
                 if bad >= 0:
                     at = pos + (i + bad) * size
                     if strict:
-                        self._fail(f"invalid {self.evt.upper()} word 0x{int(words[i + bad]):0{2 * size}x}", at)
+                        self._fail(f"invalid {self.evt_format.upper()} word 0x{int(words[i + bad]):0{2 * size}x}", at)
                     self._note_skip(at, at + size - 1, nbad)
                 yield from asm.commit(ne, pos, self._where_of(words[i:i + used], before, pos + i * size))
                 if nt:
@@ -181,7 +228,7 @@ class RawSource(FileSource):
                 i += used
             if asm.past_end():
                 break
-        self.untimed_events = int(state[4] if self.evt == "evt2" else state[7])
+        self.untimed_events = int(state[4] if self.evt_format == "evt2" else state[7])
         yield from asm.finish()
 
     def _where_of(self, words: np.ndarray, state: np.ndarray, at: int) -> Any:
@@ -196,9 +243,6 @@ class Evt2Source(RawSource):
     name = "evt2"
     format = "evt2"
     evt = "evt2"
-    word = np.uint32
-    state_size = K.EVT2_STATE
-    fanout = 1
 
 
 class Evt3Source(RawSource):
@@ -207,9 +251,6 @@ class Evt3Source(RawSource):
     name = "evt3"
     format = "evt3"
     evt = "evt3"
-    word = np.uint16
-    state_size = K.EVT3_STATE
-    fanout = 12
 
 
 class DatSource(FileSource):

@@ -48,6 +48,10 @@ def small_files(tmp_path_factory) -> dict[str, bytes]:
     return out
 
 
+def same_events(a: EventPacket, b: EventPacket) -> bool:
+    return all(np.array_equal(getattr(a, c), getattr(b, c)) for c in "txyp")
+
+
 def decode(path: Path, **kw) -> list:
     return list(open_file(str(path), **kw).packets())
 
@@ -157,3 +161,71 @@ def test_regression_corpus(path: Path) -> None:
     fmt = path.name.split("-")[0]
     cls = next(c for c in SOURCES if c.name == fmt)
     _check_fuzz(path, cls)
+
+
+# -- no header, no guess (issue 20, item 14) ---------------------------------------------
+def _cli(argv: list[str], capsys) -> tuple[int, list[str]]:
+    from tectum.cli import main
+
+    code = main(argv)
+    return code, capsys.readouterr().err.splitlines()
+
+
+@pytest.mark.abuse
+@pytest.mark.parametrize("verb", ["info", "convert"])
+def test_random_bytes_named_raw_are_refused(verb: str, tmp_path: Path, capsys) -> None:
+    """Random bytes named .raw used to decode as EVT 2.0 (tens of thousands
+    of invented events with --skip-bad, exit 0): no header, no guess."""
+    f = tmp_path / "noise.raw"
+    f.write_bytes(np.random.default_rng(1).integers(0, 256, 400_000, dtype=np.uint8).tobytes())
+    out = tmp_path / "o.npz"
+    argv = ["info", str(f)] if verb == "info" else ["convert", "--skip-bad", str(f), str(out)]
+    code, err = _cli(argv, capsys)
+    assert code != 0 and len(err) == 1 and "format=evt2" in err[0], err
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["noise.raw"]
+    with pytest.raises(FormatError, match="no header") as e:
+        decode(f, skip_bad=True)
+    assert e.value.offset == 0
+
+
+@pytest.mark.abuse
+def test_damaged_evt3_header_is_not_read_as_evt2(tmp_path: Path, small_files) -> None:
+    data = small_files["evt3"]
+    assert b"% evt 3.0\n" in data and b"% format EVT3\n" in data
+    f = tmp_path / "d.raw"
+    f.write_bytes(data.replace(b"evt 3.0", b"e\x00t 3.0").replace(b"EVT3", b"E\x00T3"))  # two damaged bytes
+    with pytest.raises(FormatError, match="naming no event format"):
+        decode(f, skip_bad=True)
+    named = open_file(str(f), format="evt3")
+    assert same_events(concat([q for q in named.packets() if isinstance(q, EventPacket)]), sample())
+    assert open_file(str(f), format="evt3").info()["format"] == "evt3"
+    ok = tmp_path / "ok.raw"
+    ok.write_bytes(data)
+    with pytest.raises(FormatError, match="the format option says evt2"):
+        decode(ok, format="evt2")
+
+
+@pytest.mark.abuse
+def test_named_format_reads_words_without_header(tmp_path: Path, small_files, capsys) -> None:
+    """``FILE?format=evt2``: the words of a headerless file, read as named."""
+    data = small_files["evt2"]
+    f = tmp_path / "bare.raw"
+    f.write_bytes(data[data.index(b"% end\n") + 6:])
+    ev = concat([q for q in open_file(str(f), format="evt2", sensor="64x48").packets()])
+    assert same_events(ev, sample())
+    code, err = _cli(["info", f"{f}?format=evt2", "--json"], capsys)
+    assert code == 0, err
+    with pytest.raises(ValueError, match="not a RAW event format"):
+        open_file(str(f), format="evt9")
+
+
+@pytest.mark.abuse
+@pytest.mark.parametrize("ext", [".raw", ".evt3.raw", ".dat", ".aedat", ".aedat4", ".npy", ".bag"])
+@pytest.mark.parametrize("verb", ["info", "convert"])
+def test_empty_file_is_an_error(ext: str, verb: str, tmp_path: Path, capsys) -> None:
+    f = tmp_path / ("empty" + ext)
+    f.write_bytes(b"")
+    out = tmp_path / "o.npz"
+    code, err = _cli(["info", str(f)] if verb == "info" else ["convert", "--skip-bad", str(f), str(out)], capsys)
+    assert code != 0 and len(err) == 1 and "error:" in err[0], err
+    assert not out.exists() and [p.name for p in tmp_path.iterdir()] == [f.name]
