@@ -345,7 +345,7 @@ class Graph:
                 if pkt.kind in extra or Kind.ANY in extra:
                     out.append((child, pkt))
                 else:  # a kind the sink does not take: counted as not written
-                    self.stats.nodes[child].refuse(pkt)
+                    self.stats.nodes[child].refuse(pkt.kind, pkt.t.shape[0])
             elif how == _MERGE:
                 try:
                     merged = child.join.push(extra, pkt)

@@ -178,6 +178,10 @@ async def _main(plan: Plan, graph: Graph, edges: dict[str, Edge], scope: trio.Ca
             except Exception as e:  # closing failed: report it, unless another error is on the way
                 if ok:
                     failure.append(NodeError(sid, e))
+            own = getattr(sink, "not_written", None)  # what the sink took and did not store, by kind
+            if isinstance(own, dict):
+                for kind, n in own.items():
+                    graph.stats.node(sid).refuse(kind, n)
         for edge in edges.values():
             edge.close()
 

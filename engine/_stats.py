@@ -50,10 +50,11 @@ class NodeStats:
         else:
             _add(self.samples_out, pkt.kind, pkt.t.shape[0])
 
-    def refuse(self, pkt: Any) -> None:
-        """Count a packet that reached this sink and was not written."""
-        if pkt.t.shape[0]:
-            _add(self.not_written, pkt.kind, pkt.t.shape[0])
+    def refuse(self, kind: str, n: int) -> None:
+        """Count ``n`` events or samples of ``kind`` that reached this sink
+        and were not written."""
+        if n:
+            _add(self.not_written, kind, n)
 
     def as_dict(self) -> dict[str, Any]:
         from dataclasses import asdict

@@ -4,6 +4,7 @@ writable one (formats from content / extension)."""
 from __future__ import annotations
 
 import argparse
+import sys
 
 HELP = "convert an event file to another format, streaming (e.g. in.raw out.aedat4)"
 
@@ -20,14 +21,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from tectum import accepts
+    from tectum._stats import amounts
 
     from ._args import open_source, split_query
     from ._progress import Progress, wanted
+    from ._unwritten import unwritten_lines
 
     src, sink = open_source(args.input, args.output, sensor=args.sensor, skip_bad=args.skip_bad or None,
                             t_start_us=args.start_us, t_end_us=args.end_us)
     out = split_query(args.output)[0]
     written: dict[str, int] = {}  # kind -> events or samples
+    refused: dict[str, int] = {}  # kinds the sink does not take -> events or samples
     known = args.start_us is not None and args.end_us is not None
     progress = Progress(args.end_us - args.start_us if known else None) if wanted(args.quiet) else None
     sink.open()
@@ -35,9 +39,10 @@ def main(args: argparse.Namespace) -> int:
         for pkt in src.packets():
             if progress is not None:
                 progress.update(pkt)
-            if accepts(sink.consumes, pkt.kind):
+            counts = written if accepts(sink.consumes, pkt.kind) else refused
+            if counts is written:
                 sink.write(pkt)
-                written[str(pkt.kind)] = written.get(str(pkt.kind), 0) + len(pkt)
+            counts[str(pkt.kind)] = counts.get(str(pkt.kind), 0) + len(pkt)
     except BaseException:
         sink.abort()
         raise
@@ -45,8 +50,12 @@ def main(args: argparse.Namespace) -> int:
         if progress is not None:
             progress.done()
     sink.close()
+    for kind, n in getattr(sink, "not_written", {}).items():  # taken, then left out by the sink
+        written[kind] -= n
+        refused[kind] = refused.get(kind, 0) + n
+    for line in unwritten_lines(out, type(sink), refused):
+        print(line, file=sys.stderr)
     skipped = getattr(src, "skipped_events", 0)
     extra = f", skipped {skipped}" if skipped else ""
-    what = ", ".join(f"{n:,} {kind}" for kind, n in written.items() if n) or "0 events"
-    print(f"{what} -> {out}{extra}")
+    print(f"{amounts(written) or '0 events'} -> {out}{extra}")
     return 0

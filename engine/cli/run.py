@@ -11,6 +11,7 @@ from tectum._stats import amounts
 
 from ._args import split_op, split_query
 from ._progress import attach
+from ._unwritten import unwritten_lines
 
 HELP = "run SOURCE through operators into sinks, or run PIPELINE.toml"
 
@@ -82,7 +83,11 @@ def main(args: argparse.Namespace) -> int:
 
         p.sink(NullSink(), p.nodes[-1].id, id="count")
     attach(p, args.quiet, total_us=_span(p))
-    stats = run(p)
+    plan = p.validate()
+    stats = run(plan)
+    for node in plan.of_role("sink"):
+        for line in unwritten_lines(node.spec.name, node.cls, stats.nodes[node.id].not_written):
+            print(line, file=sys.stderr)
     if args.stats:
         print(stats.report())
     else:

@@ -17,6 +17,10 @@ class FileSink(Sink):
     :meth:`_events` and optionally :meth:`_end` (before the commit)."""
 
     format: ClassVar[str] = ""
+    #: The format's name in messages (``EVT 3.0``), and what it holds when
+    #: not just the kinds it consumes (see :mod:`tectum.cli._unwritten`).
+    title: ClassVar[str] = ""
+    holds: ClassVar[str] = ""
     consumes: ClassVar[tuple[Kind, ...]] = (Kind.EVENTS,)
 
     def __init__(self, path: str) -> None:

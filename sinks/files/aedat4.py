@@ -49,6 +49,7 @@ class Aedat4Sink(FileSink):
 
     name = "aedat4"
     format = "aedat4"
+    title = "AEDAT 4.0"
     extensions = (".aedat4",)
     consumes = (Kind.EVENTS, Kind.FRAMES, Kind.IMU)
 

@@ -21,6 +21,7 @@ class NpySink(FileSink):
 
     name = "npy"
     format = "npy"
+    title = ".npy"
     extensions = (".npy",)
 
     def open(self) -> None:

@@ -56,6 +56,7 @@ class PlySink(SampleFileSink):
 
     name = "ply"
     format = "ply"
+    title = "PLY"
     extensions = (".ply",)
     consumes = (Kind.POINTS,)
     kind = Kind.POINTS

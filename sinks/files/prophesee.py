@@ -157,6 +157,7 @@ class Evt2Sink(_RawSink):
 
     name = "evt2"
     format = "evt2"
+    title = "EVT 2.0"
     extensions = (".raw",)
     evt_line = "% evt 2.0"
     fmt_line = "% format EVT2"
@@ -174,6 +175,7 @@ class Evt3Sink(_RawSink):
 
     name = "evt3"
     format = "evt3"
+    title = "EVT 3.0"
     extensions = (".evt3", ".evt3.raw")
     evt_line = "% evt 3.0"
     fmt_line = "% format EVT3"
@@ -196,6 +198,7 @@ class DatSink(FileSink):
 
     name = "dat"
     format = "dat"
+    title = "DAT"
     extensions = (".dat",)
 
     def _begin(self, packet: EventPacket) -> None:

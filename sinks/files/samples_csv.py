@@ -70,6 +70,8 @@ class CsvSink(Sink):
     """
 
     name = "csv"
+    title = "CSV"
+    holds = "one stream per file"
     extensions = (".csv",)
     consumes: ClassVar[tuple[Kind, ...]] = (Kind.ANY,)
 
@@ -85,6 +87,8 @@ class CsvSink(Sink):
         self.samples: SampleCsvWriter | None = None
         if self.kind not in (None, Kind.EVENTS):
             self.samples = SampleCsvWriter(path, self.kind)
+        #: What came and was not stored (the other streams), by kind.
+        self.not_written: dict[str, int] = {}
 
     def open(self) -> None:
         for s in (self.events, self.samples):
@@ -95,17 +99,29 @@ class CsvSink(Sink):
         if isinstance(packet, EventPacket):
             if self.events is not None:
                 self.events.write(packet)
+            else:
+                self._skip(packet)
             return
         if self.samples is None:
             if self.kind is not None or packet.kind not in flat_kinds():
+                self._skip(packet)
                 return
             assert isinstance(packet, SamplePacket)
             self.samples = SampleCsvWriter(self.path, packet.kind)
             self.samples.open()
             if self.events is not None:  # a sample stream is what this file holds
+                if self.events.count:
+                    self.not_written["events"] = self.events.count
                 self.events.abort()
                 self.events = None
+        if packet.kind != self.samples.kind:
+            self._skip(packet)
+            return
         self.samples.write(packet)
+
+    def _skip(self, packet: Packet) -> None:
+        if len(packet):
+            self.not_written[str(packet.kind)] = self.not_written.get(str(packet.kind), 0) + len(packet)
 
     def close(self) -> None:
         for s in (self.samples, self.events):

@@ -95,6 +95,7 @@ class TextSink(FileSink):
 
     name = "text"
     format = "text"
+    title = "text"
     extensions = (".txt",)  # .csv: the csv sink, which writes events through this one
 
     def __init__(self, path: str, columns: str = "txyp", time_unit: str = "s", header: bool | None = None) -> None:

@@ -22,6 +22,7 @@ class TumSink(SampleFileSink):
 
     name = "tum"
     format = "tum"
+    title = "TUM"
     extensions = (".tum",)
     consumes = (Kind.POSES,)
     kind = Kind.POSES

@@ -11,18 +11,23 @@ Layouts:
 
 The sensor size is read from the ``sensor`` attribute (written by the tectum
 sink), else the option, else the coordinates' extent (a pass over x/y).
+
+Sample streams that the tectum sink writes beside DSEC events (one group per
+kind: ``/frames``, ``/imu``, ``/triggers``, ``/poses`` ...; see
+:mod:`tectum.sinks.files.hdf5`) come back interleaved with the events.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from typing import Any
 
 import numpy as np
 
-from tectum import Packet
+from tectum import Kind, Packet, interleave
 
 from ._common import EventAssembler, FileSource
+from ._hdf5_samples import sample_groups, sample_streams
 
 __all__ = ["Hdf5Source"]
 
@@ -45,6 +50,16 @@ class Hdf5Source(FileSource):
     name = "hdf5"
     format = "hdf5"
     extensions = (".h5", ".hdf5")
+    produces = tuple(k for k in Kind if k != Kind.RESULTS)  # the kinds registered when this module is imported
+
+    @classmethod
+    def kinds_for(cls, arg: str, params: Mapping[str, Any]) -> tuple[Kind, ...]:
+        """Events and the sample streams the file holds (its groups)."""
+        try:
+            with _h5py().File(arg, "r") as h:
+                return (Kind.EVENTS, *(k for k, _ in sample_groups(h)))
+        except (OSError, ImportError):
+            return cls.produces  # opening will say what is wrong
 
     @classmethod
     def sniff(cls, head: bytes) -> bool:
@@ -62,7 +77,8 @@ class Hdf5Source(FileSource):
     def _packets(self) -> Iterator[Packet]:
         h = self._file()
         if "events" in h and all(k in h["events"] for k in "txyp"):
-            yield from self._dsec(h)
+            off = int(h["t_offset"][()]) if "t_offset" in h and not self.apply_t0 else 0
+            yield from interleave(self._dsec(h), sample_streams(h, self, off))
             return
         ds = self._mvsec(h)
         if ds is None:
