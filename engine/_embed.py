@@ -1,11 +1,20 @@
 """Embedding a pipeline: direct stepping, and a background thread for
-programs with no event loop (robot control loops)."""
+programs with no event loop (robot control loops).
+
+Both leave the pipeline's **file sinks** closed unless asked
+(``file_sinks=True``): a pipeline that :func:`tectum.run` has written is
+often stepped or watched next, and opening its ``.npz``/``.raw``/``.h5``
+... sinks again would replace what the run wrote with what the stepping
+pushed. A file sink is one whose class names file extensions; every other
+sink (a :class:`tectum.testing.ListSink`, a network or live-view sink) runs."""
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from collections.abc import Callable, Iterable
+from types import MappingProxyType
 from typing import Any
 
 import trio
@@ -27,13 +36,16 @@ class Stepper:
 
     The pipeline's sources are not opened: :meth:`push` delivers packets as
     if source ``into`` had emitted them. Its sinks are opened and written
-    synchronously (closed by :meth:`close`). ``outputs`` names the nodes
-    whose packets :meth:`push` returns.
+    synchronously (closed by :meth:`close`), except file sinks, which stay
+    closed unless ``file_sinks=True`` (see the module docstring; their ids
+    are in :attr:`left_out`). ``outputs`` names the nodes whose packets
+    :meth:`push` returns.
     """
 
     def __init__(self, pipeline: Pipeline | Plan, outputs: Iterable[str] = (), *,
-                 registry: Registry | None = None) -> None:
+                 registry: Registry | None = None, file_sinks: bool = False) -> None:
         plan = pipeline if isinstance(pipeline, Plan) else pipeline.validate(registry)
+        plan, self.left_out = (plan, ()) if file_sinks else without_file_sinks(plan)
         self.plan = plan
         self.outputs = tuple(outputs)
         self.graph = Graph(plan, taps=self.outputs, offload=False)
@@ -102,17 +114,24 @@ class ThreadedPipeline:
     programs with no event loop.
 
     ``latest(node)`` returns the newest packet a watched node emitted, with
-    the ``time.monotonic()`` at which it was produced; ``on_output(node, fn)``
-    calls ``fn(packet)`` in the pipeline's thread for each one (keep it
-    short). Watched nodes are read through a keep-latest edge of depth 1, so a
-    slow reader never holds the pipeline back; what it skipped is counted.
+    the ``time.monotonic()`` at which it was produced, or None before the
+    first one (right after :meth:`start` the pipeline has usually produced
+    nothing yet); ``wait_latest(node, timeout)`` waits for the first.
+    ``on_output(node, fn)`` calls ``fn(packet)`` in the pipeline's thread
+    for each one (keep it short). Watched nodes are read through a
+    keep-latest edge of depth 1, so a slow reader never holds the pipeline
+    back; what it skipped is counted. File sinks stay closed unless
+    ``file_sinks=True`` (see the module docstring; their ids are in
+    :attr:`left_out`); :meth:`stop` before the end commits what a file sink
+    has written so far.
     """
 
     def __init__(self, pipeline: Pipeline | Plan, watch: Iterable[str], *,
-                 registry: Registry | None = None) -> None:
-        self.plan = pipeline if isinstance(pipeline, Plan) else pipeline.validate(registry)
+                 registry: Registry | None = None, file_sinks: bool = False) -> None:
+        plan = pipeline if isinstance(pipeline, Plan) else pipeline.validate(registry)
+        self.plan, self.left_out = (plan, ()) if file_sinks else without_file_sinks(plan)
         self.watch = tuple(watch)
-        self._lock = threading.Lock()
+        self._lock = threading.Condition()
         self._latest: dict[str, tuple[Packet, float] | None] = {w: None for w in self.watch}
         self._callbacks: dict[str, list[Callable[[Packet], None]]] = {w: [] for w in self.watch}
         self._thread: threading.Thread | None = None
@@ -128,8 +147,18 @@ class ThreadedPipeline:
         self._callbacks[node].append(fn)
 
     def latest(self, node: str) -> tuple[Packet, float] | None:
-        """The newest packet of ``node`` and when it came (monotonic s), or None."""
+        """The newest packet of ``node`` and when it came (monotonic s), or
+        None when it has emitted nothing yet."""
         with self._lock:
+            return self._latest[node]
+
+    def wait_latest(self, node: str, timeout: float | None = None) -> tuple[Packet, float] | None:
+        """:meth:`latest`, waiting up to ``timeout`` s (None: for ever) for
+        ``node``'s first packet; None if the pipeline ended without one.
+        Raises :class:`TimeoutError` when the time is up."""
+        with self._lock:
+            if not self._lock.wait_for(lambda: self._latest[node] is not None or self._done.is_set(), timeout):
+                raise TimeoutError(f"{node!r} emitted nothing within {timeout} s")
             return self._latest[node]
 
     def start(self) -> ThreadedPipeline:
@@ -145,7 +174,9 @@ class ThreadedPipeline:
             self._error = e
         finally:
             self._started.set()
-            self._done.set()
+            with self._lock:
+                self._done.set()
+                self._lock.notify_all()
 
     async def _amain(self) -> None:
         self._token = trio.lowlevel.current_trio_token()
@@ -161,6 +192,7 @@ class ThreadedPipeline:
         async for pkt in run.outputs(node):
             with self._lock:
                 self._latest[node] = (pkt, time.monotonic())
+                self._lock.notify_all()
             for fn in self._callbacks[node]:
                 fn(pkt)
 
@@ -192,3 +224,15 @@ class ThreadedPipeline:
     def __exit__(self, *exc: Any) -> None:
         self.stop()
         self.join()
+
+
+def without_file_sinks(plan: Plan) -> tuple[Plan, tuple[str, ...]]:
+    """``plan`` without its file sinks (sinks whose class names file
+    extensions), and their ids."""
+    drop = {n.id for n in plan.of_role("sink") if getattr(n.cls, "extensions", ())}
+    if not drop:
+        return plan, ()
+    nodes = {nid: dataclasses.replace(n, children=tuple(c for c in n.children if c not in drop))
+             for nid, n in plan.nodes.items() if nid not in drop}
+    order = tuple(nid for nid in plan.order if nid not in drop)
+    return dataclasses.replace(plan, nodes=MappingProxyType(nodes), order=order), tuple(sorted(drop))

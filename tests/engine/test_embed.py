@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
 import pytest
+import trio
 
 import tectum
 from tectum import Pipeline, Stepper, ThreadedPipeline
@@ -54,3 +56,65 @@ def test_threaded_pipeline_reraises_errors():
     tp = ThreadedPipeline(p, watch=["cam"]).start()
     with pytest.raises(tectum.NodeError, match="node 'cam'"):
         tp.join(timeout=60)
+
+
+class _Silent(tectum.Source):
+    """A live source that sends nothing until the run is stopped."""
+
+    name = "silent"
+
+    async def apackets(self):  # type: ignore[no-untyped-def]
+        await trio.sleep(60)
+        yield tectum.EventPacket.empty((4, 4), 0, 1)
+
+
+def _written(tmp_path):
+    """A pipeline whose run wrote ``clean.npz``, and the events it holds."""
+    p = Pipeline()
+    cam = p.source("pattern:", duration_us=100_000, sensor="32x24", noise_hz=2.0)
+    rf = p.op("filter.refractory", cam, period_us=1000)
+    p.sink(str(tmp_path / "clean.npz"), rf)
+    tectum.run(p)
+    return p, np.load(tmp_path / "clean.npz")["t"]
+
+
+def test_stepping_a_pipeline_that_ran_keeps_its_file(tmp_path):
+    p, t = _written(tmp_path)
+    assert len(t) > 100
+    two = tectum.EventPacket.from_arrays([10, 20], [3, 4], [5, 5], [1, 0], sensor=(32, 24))
+    with Stepper(p, outputs=["refractory"]) as step:
+        out = step.push(two)["refractory"]
+    assert np.array_equal(np.load(tmp_path / "clean.npz")["t"], t)  # README: it ended with 2 events
+    assert sum(len(q) for q in out) == 2 and step.left_out == ("clean",)
+    with Stepper(p, outputs=["refractory"], file_sinks=True) as step:  # asked for: the file is the stepping's
+        step.push(two)
+    assert np.load(tmp_path / "clean.npz")["t"].tolist() == [10, 20]
+
+
+def test_watching_a_pipeline_that_ran_keeps_its_file(tmp_path):
+    p, t = _written(tmp_path)
+    before = (tmp_path / "clean.npz").stat()
+    with ThreadedPipeline(p, watch=["refractory"]) as live:
+        time.sleep(0.5)
+    after = (tmp_path / "clean.npz").stat()
+    assert (after.st_ino, after.st_mtime_ns) == (before.st_ino, before.st_mtime_ns)  # not written again
+    assert np.array_equal(np.load(tmp_path / "clean.npz")["t"], t)
+    with ThreadedPipeline(p, watch=["refractory"]) as live:
+        latest = live.wait_latest("refractory", timeout=30)
+    assert latest is not None and isinstance(latest[0], tectum.EventPacket)
+    assert live.left_out == ("clean",)
+
+
+def test_wait_latest_times_out_and_returns_none_at_the_end():
+    p = Pipeline()
+    p.sink(ListSink(), p.source(_Silent(), id="cam"))
+    with ThreadedPipeline(p, watch=["cam"]) as live:
+        assert live.latest("cam") is None
+        t0 = time.monotonic()
+        with pytest.raises(TimeoutError, match="'cam' emitted nothing within 0.2 s"):
+            live.wait_latest("cam", timeout=0.2)
+        assert 0.15 < time.monotonic() - t0 < 5
+    q = Pipeline()
+    q.sink(ListSink(), q.source(ListSource([]), id="cam"))
+    with ThreadedPipeline(q, watch=["cam"]) as live:
+        assert live.wait_latest("cam", timeout=30) is None  # ended without a packet: no wait for ever
