@@ -8,7 +8,9 @@ panorama texture sampled bilinearly (wrapping) at texel ``(az, el) /
 texel`` (``texel`` = 2π / texture width rad). The mosaic's pixel centres
 look along rays of the world = the camera frame at the first pose, so each
 is rotated by that pose into the simulator's world and sampled the same
-way, with the same ``log(I + eps)``.
+way, with the same ``log(I + eps)``. A panorama coarser than the texture
+averages ``supersample²`` samples of log intensity per pixel (a point
+sample would alias the texture's detail into noise).
 """
 
 from __future__ import annotations
@@ -32,17 +34,20 @@ def _sample(d, pano, data, table, out):  # type: ignore[no-untyped-def]  # pragm
         out[i] = sample_texture(data, table, tid, az / pano[1], el / pano[1])
 
 
-def truth_panorama(cs: CompiledScene, width: int, R0: np.ndarray, eps: float = 1e-3) -> np.ndarray:
+def truth_panorama(cs: CompiledScene, width: int, R0: np.ndarray, eps: float = 1e-3,
+                   supersample: int | None = None) -> np.ndarray:
     """True log intensity (H, W) float64 of a compiled scene's panorama in
     the mosaic's convention, ``R0`` (3x3) the simulator's world-from-camera
-    rotation at the first pose, ``eps`` the sensor model's log offset."""
+    rotation at the first pose, ``eps`` the sensor model's log offset;
+    ``supersample`` samples per pixel side (default: texture width / width)."""
     if cs.pano[0] < 0:
         raise ValueError(f"scene {cs.name!r} has no panorama")
     h, w = pano_shape(width)
-    d = np.ascontiguousarray(pano_rays(width).reshape(-1, 3) @ np.asarray(R0, np.float64).T)
+    s = supersample or max(1, round(int(cs.tex_table[int(cs.pano[0]), 2]) / width))
+    d = np.ascontiguousarray(pano_rays(width * s).reshape(-1, 3) @ np.asarray(R0, np.float64).T)
     out = np.empty(len(d))
     _sample(d, cs.pano, cs.tex_data, cs.tex_table, out)
-    return np.log(out + eps).reshape(h, w)
+    return np.log(out + eps).reshape(h, s, w, s).mean(axis=(1, 3))
 
 
 def swept_mask(width: int, orientations: np.ndarray, f: float, cx: float, cy: float,

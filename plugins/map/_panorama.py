@@ -32,7 +32,7 @@ from numba import njit
 
 from tectum.camera import quat_slerp_kernel, quat_to_rot_kernel
 
-__all__ = ["pano_shape", "pano_angles", "pano_rays", "pano_coords", "map_events", "solve_gradients",
+__all__ = ["pano_shape", "pano_angles", "pano_rays", "pano_coords", "map_events", "pixel_gradients", "solve_gradients",
            "INFO_FIELDS"]
 
 #: Columns of the per-pixel information array (H, W, 6): Σ du², Σ du dv,
@@ -164,16 +164,34 @@ def map_events(t, x, y, p, pose_t, pose_q, rays, contrast, max_disp, pix_t, pix_
     return n_meas, n_far
 
 
-def solve_gradients(info: np.ndarray, ridge: float) -> tuple[np.ndarray, np.ndarray]:
+@njit(cache=True, nogil=True)
+def pixel_gradients(info, ridge, min_n, gu, gv):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+    """Per panorama pixel with at least ``min_n`` measurements, the
+    gradient ``(A + ridge I)⁻¹ b`` into ``gu``, ``gv`` (H, W); zero elsewhere."""
+    for i in range(info.shape[0]):
+        for j in range(info.shape[1]):
+            a = info[i, j]
+            gu[i, j] = 0.0
+            gv[i, j] = 0.0
+            if a[5] >= min_n:
+                a11, a12, a22 = a[0] + ridge, a[1], a[2] + ridge
+                det = a11 * a22 - a12 * a12
+                if det > 0.0:
+                    gu[i, j] = (a22 * a[3] - a12 * a[4]) / det
+                    gv[i, j] = (a11 * a[4] - a12 * a[3]) / det
+
+
+def solve_gradients(info: np.ndarray, ridge: float, min_n: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Per panorama pixel, the gradient ``(g_u, g_v)`` (log units per
-    panorama px) of its accumulated measurements: ``(A + ridge I)⁻¹ b``, the
-    Kalman filter's posterior mean from a zero-mean prior of variance
-    ``σ_z² / ridge`` (``σ_z`` the measurement noise). Zero where no
-    measurement landed."""
-    a11, a12, a22 = info[..., 0] + ridge, info[..., 1], info[..., 2] + ridge
-    det = a11 * a22 - a12 * a12
-    ok = (info[..., 5] > 0) & (det > 0)
-    det = np.where(ok, det, 1.0)
-    gu = np.where(ok, (a22 * info[..., 3] - a12 * info[..., 4]) / det, 0.0)
-    gv = np.where(ok, (a11 * info[..., 4] - a12 * info[..., 3]) / det, 0.0)
+    panorama px) of its accumulated measurements ``info`` (H, W, 6):
+    ``(A + ridge I)⁻¹ b``, the Kalman filter's posterior mean from a
+    zero-mean prior of variance ``σ_z² / ridge`` (``σ_z`` the measurement
+    noise). Zero where fewer than ``min_n`` (>= 1) measurements landed."""
+    if info.ndim != 3 or info.shape[2] != len(INFO_FIELDS):
+        raise ValueError(f"solve_gradients: info must be (H, W, {len(INFO_FIELDS)}), got {info.shape}")
+    if not ridge >= 0 or min_n < 1:
+        raise ValueError(f"solve_gradients: ridge must be >= 0 and min_n >= 1, got {ridge}, {min_n}")
+    gu = np.empty(info.shape[:2])
+    gv = np.empty(info.shape[:2])
+    pixel_gradients(np.ascontiguousarray(info, np.float64), float(ridge), float(min_n), gu, gv)
     return gu, gv

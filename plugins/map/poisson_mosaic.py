@@ -54,8 +54,7 @@ panorama pixel (25 MB at W = 1024) and 3 numbers per sensor pixel.
 
 from __future__ import annotations
 
-import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
@@ -66,7 +65,7 @@ from tectum.plugins.repr.motion_compensated import _camera
 from ._panorama import map_events, pano_shape, solve_gradients
 from ._poisson import poisson_solve
 
-__all__ = ["PoissonMosaic", "mosaic_image"]
+__all__ = ["PoissonMosaic", "mosaic_image", "rotating_camera_stream"]
 
 _IDENTITY = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
 
@@ -77,9 +76,8 @@ def mosaic_image(info: np.ndarray, ridge: float, min_measurements: int = 1) -> n
     gradients, averaged onto forward differences where both neighbours
     were measured, integrated with a wrapping azimuth; NaN where fewer than
     ``min_measurements`` landed; mean zero over the rest."""
-    gu, gv = solve_gradients(info, ridge)
-    seen = info[..., 5] >= max(min_measurements, 1)
-    gu, gv = np.where(seen, gu, 0.0), np.where(seen, gv, 0.0)
+    gu, gv = solve_gradients(info, ridge, min_measurements)
+    seen = info[..., 5] >= min_measurements
     gx = _pair_mean(gu, np.roll(gu, -1, axis=1), seen, np.roll(seen, -1, axis=1))
     gy = np.zeros_like(gv)
     gy[:-1] = _pair_mean(gv[:-1], gv[1:], seen[:-1], seen[1:])
@@ -164,8 +162,8 @@ class PoissonMosaic(Operator):
 
     @staticmethod
     def conformance_stream() -> dict[str, Packet]:
-        """Events and poses of a camera turning before a grating (see :func:`grating_stream`)."""
-        return grating_stream(duration_us=30_000, sensor=(32, 24), f=30.0)
+        """Events and poses of a camera turning inside a grating (see :func:`rotating_camera_stream`)."""
+        return rotating_camera_stream(duration_us=30_000, sensor=(32, 24), f=30.0)
 
     def warmup(self) -> None:
         t = np.arange(2, dtype=np.int64)
@@ -240,7 +238,7 @@ class PoissonMosaic(Operator):
                 self.counts["before_poses"] += len(before)
                 now, later = ev.split_at(int(pt[-1]) + 1)
             else:
-                now, later = ev.split_at(ev.t_start), ev
+                now, later = ev.split_at(ev.t_start)[0], ev
             if final:
                 key = "after_poses" if pt.size else "before_poses"
                 self.counts[key] += len(later)
@@ -318,41 +316,49 @@ class PoissonMosaic(Operator):
                          t_start=t_start, t_end=t_end)
 
 
-def grating_stream(duration_us: int, sensor: tuple[int, int], f: float, omega: tuple[float, float, float] = (
-        0.3, 4.0, 0.5), period_rad: float = 0.15, contrast: float = 0.2, pose_rate_hz: float = 1000.0,
-        step_us: int = 20) -> dict[str, Packet]:
+def rotating_camera_stream(duration_us: int, sensor: tuple[int, int], f: float,
+                           omega: tuple[float, float, float] = (0.3, 4.0, 0.5),
+                           log_intensity: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+                           contrast: float = 0.2, pose_rate_hz: float = 1000.0, step_us: int = 20,
+                           circle_rad: float = 0.0, circle_hz: float = 10.0) -> dict[str, Packet]:
     """Events and poses of a pinhole camera (focal ``f`` px, centred)
-    turning at ``omega`` (rad/s, camera frame) inside a sphere whose log
-    intensity is ``sin(2π az / period) cos(2π el / period)`` (a grating in
-    azimuth and elevation): each pixel samples its log intensity every
-    ``step_us`` µs and fires ±1 per ``contrast`` crossed (an ideal DVS);
-    poses at ``pose_rate_hz``."""
+    turning at ``omega`` (rad/s; world = the camera at t = 0), its
+    orientation ``exp(ω t + a (sin 2πft, 1 - cos 2πft, 0))`` with ``a`` =
+    ``circle_rad`` and ``f`` = ``circle_hz`` (the optical axis circles, so
+    every gradient direction is seen), inside a sphere whose log intensity is ``log_intensity(azimuth,
+    elevation)`` (rad, the panorama's convention; default a grating
+    ``sin(15 az) cos(15 el)``): each pixel samples it every ``step_us`` µs
+    and fires ±1 per ``contrast`` crossed (an ideal DVS); poses at
+    ``pose_rate_hz``."""
     w, h = sensor
     cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
     u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
     rays = np.stack([(u.ravel() - cx) / f, (v.ravel() - cy) / f, np.ones(w * h)], axis=1)
-    k = 2 * math.pi / period_rad
+    pattern = log_intensity or (lambda az, el: np.sin(15.0 * az) * np.cos(15.0 * el))
+
+    def rotvec(t_s: np.ndarray) -> np.ndarray:
+        ph = 2 * np.pi * circle_hz * t_s
+        return (np.outer(t_s, omega) + circle_rad * np.stack([np.sin(ph), 1 - np.cos(ph), 0 * ph], axis=-1))
 
     def log_i(t_us: float) -> np.ndarray:
-        d = rays @ np.asarray(so3_exp(np.asarray(omega) * t_us * 1e-6)).T
-        az = np.arctan2(d[:, 0], d[:, 2])
-        el = np.arcsin(d[:, 1] / np.linalg.norm(d, axis=1))
-        return np.sin(k * az) * np.cos(k * el)
+        d = rays @ np.asarray(so3_exp(rotvec(np.array([t_us * 1e-6]))[0])).T
+        return pattern(np.arctan2(d[:, 0], d[:, 2]), np.arcsin(d[:, 1] / np.linalg.norm(d, axis=1)))
 
     ref = log_i(0.0)
-    ts, xs, ys, ps = [], [], [], []
+    ts, idx, ps = [], [], []
     for t in range(step_us, duration_us, step_us):
-        L = log_i(float(t))
-        n = np.trunc((L - ref) / contrast).astype(np.int64)
-        for i in np.flatnonzero(n):
-            c = abs(int(n[i]))
-            ts += [t] * c
-            xs += [i % w] * c
-            ys += [i // w] * c
-            ps += [int(np.sign(n[i]))] * c
+        n = np.trunc((log_i(float(t)) - ref) / contrast).astype(np.int64)
+        fired = np.flatnonzero(n)
+        reps = np.abs(n[fired])
+        ts.append(np.full(int(reps.sum()), t, np.int64))
+        idx.append(np.repeat(fired, reps))
+        ps.append(np.repeat(np.sign(n[fired]), reps))
         ref += n * contrast
-    ev = EventPacket.from_arrays(np.array(ts, np.int64), xs, ys, ps, sensor=sensor, t_start=0, t_end=duration_us)
+    i = np.concatenate(idx) if idx else np.empty(0, np.int64)
+    t_ev = np.concatenate(ts) if ts else np.empty(0, np.int64)
+    p_ev = np.concatenate(ps) if ps else np.empty(0, np.int64)
+    ev = EventPacket.from_arrays(t_ev, i % w, i // w, p_ev, sensor=sensor, t_start=0, t_end=duration_us)
     tp = np.arange(0, duration_us + 1, int(1e6 / pose_rate_hz), dtype=np.int64)
-    q = np.asarray(rot_to_quat(so3_exp(np.outer(tp * 1e-6, omega))))
+    q = np.asarray(rot_to_quat(so3_exp(rotvec(tp * 1e-6))))
     poses = PosePacket(tp, position=np.zeros((len(tp), 3)), orientation=q, t_start=0, t_end=duration_us + 1)
     return {"events": ev, "poses": poses}

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import html
 
+from .maps import UNKNOWN_COLOUR, UNKNOWN_DEPTH_COLOUR
 from .render import BACKGROUND, OFF_COLOUR, ON_COLOUR, TRACK_COLOUR, Renderer
 
 __all__ = ["page"]
@@ -36,12 +37,13 @@ th, td {padding: 1px 6px; text-align: right; border-bottom: 1px solid #333}
 th:first-child, td:first-child {text-align: left}
 </style></head><body>
 <section id="view">
-<h2>Events</h2><p class="what">__CAPTION__</p>
+<h2 id="title">Events</h2><p class="what" id="caption">__CAPTION__</p>
 <img id="f" alt="the newest frame of events">
 <div id="status">waiting for the first frame</div>
 </section>
 <section id="side">
-<h2>Legend</h2><div id="legend">__LEGEND__
+<h2>Legend</h2><div id="legend"><div id="evlegend">__LEGEND__</div>
+<div id="maplegend" hidden>__MAPLEGEND__</div>
 <div id="tracks" hidden>__TRACKS__</div></div>
 <h2 style="margin-top: 12px">Pipeline</h2>
 <p class="what">Per node of the running pipeline: events in and out, events dropped at full queues,
@@ -102,8 +104,15 @@ async function tick() {
         shown = s.frames;
       }
     }
-    $("status").textContent = fmt(s.events) + " events, " + (s.rate_ev_s / 1e6).toFixed(3) + " Mev/s, frame " +
-      fmt(s.frames) + ", event time " + (s.t_us / 1e6).toFixed(3) + " s";
+    $("status").textContent = fmt(s.events) + " events, " + (s.rate_ev_s / 1e6).toFixed(3) + " Mev/s, " +
+      (s.maps ? fmt(s.maps) + " maps, " : "") + "frame " + fmt(s.frames) + ", event time " +
+      (s.t_us / 1e6).toFixed(3) + " s";
+    if (s.view) {  // a map stream: its own title, caption and legend
+      $("title").textContent = s.view.title;
+      $("caption").textContent = s.view.caption;
+      $("maplegend").hidden = false;
+      $("evlegend").hidden = !s.events;
+    }
     $("tracks").hidden = !s.tracks;
     if (s.pipeline) showNodes(s.pipeline);
   } finally {
@@ -162,9 +171,18 @@ def _legend(r: Renderer) -> str:
     return "\n".join(polarity)
 
 
+_MAP_LEGEND = "\n".join([
+    '<div><span class="sw" style="width: 80px; background: linear-gradient(to right, #000, #fff)"></span>'
+    "log intensity: dark to bright (1st to 99th percentile of the map)</div>",
+    _swatch(UNKNOWN_COLOUR, "never observed (log-intensity map)"),
+    "<div>depth map: colour bar in metres beside the map (warm: near, cool: far)</div>",
+    _swatch(UNKNOWN_DEPTH_COLOUR, "no depth (depth map)"),
+])
+
+
 def page(r: Renderer, sensor: tuple[int, int] | None, interval_ms: int) -> bytes:
     """The HTML page for a renderer's settings (mode, period, flow scale)."""
     tracks = _swatch(TRACK_COLOUR, f"track (from result packets): its last {r.track_points} positions")
     return (_HTML.replace("__CAPTION__", html.escape(_caption(r, sensor)))
-            .replace("__LEGEND__", _legend(r)).replace("__TRACKS__", tracks)
+            .replace("__LEGEND__", _legend(r)).replace("__MAPLEGEND__", _MAP_LEGEND).replace("__TRACKS__", tracks)
             .replace("__INTERVAL__", str(int(interval_ms)))).encode()

@@ -1,5 +1,7 @@
 """Rendered events to a video file (``.mp4``, ``.avi`` through OpenCV) or
-to PNG snapshots, and to a Python callback."""
+to PNG snapshots, and to a Python callback. Maps (:class:`tectum.MapPacket`,
+``map.*`` operators) are drawn as pictures, one per sample (see
+:mod:`.maps`): ``out.png`` keeps the last map of a map stream."""
 
 from __future__ import annotations
 
@@ -9,16 +11,17 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
-from tectum import EventPacket, Kind, Packet, ResultPacket, Sink
+from tectum import EventPacket, Kind, MapPacket, Packet, ResultPacket, Sink
 from tectum.sinks.files._common import temp_beside
 
+from .maps import map_picture
 from .render import MODES, Mode, Renderer
 
 __all__ = ["VideoSink", "PngSink", "FrameCallbackSink"]
 
 
 class _Rendering(Sink):
-    consumes = (Kind.EVENTS, Kind.RESULTS)  # results: tracks drawn over the events
+    consumes = (Kind.EVENTS, Kind.RESULTS, Kind.MAPS)  # results: tracks drawn over the events; maps: pictures
 
     def __init__(self, fps: float, mode: Mode, tau_us: float, flow_max_px_s: float = 500.0) -> None:
         if mode not in MODES:
@@ -27,8 +30,15 @@ class _Rendering(Sink):
         self.renderer: Renderer | None = None
         self.frames = 0
         self._tracks: list[ResultPacket] = []
+        self.last_map: MapPacket | None = None
 
     def _frames(self, packet: Packet) -> list[tuple[int, np.ndarray]]:
+        if isinstance(packet, MapPacket):
+            maps = [(int(t), map_picture(packet, i)) for i, t in enumerate(packet.t)]
+            if maps:
+                self.last_map = packet
+            self.frames += len(maps)
+            return maps
         if isinstance(packet, ResultPacket):
             if self.renderer is None:
                 self._tracks.append(packet)
@@ -63,6 +73,7 @@ class VideoSink(_Rendering):
         self.path = path
         self._writer: cv2.VideoWriter | None = None
         self._tmp: str | None = None
+        self._size: tuple[int, ...] = ()
 
     def write(self, packet: Packet) -> None:
         for _t, img in self._frames(packet):
@@ -75,6 +86,11 @@ class VideoSink(_Rendering):
                 self._writer = cv2.VideoWriter(self._tmp, fourcc, self.fps, (w, h))
                 if not self._writer.isOpened():
                     raise OSError(f"OpenCV cannot write {ext} video here (codec missing)")
+                self._size = img.shape
+            elif img.shape != self._size:
+                raise ValueError(f"video {self.path}: a frame of {img.shape[1]}x{img.shape[0]} px after frames of "
+                                 f"{self._size[1]}x{self._size[0]} (events and maps, or maps of different sizes, "
+                                 "cannot share one video)")
             self._writer.write(img)
 
     def close(self) -> None:
@@ -95,8 +111,9 @@ class VideoSink(_Rendering):
 
 
 class PngSink(_Rendering):
-    """PNG snapshots: the last frame of the run (``out.png``), or every
-    frame when the path holds a ``%d`` pattern (``frames/f%05d.png``)."""
+    """PNG snapshots: the last frame of the run (``out.png``; of a map
+    stream, its last map), or every frame when the path holds a ``%d``
+    pattern (``frames/f%05d.png``)."""
 
     name = "png"
     extensions = (".png",)

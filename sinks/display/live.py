@@ -6,7 +6,8 @@ never holds the pipeline back: it only ever gets the newest frame):
 
 * ``/`` an HTML page (:mod:`._page`): the newest frame scaled to the window,
   a legend for the mode, what each panel shows, and the stats, refreshed by
-  script within the one page load;
+  script within the one page load; maps (``map.*`` operators' output) are
+  shown as pictures (:mod:`.maps`), with their own caption and legend;
 * ``/frame.png`` the newest frame; ``/stream.mjpg`` an MJPEG stream;
   ``/legend.png`` the colour wheel of the ``flow_wheel`` mode;
 * ``/stats.json`` events and packets seen, event rate, frames, stream time,
@@ -28,10 +29,11 @@ import cv2
 import numpy as np
 import trio
 
-from tectum import EventPacket, Packet
+from tectum import EventPacket, MapPacket, Packet
 
 from ._page import page
 from .files import _Rendering
+from .maps import map_caption
 from .render import Mode, flow_wheel_legend
 
 __all__ = ["LiveViewSink"]
@@ -64,7 +66,7 @@ class LiveViewSink(_Rendering):
         self._jpeg: bytes | None = None
         self._frame_id = 0
         self._stats: dict[str, Any] = {"events": 0, "packets": 0, "frames": 0, "t_us": 0, "rate_ev_s": 0.0,
-                                       "requests": 0}
+                                       "requests": 0, "maps": 0}
         self._t_wall0: float | None = None
         self._thread: threading.Thread | None = None
         self._token: trio.lowlevel.TrioToken | None = None
@@ -86,15 +88,18 @@ class LiveViewSink(_Rendering):
 
     def write(self, packet: Packet) -> None:
         frames = self._frames(packet)
-        if not isinstance(packet, EventPacket):
-            return
         st = self._stats
-        if self._t_wall0 is None:
-            self._t_wall0 = time.perf_counter()
-        st["events"] += len(packet)
-        st["packets"] += 1
-        st["t_us"] = packet.t_end
-        st["rate_ev_s"] = st["events"] / max(1e-6, time.perf_counter() - self._t_wall0)
+        if isinstance(packet, MapPacket) and frames:
+            st["maps"] += len(frames)
+            st["t_us"] = int(packet.t[-1])
+            st["view"] = {"title": "Map", "caption": map_caption(packet)}
+        if isinstance(packet, EventPacket):
+            if self._t_wall0 is None:
+                self._t_wall0 = time.perf_counter()
+            st["events"] += len(packet)
+            st["packets"] += 1
+            st["t_us"] = packet.t_end
+            st["rate_ev_s"] = st["events"] / max(1e-6, time.perf_counter() - self._t_wall0)
         if frames:
             img = frames[-1][1]
             if self.scale > 1:
