@@ -19,6 +19,7 @@ kind: ``/frames``, ``/imu``, ``/triggers``, ``/poses`` ...; see
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator, Mapping
 from typing import Any
 
@@ -27,9 +28,36 @@ import numpy as np
 from tectum import Kind, Packet, interleave
 
 from ._common import EventAssembler, FileSource
+from ._hdf5_blocks import BlockReader, chunk_bytes, open_file
 from ._hdf5_samples import sample_groups, sample_streams
 
 __all__ = ["Hdf5Source"]
+
+
+def _whole(a: np.ndarray, hi: int, lo: int = 0) -> np.ndarray:
+    """Which values of ``a`` are whole numbers in ``[lo, hi]``."""
+    if a.dtype.kind == "b":
+        return np.ones(a.shape, np.bool_)
+    if a.dtype.kind in "iu":
+        info = np.iinfo(a.dtype)
+        if info.min >= lo and info.max <= hi:
+            return np.ones(a.shape, np.bool_)
+        return (a >= lo) & (a <= hi)
+    if a.dtype.kind == "f":  # below hi + 1 as a float: 2**63 - 1 rounds up to 2**63
+        with np.errstate(invalid="ignore"):
+            return np.isfinite(a) & (a >= lo) & (a < float(hi) + 1) & (a == np.round(a))
+    return np.zeros(a.shape, np.bool_)
+
+
+def _mvsec_rows(a: np.ndarray) -> np.ndarray:
+    """Rows of an MVSEC ``(N, 4)`` array (x, y, t s, p) that are events:
+    whole coordinates within uint16, a finite time within int64 µs, a
+    finite polarity."""
+    if a.dtype.kind not in "iuf":
+        return np.zeros(a.shape[0], np.bool_)
+    with np.errstate(invalid="ignore"):
+        return (_whole(a[:, 0], 0xFFFF) & _whole(a[:, 1], 0xFFFF) & np.isfinite(a[:, 2])
+                & (np.abs(a[:, 2]) < 9.2e12) & np.isfinite(a[:, 3]))
 
 
 def _h5py() -> Any:
@@ -61,6 +89,10 @@ class Hdf5Source(FileSource):
         except (OSError, ImportError):
             return cls.produces  # opening will say what is wrong
 
+    def __init__(self, path: str, **kw: Any) -> None:
+        super().__init__(path, **kw)
+        self._reader = BlockReader(self, None)
+
     @classmethod
     def sniff(cls, head: bytes) -> bool:
         return head.startswith(b"\x89HDF\r\n\x1a\n")
@@ -68,13 +100,26 @@ class Hdf5Source(FileSource):
     def _file(self) -> Any:
         h5py = _h5py()
         try:
-            h = h5py.File(self.path, "r")
+            if os.path.getsize(self.path) == 0:
+                self._fail("empty file: no HDF5 superblock, no events", 0)
+            h, past = open_file(h5py, self.path)
         except OSError as e:
             self._fail(f"not a readable HDF5 file: {e}", 0)
-        self._files.append(h)
+        self._files += [h] if past is None else [h, past]  # the file object closes after the file
+        self._reader = BlockReader(self, past)
         return h
 
     def _packets(self) -> Iterator[Packet]:
+        """The packets; HDF5 errors from deep inside (damaged metadata, a
+        dataset past the end of a truncated file) become FormatErrors."""
+        try:
+            yield from self._layouts()
+        except (OSError, KeyError, RuntimeError) as e:
+            past = self._reader.past
+            self._fail(f"the HDF5 structure cannot be read ({e}): {self._reader.why()}",
+                       None if past is None else past.real)
+
+    def _layouts(self) -> Iterator[Packet]:
         h = self._file()
         if "events" in h and all(k in h["events"] for k in "txyp"):
             off = int(h["t_offset"][()]) if "t_offset" in h and not self.apply_t0 else 0
@@ -97,8 +142,11 @@ class Hdf5Source(FileSource):
         w = hh = 1
         step = max(1, self.chunk_bytes // 2)
         for i in range(0, x.shape[0], step):
-            w = max(w, int(np.max(x[i:i + step])) + 1)
-            hh = max(hh, int(np.max(y[i:i + step])) + 1)
+            (xs, ys), keep = self._reader.read([x, y], i, min(x.shape[0], i + step), count=False)
+            ok = _whole(xs, 0xFFFF) & _whole(ys, 0xFFFF) & (True if keep is None else keep)
+            if ok.any():
+                w = max(w, int(np.max(xs[ok])) + 1)
+                hh = max(hh, int(np.max(ys[ok])) + 1)
         return w, hh
 
     def _dsec(self, h: Any) -> Iterator[Packet]:
@@ -123,13 +171,13 @@ class Hdf5Source(FileSource):
         step = max(1, self.chunk_bytes // 8)
         for i in range(start, n, step):
             j = min(n, i + step)
-            pp = np.asarray(p[i:j])
-            if pp.size and pp.max() > 1:
-                k = int(np.flatnonzero(pp > 1)[0])
-                if not self.skip_bad:
-                    self._fail(f"event {i + k} has polarity {int(pp[k])}, expected 0/1", None)
-            yield from asm.push(np.asarray(t[i:j], np.int64), np.asarray(x[i:j], np.uint16),
-                                np.asarray(y[i:j], np.uint16), np.where(pp > 0, 1, -1).astype(np.int8), i)
+            (tt, xx, yy, pp), keep = self._reader.read([t, x, y, p], i, j)
+            keep = self._values(i, keep, (t, tt, _whole(tt, (1 << 63) - 1, -(1 << 63))), (x, xx, _whole(xx, 0xFFFF)),
+                                (y, yy, _whole(yy, 0xFFFF)), (p, pp, _whole(pp, 1)))
+            if keep is not None:
+                tt, xx, yy, pp = tt[keep], xx[keep], yy[keep], pp[keep]
+            yield from asm.push(tt.astype(np.int64), xx.astype(np.uint16), yy.astype(np.uint16),
+                                np.where(pp > 0, 1, -1).astype(np.int8), i)
             if self.t_end_us is not None and asm.last_t is not None and asm.last_t >= self.t_end_us:
                 break
         yield from asm.finish()
@@ -147,15 +195,40 @@ class Hdf5Source(FileSource):
     def _mvsec_events(self, h: Any, ds: Any) -> Iterator[Packet]:
         n = ds.shape[0]
         step = max(1, self.chunk_bytes // 32)
-        w = hh = 1
-        for i in range(0, n, step):
-            a = ds[i:i + step]
-            w, hh = max(w, int(a[:, 0].max()) + 1), max(hh, int(a[:, 1].max()) + 1)
-        sensor = self._sensor(None) or (w, hh)
+        sensor = self._sensor(None)
+        if sensor is None:
+            w = hh = 1
+            for i in range(0, n, step):
+                (a,), keep = self._reader.read([ds], i, min(n, i + step), count=False)
+                ok = _mvsec_rows(a) & (True if keep is None else keep)
+                if ok.any():
+                    w, hh = max(w, int(a[ok, 0].max()) + 1), max(hh, int(a[ok, 1].max()) + 1)
+            sensor = (w, hh)
         asm = EventAssembler(self, sensor)
         for i in range(0, n, step):
-            a = ds[i:i + step]
+            (a,), keep = self._reader.read([ds], i, min(n, i + step))
+            keep = self._values(i, keep, (ds, a, _mvsec_rows(a)))
+            if keep is not None:
+                a = a[keep]
             t = np.round(a[:, 2] * 1e6).astype(np.int64)
             yield from asm.push(t, a[:, 0].astype(np.uint16), a[:, 1].astype(np.uint16),
                                 np.where(a[:, 3] > 0, 1, -1).astype(np.int8), i)
         yield from asm.finish()
+
+    def _values(self, i: int, keep: np.ndarray | None,
+                *checks: tuple[Any, np.ndarray, np.ndarray]) -> np.ndarray | None:
+        """Rows from ``i`` whose values are out of range (each check: a
+        dataset, its values, the mask of good ones): a FormatError naming
+        the first, or with ``skip_bad`` dropped and counted; the rows to
+        keep (None: all)."""
+        good = np.ones_like(checks[0][2]) if keep is None else keep.copy()
+        for d, vals, ok in checks:
+            bad = good & ~ok
+            if bad.any():
+                k = np.flatnonzero(bad)
+                at = chunk_bytes(d, i + int(k[0]))[0]
+                if not self.skip_bad:
+                    self._fail(f"{d.name}: row {i + int(k[0])} holds {vals[k[0]].tolist()!r}, out of range", at)
+                self._note_skip(at, chunk_bytes(d, i + int(k[-1]))[0], int(k.shape[0]))
+                good &= ok
+        return None if good.all() else good
