@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 import pytest
 
+from tectum.sinks.display.maps import UNKNOWN_COLOUR
 from tectum.sinks.display.render import OFF_COLOUR, ON_COLOUR
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -119,5 +120,25 @@ def test_one_page_load_updates_picture_and_stats(live_view: str, browser: Any, r
     if keep:
         Path(keep).mkdir(parents=True, exist_ok=True)
         browser.save_screenshot(str(Path(keep) / f"live-{mode}.png"))
+    errors = _console_errors(browser)
+    assert not errors, errors
+
+
+@pytest.mark.parametrize("live_view", [{"maps": True}], indirect=True, ids=["maps"])
+def test_a_map_stream_shows_maps_with_their_caption_and_legend(live_view: str, browser: Any) -> None:
+    from selenium.webdriver.common.by import By
+
+    browser.get(live_view + "/")
+    img = browser.find_element(By.ID, "f")
+    _wait(browser, "the first map is shown", lambda: browser.execute_script("return arguments[0].naturalWidth", img))
+    _wait(browser, "the title says Map", lambda: browser.find_element(By.ID, "title").text == "Map")
+    caption = browser.find_element(By.ID, "caption").text
+    assert "Log-intensity map (80x40 px)" in caption, caption
+    assert browser.find_element(By.ID, "maplegend").is_displayed()
+    assert not browser.find_element(By.ID, "evlegend").is_displayed()  # no events in this stream
+    pic = _picture(browser)
+    assert _share(pic, UNKNOWN_COLOUR) > 0.1  # the never-observed quarter
+    grey = np.abs(pic.astype(int) - pic[:, :, :1]).max(axis=2) < 8
+    assert grey.mean() > 0.3
     errors = _console_errors(browser)
     assert not errors, errors
