@@ -8,9 +8,11 @@ formats give a FormatError or valid packets, never another exception."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
+from damaged_files import check_packets, event_text_rows, mutate, sample_text_rows
 
 from tectum import EventPacket, FormatError, concat
 from tectum.sources.files import open_file
@@ -188,3 +190,134 @@ def test_damaged_mvsec_chunk(tmp_path: Path) -> None:
         events(f)
     ev, src = events(f, skip_bad=True)
     assert len(ev) == n - 500 and src.skipped_events == 500 and not ((ev.t >= 1000) & (ev.t < 1500)).any()
+
+
+# -- fuzz: mutated small files of every format here ---------------------------------------------------------------
+def _small_files(d: Path) -> dict[str, tuple[Path, bytes]]:
+    """A small valid file per format (written by tectum's sinks where it has one)."""
+    from tectum import ImuPacket, PointPacket, PosePacket
+    from tectum.sinks.files._common import write_all
+    from tectum.sinks.files.ply import PlySink
+    from tectum.sinks.files.samples_csv import CsvSink
+    from tectum.sinks.files.tum import TumSink
+
+    rng = np.random.default_rng(0)
+    n = 60
+    t = np.sort(rng.integers(0, 100_000, n))
+    x, y, p = rng.integers(0, 64, n), rng.integers(0, 48, n), rng.integers(0, 2, n)
+    (d / "events.txt").write_bytes(b"".join(b"0.%06d %d %d %d\n" % r for r in zip(t, x, y, p)))
+    (d / "events.csv").write_bytes(b"t,x,y,p\n" + b"".join(b"%d,%d,%d,%d\n" % r for r in zip(t, x, y, p)))
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    write_all(CsvSink(str(d / "imu.csv"), kind="imu"), [ImuPacket(t, accel=rng.normal(size=(n, 3)),
+                                                                  gyro=rng.normal(size=(n, 3)))])
+    write_all(TumSink(str(d / "poses.tum")), [PosePacket(t, position=rng.normal(size=(n, 3)), orientation=q)])
+    pts = PointPacket(t, position=rng.normal(size=(n, 3)), intensity=rng.random(n).astype(np.float32))
+    write_all(PlySink(str(d / "ascii.ply")), [pts])
+    write_all(PlySink(str(d / "binary.ply"), binary=True), [pts])
+    return {f.name: (f, f.read_bytes()) for f in sorted(d.iterdir())}
+
+
+def _rows(name: str, raw: bytes) -> int | None:
+    """The rows a reader of ``raw`` keeps or counts as skipped (None: the
+    mutation may have changed what the file says it holds)."""
+    import io
+
+    from tectum.tables import parse_ply_header
+
+    if name.startswith("events"):
+        return event_text_rows(raw)
+    if name.endswith(".tum"):
+        return sample_text_rows(raw)
+    if name.endswith(".csv"):
+        return sample_text_rows(raw) - 1  # the header row
+    try:
+        h = parse_ply_header(io.BytesIO(raw))
+    except ValueError:
+        return None
+    return next(e.count for e in h.elements if e.name == "vertex")
+
+
+def _source(name: str, path: Path, skip_bad: bool) -> Any:
+    from tectum.sources.files.ply import PlySource
+    from tectum.sources.files.samples_csv import CsvSource
+    from tectum.sources.files.text import TextSource
+    from tectum.sources.files.tum import TumSource
+
+    if name.startswith("events"):
+        return TextSource(str(path), companions=False, sensor="64x48", skip_bad=skip_bad)
+    cls = {".csv": CsvSource, ".tum": TumSource, ".ply": PlySource}[path.suffix]
+    return cls(str(path), skip_bad=skip_bad)
+
+
+def _read(src: Any, path: Path) -> int | None:
+    """The samples ``src`` gives (the packet contract checked), or None
+    after a FormatError naming ``path``; any other exception fails."""
+    try:
+        pkts = list(src.packets())
+    except FormatError as e:
+        assert e.path == str(path), e
+        return None
+    check_packets(pkts)
+    return sum(len(q) for q in pkts)
+
+
+def test_fuzz_text_csv_tum_ply(tmp_path: Path) -> None:
+    """80 mutations of each small file (truncated, bytes overwritten or
+    spliced in, a line repeated elsewhere): a FormatError or valid packets;
+    with skip_bad, the rows kept and skipped add up to the rows there are."""
+    (tmp_path / "small").mkdir()
+    files = _small_files(tmp_path / "small")
+    rng = np.random.default_rng(20)
+    for name, (_, raw) in files.items():
+        for k in range(80):
+            what, bad = mutate(raw, rng, lines=not name.endswith("binary.ply"))
+            f = tmp_path / f"m{k}-{name}"
+            f.write_bytes(bad)
+            strict = _source(name, f, False)
+            got = _read(strict, f)
+            assert got is None or strict.skipped_events == 0
+            lenient = _source(name, f, True)
+            kept = _read(lenient, f)
+            rows = _rows(name, bad)
+            if kept is not None and rows is not None:
+                assert kept + lenient.skipped_events == rows, (name, what, kept, lenient.skipped_events, rows)
+            f.unlink()
+
+
+def test_fuzz_hdf5(tmp_path: Path) -> None:
+    """Mutations of a small DSEC file (chunked, compressed): bytes overwritten
+    inside the chunks or anywhere, spliced in, the file cut short. A
+    FormatError or valid packets, never an exception from h5py; with
+    skip_bad, damage to chunks or a cut leaves kept + skipped = the events."""
+    h5py = pytest.importorskip("h5py")
+    f0 = tmp_path / "small.h5"
+    n = 2000
+    rng = np.random.default_rng(15)
+    with h5py.File(f0, "w", rdcc_nbytes=0) as h:
+        g = h.create_group("events")
+        g.create_dataset("t", data=np.sort(rng.integers(0, 10**5, n)).astype(np.uint32), chunks=(200,),
+                         compression="gzip")
+        for k, hi, dt in (("x", 64, np.uint16), ("y", 48, np.uint16), ("p", 2, np.uint8)):
+            g.create_dataset(k, data=rng.integers(0, hi, n).astype(dt), chunks=(200,), compression="gzip")
+    raw = f0.read_bytes()
+    spans = [(a, a + s) for c in chunks_of(f0).values() for a, s in c]
+    for k in range(100):
+        kind = ("chunk", "cut", "any")[k % 3]
+        bad = bytearray(raw)
+        if kind == "chunk":
+            a, b = spans[int(rng.integers(len(spans)))]
+            for _ in range(int(rng.integers(1, 9))):
+                bad[int(rng.integers(a, b))] = int(rng.integers(256))
+        elif kind == "cut":
+            bad = bad[:int(rng.integers(len(bad)))]
+        else:
+            bad = bytearray(mutate(raw, rng)[1])
+        f = tmp_path / f"m{k}.h5"
+        f.write_bytes(bytes(bad))
+        _read(Hdf5Source(str(f)), f)
+        src = Hdf5Source(str(f), skip_bad=True)
+        kept = _read(src, f)
+        if kept is not None and kind != "any":
+            assert kept + src.skipped_events == n, (kind, kept, src.skipped_events)
+        f.unlink()

@@ -14,39 +14,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from damaged_files import event_text_rows as data_lines
+from damaged_files import random_text
 
 from tectum import EventPacket, FormatError, concat
 from tectum.sources.files import text
 from tectum.sources.files.text import TextSource
 
 pytestmark = pytest.mark.abuse
-
-_SEPARATORS = set(b" \t,\r")
-
-
-def data_lines(raw: bytes) -> int:
-    """Lines a text reader must either keep or count as skipped: not blank,
-    not a ``#``/``%`` comment, not the header (a first line with letters)."""
-    lines = raw.split(b"\n")
-    if lines and lines[-1] == b"":
-        lines.pop()
-    n = 0
-    for k, ln in enumerate(lines):
-        if not ln or set(ln) <= _SEPARATORS or ln.startswith((b"#", b"%")):
-            continue
-        if k == 0 and any(chr(c).isalpha() for c in ln):
-            continue  # the header
-        n += 1
-    return n
-
-
-def random_text(size: int, seed: int = 0) -> bytes:
-    """Printable ASCII (newlines included) at random: ~1 line in 100 bytes."""
-    import string
-
-    alphabet = np.frombuffer(string.printable.encode(), np.uint8)
-    return np.random.default_rng(seed).choice(alphabet, size).tobytes()
-
 
 # Reads a file in a fresh interpreter (after a warm-up read, so the compiled
 # kernels are loaded) and prints what tracemalloc saw at the peak. The address
