@@ -8,10 +8,11 @@ from __future__ import annotations
 from tectum.hookspecs import hookimpl
 
 from .complementary import Complementary
+from .emvs import Emvs
 from .high_pass import HighPass
 from .poisson_mosaic import PoissonMosaic
 
-__all__: list[str] = ["Complementary", "HighPass", "PoissonMosaic"]
+__all__: list[str] = ["Complementary", "Emvs", "HighPass", "PoissonMosaic"]
 
 
 @hookimpl
@@ -19,3 +20,4 @@ def tectum_register_operators(registry) -> None:  # type: ignore[no-untyped-def]
     registry.add_operator(HighPass)
     registry.add_operator(Complementary)
     registry.add_operator(PoissonMosaic)
+    registry.add_operator(Emvs)

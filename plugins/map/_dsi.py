@@ -1,0 +1,174 @@
+"""Kernels of ``map.emvs``: the disparity space image (DSI) of event-based
+multi-view stereo (Rebecq, Gallego, Mueggler, Scaramuzza, "EMVS: Event-based
+Multi-View Stereo", BMVC 2016 / IJCV 2018, Sec. 3-4).
+
+The DSI is a stack of ``P`` fronto-parallel planes at depths ``Z_k`` (m) in
+the reference view (pinhole ``fx, fy, cx, cy`` px, no distortion), one
+float32 image (H, W) per plane; a cell counts the event rays that pass
+through it.
+
+Plane sweep (IJCV 2018 Sec. 3): the paper maps an event into the reference
+view through the homography of one reference plane ``Z0`` and transfers it
+to every other plane with a per-plane affine map. Here the reference plane
+is the plane at infinity (``Z0 -> inf``: the pure-rotation homography
+``K R_re K^-1``), which makes that transfer exact and linear in the inverse
+depth ``rho = 1/Z``: with ``m = (mx, my, 1)`` the event's ray in the
+reference frame (``R_re @ K^-1 x``, scaled to z = 1) and ``C`` the event
+camera's centre in the reference frame (m), the ray meets the plane ``Z``
+at the reference pixel
+
+    u(rho) = cx + fx mx + rho * fx (Cx - mx Cz)
+    v(rho) = cy + fy my + rho * fy (Cy - my Cz)
+
+(the point ``C + (Z - Cz) m`` projected), so each vote costs two
+multiply-adds. The point lies in front of the event camera when
+``Z > Cz`` (``m`` points forward): planes nearer than ``Cz`` get no vote.
+Choosing infinity rather than a finite ``Z0`` avoids the case ``Cz = Z0``,
+where the finite-plane homography is singular.
+
+Votes are bilinear (the four pixels around the sub-pixel point share 1),
+loops run plane by plane so that the votes of a block of events land in
+one plane image at a time (a 240x180 plane is 173 kB: it stays in cache).
+Traces are float32: 240 px at float32 resolution is 1.5e-5 px.
+Each DSI cell receives its votes in event order whatever the loop order or
+the packet split, so the float32 sums are bit-identical for any split.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["ray_traces", "vote", "argmax_depth", "masked_median"]
+
+
+@njit(cache=True, nogil=True)
+def ray_traces(x, y, seg, rays, R, C, fx, fy, cx, cy, trace):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """Per event ``i`` (pixel ``x[i], y[i]``, pose segment ``seg[i]``),
+    its trace in the reference view: ``trace[:, i] = (u_inf, v_inf, du, dv)``
+    px (float32, (4, N)) with ``u(rho) = u_inf + rho du`` (see the module
+    doc), from the undistorted normalised ray ``rays[y, x] = (X/Z, Y/Z)``,
+    the segment's reference-from-event rotation ``R[s]`` (3x3) and event
+    camera centre ``C[s]`` (m, reference frame). Events whose ray has no
+    inverse (NaN) or points away from the reference view get NaN. Returns
+    how many are valid."""
+    n_ok = 0
+    for i in range(x.shape[0]):
+        xn = rays[y[i], x[i], 0]
+        yn = rays[y[i], x[i], 1]
+        s = seg[i]
+        Ri = R[s]
+        dx = Ri[0, 0] * xn + Ri[0, 1] * yn + Ri[0, 2]
+        dy = Ri[1, 0] * xn + Ri[1, 1] * yn + Ri[1, 2]
+        dz = Ri[2, 0] * xn + Ri[2, 1] * yn + Ri[2, 2]
+        if not dz > 1e-9:  # NaN ray, or a ray leaving the reference view's half space
+            for c in range(4):
+                trace[c, i] = np.nan
+            continue
+        mx = dx / dz
+        my = dy / dz
+        trace[0, i] = cx + fx * mx
+        trace[1, i] = cy + fy * my
+        trace[2, i] = fx * (C[s, 0] - mx * C[s, 2])
+        trace[3, i] = fy * (C[s, 1] - my * C[s, 2])
+        n_ok += 1
+    return n_ok
+
+
+#: Events per block of :func:`vote`: the block's traces (16 bytes an event)
+#: stay in cache while the planes go by.
+BLOCK = 1 << 16
+
+
+@njit(cache=True, nogil=True, boundscheck=False)
+def vote(trace, first, rho, dsi):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+    """Bilinear votes of each event's trace (float32 (4, N), from
+    :func:`ray_traces`) into the DSI (P, H, W) float32: on plane ``k``
+    (inverse depth ``rho[k]``, 1/m) at ``u_inf + rho du``, ``v_inf + rho
+    dv`` (px, pixel centres at integers), for the planes ``k >= first[i]``
+    (those in front of the event's camera). Votes whose 2x2 cell is not
+    wholly inside the image are dropped. Blocks of :data:`BLOCK` events,
+    plane by plane within a block; returns the number of votes cast."""
+    P, H, W = dsi.shape
+    n = trace.shape[1]
+    wmax = np.float32(W - 1)
+    hmax = np.float32(H - 1)
+    one = np.float32(1.0)
+    cast = 0
+    for a in range(0, n, BLOCK):
+        b = min(n, a + BLOCK)
+        for k in range(P):
+            r = np.float32(rho[k])
+            plane = dsi[k]
+            for i in range(a, b):
+                if k < first[i]:
+                    continue
+                u = trace[0, i] + r * trace[2, i]
+                v = trace[1, i] + r * trace[3, i]
+                if not (u >= 0 and v >= 0 and u < wmax and v < hmax):  # also rejects NaN
+                    continue
+                iu = int(u)
+                iv = int(v)
+                fu = u - np.float32(iu)
+                fv = v - np.float32(iv)
+                plane[iv, iu] += (one - fu) * (one - fv)
+                plane[iv, iu + 1] += fu * (one - fv)
+                plane[iv + 1, iu] += (one - fu) * fv
+                plane[iv + 1, iu + 1] += fu * fv
+                cast += 1
+    return cast
+
+
+@njit(cache=True, nogil=True)
+def argmax_depth(dsi, refine, index, score):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+    """Per pixel, the plane with the most votes: ``score`` (H, W) its votes
+    (the confidence) and ``index`` (H, W) float64 its plane index, refined
+    (``refine``) by the vertex of the parabola through the scores of the
+    planes either side (|offset| <= 1/2; ties keep the nearer plane)."""
+    P, H, W = dsi.shape
+    best = np.zeros((H, W), np.int64)
+    for j in range(H):
+        for i in range(W):
+            score[j, i] = dsi[0, j, i]
+    for k in range(1, P):
+        plane = dsi[k]
+        for j in range(H):
+            for i in range(W):
+                if plane[j, i] > score[j, i]:
+                    score[j, i] = plane[j, i]
+                    best[j, i] = k
+    for j in range(H):
+        for i in range(W):
+            k = best[j, i]
+            off = 0.0
+            if refine and 0 < k < P - 1:
+                a = dsi[k - 1, j, i]
+                b = dsi[k, j, i]
+                c = dsi[k + 1, j, i]
+                den = a - 2.0 * b + c
+                if den < 0.0:
+                    off = 0.5 * (a - c) / den
+                    off = min(0.5, max(-0.5, off))
+            index[j, i] = k + off
+
+
+@njit(cache=True, nogil=True)
+def masked_median(depth, mask, radius, out):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+    """Median of ``depth`` over the ``mask``ed pixels of the (2r+1)^2 window
+    around each masked pixel (``out`` NaN elsewhere): the paper's median
+    filter, kept off the pixels the threshold rejected."""
+    H, W = depth.shape
+    buf = np.empty((2 * radius + 1) ** 2)
+    for j in range(H):
+        for i in range(W):
+            if not mask[j, i]:
+                out[j, i] = np.nan
+                continue
+            n = 0
+            for jj in range(max(0, j - radius), min(H, j + radius + 1)):
+                for ii in range(max(0, i - radius), min(W, i + radius + 1)):
+                    if mask[jj, ii]:
+                        buf[n] = depth[jj, ii]
+                        n += 1
+            s = np.sort(buf[:n])
+            out[j, i] = s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])

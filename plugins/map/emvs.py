@@ -1,0 +1,475 @@
+"""``map.emvs``: semi-dense depth from events and known camera poses by
+event-based multi-view stereo (Rebecq, Gallego, Mueggler, Scaramuzza,
+"EMVS: Event-based Multi-View Stereo", BMVC 2016; IJCV 126, 2018).
+
+An edge moving across the sensor fires events along its path; with the
+camera's poses known, every event is a ray in space, and the rays of one
+edge seen from several viewpoints meet where the edge is. EMVS counts the
+rays through each cell of a *disparity space image* (DSI): the view frustum
+of a reference camera cut into ``planes`` depth planes between
+``min_depth`` and ``max_depth`` (m), spaced uniformly in inverse depth by
+default (as the paper does: equal steps of disparity) or in depth
+(``spacing="depth"``). Cells where many rays cross are scene points.
+
+Steps (IJCV 2018 Sec. 3-4; the kernels are in :mod:`._dsi`):
+
+1. Events are undistorted (``tectum.camera``: the calibration's lens) and
+   grouped into *segments* of ``segment_events`` consecutive events (fewer
+   where the next event comes more than ``segment_us`` after a segment's
+   first): the camera moves little within one, so all of its events share
+   one pose, interpolated at the segment's middle time (linear position,
+   slerp orientation). Segments depend on the events only, not on how the
+   stream is cut into packets, so the output is the same for any split.
+2. Each event's ray is swept through the planes (a plane-sweep transfer,
+   two multiply-adds per plane) and votes bilinearly into the DSI.
+3. When the camera centre has moved more than ``keyframe_baseline`` times
+   the scene depth (the median depth of the previous map; before the first
+   map, the geometric mean of ``min_depth`` and ``max_depth``) from the
+   reference view, the DSI becomes a map and a new reference view starts at
+   the current pose: a long trajectory gives a sequence of maps. The last
+   DSI becomes a map at end of stream.
+4. Map: per pixel the plane with most votes (the depth, refined between
+   planes by a parabola when ``refine``) and its vote count (the
+   confidence); pixels whose confidence exceeds its Gaussian-filtered
+   neighbourhood (σ ``threshold_sigma`` px) by ``threshold_c`` times the
+   largest confidence keep their depth (the paper's adaptive threshold);
+   then a ``median_size`` median filter over the kept pixels.
+
+Output: a :class:`~tectum.MapPacket` per map, stamped at its last event
+(µs), with ``depth`` (m, float32 (H, W), NaN where unknown), ``confidence``
+(votes), ``K`` (the undistorted reference view's intrinsics), ``pose`` (the
+reference view, world-from-camera) and an extra column ``t_ref`` (µs, the
+reference view's time); and with ``points=True`` a
+:class:`~tectum.PointPacket` of the same time: the map's pixels
+back-projected into the world (m), ``intensity`` the confidence. Both go
+out on the one output stream: ``--sink depth.npz`` stores the maps (and the
+points), ``--sink cloud.ply`` writes the clouds (a sink takes the kinds it
+consumes).
+
+No translation, no depth: a reference view from which the camera moved less
+than ``min_baseline`` times the scene depth (pure rotation, standing still)
+gives no map; it is counted in ``counts["no_translation"]`` and logged.
+Events before the first pose or after the last are not mapped (counted in
+``skipped_before_poses`` / ``skipped_after_poses``); a stream whose poses
+cover none of the events is an error at the end.
+
+Cost: per event one 3x3 product and ``planes`` bilinear votes (numba, plane
+by plane); per map an argmax over the DSI, a Gaussian filter and a median.
+Memory: the DSI, ``planes x H x W x 4`` bytes (100 planes at 240x180:
+17.3 MB; at 346x260: 36 MB), plus the events waiting for their pose.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Mapping
+from typing import Literal
+
+import numpy as np
+from scipy.ndimage import gaussian_filter
+
+from tectum import EventPacket, Kind, MapPacket, Operator, Packet, PointPacket, PosePacket, Port
+from tectum.camera import QUAT_TOL, Camera, interpolate_poses, quat_to_rot
+from tectum.plugins.repr.motion_compensated import _camera
+
+from ._dsi import argmax_depth, masked_median, ray_traces, vote
+
+__all__ = ["Emvs", "depth_planes", "depth_map"]
+
+log = logging.getLogger("tectum.map.emvs")
+
+
+def depth_planes(planes: int, min_depth: float, max_depth: float,
+                 spacing: Literal["inverse", "depth"] = "inverse") -> np.ndarray:
+    """The DSI's plane depths (m), near to far: ``planes`` values from
+    ``min_depth`` to ``max_depth``, uniform in inverse depth (``"inverse"``,
+    the paper's choice: equal steps of disparity) or in depth."""
+    if planes < 2:
+        raise ValueError(f"map.emvs: planes must be >= 2, got {planes}")
+    if not (0 < min_depth < max_depth and math.isfinite(max_depth)):
+        raise ValueError(f"map.emvs: need 0 < min_depth < max_depth (m), got {min_depth}, {max_depth}")
+    if spacing == "inverse":
+        return np.asarray(1.0 / np.linspace(1.0 / min_depth, 1.0 / max_depth, planes))
+    if spacing == "depth":
+        return np.linspace(min_depth, max_depth, planes)
+    raise ValueError(f"map.emvs: spacing must be 'inverse' or 'depth', got {spacing!r}")
+
+
+def depth_map(dsi: np.ndarray, depths: np.ndarray, *, refine: bool = True, threshold_sigma: float = 2.0,
+              threshold_c: float = 0.05, median_size: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """A semi-dense depth map from a DSI (P, H, W) of votes whose planes lie
+    at ``depths`` (P,) m: ``(depth (H, W) float32 m, NaN where unknown;
+    confidence (H, W) float32, the votes of the best plane)``. See the
+    module doc for the steps; ``median_size`` 1 skips the median filter."""
+    P, H, W = dsi.shape
+    if depths.shape != (P,):
+        raise ValueError(f"map.emvs: {P} planes in the DSI but {depths.shape} depths")
+    if median_size < 1 or median_size % 2 == 0:
+        raise ValueError(f"map.emvs: median_size must be odd and >= 1, got {median_size}")
+    index = np.empty((H, W))
+    conf = np.empty((H, W), np.float32)
+    argmax_depth(dsi, refine, index, conf)
+    top = float(conf.max())
+    if top <= 0:
+        return np.full((H, W), np.nan, np.float32), conf
+    c = conf.astype(np.float64) / top
+    keep = c > gaussian_filter(c, threshold_sigma, mode="nearest") + threshold_c
+    # the fractional plane index -> depth, linearly in the planes' own spacing
+    lo = np.clip(np.floor(index).astype(np.int64), 0, P - 2)
+    f = index - lo
+    uniform_inverse = np.allclose(np.diff(1.0 / depths), (1.0 / depths[-1] - 1.0 / depths[0]) / (P - 1))
+    if uniform_inverse:
+        depth = 1.0 / ((1 - f) / depths[lo] + f / depths[lo + 1])
+    else:
+        depth = (1 - f) * depths[lo] + f * depths[lo + 1]
+    out = np.empty((H, W))
+    if median_size > 1:
+        masked_median(depth, keep, median_size // 2, out)
+    else:
+        out = np.where(keep, depth, np.nan)
+    return out.astype(np.float32), conf
+
+
+class Emvs(Operator):
+    """Semi-dense depth maps (and point clouds) from events and camera poses
+    by event-based multi-view stereo (EMVS, Rebecq et al. BMVC 2016).
+
+    Parameters
+    ----------
+    calib:
+        Calibration file (OpenCV YAML/JSON, ROS camera_info, UZH calib.txt)
+        or inline ``fx;fy;cx;cy[;k1;k2;p1;p2;k3]`` (px); defaults to the
+        calibration beside the source recording.
+    planes:
+        Depth planes of the DSI.
+    min_depth, max_depth:
+        Depth range of the DSI, m.
+    spacing:
+        ``inverse`` (uniform in 1/depth, the paper's) or ``depth``.
+    segment_events:
+        Events sharing one interpolated pose.
+    segment_us:
+        Longest time a segment spans, µs.
+    keyframe_baseline:
+        A new reference view when the camera has moved this fraction of the
+        scene depth from the current one.
+    min_baseline:
+        A reference view whose camera moved less than this fraction of the
+        scene depth gives no map (counted as ``no_translation``).
+    refine:
+        Sub-plane depth by a parabola through the votes either side.
+    threshold_sigma:
+        σ of the adaptive threshold's Gaussian, px.
+    threshold_c:
+        Margin of the adaptive threshold, a fraction of the largest confidence.
+    median_size:
+        Side of the median filter on the depth, px (odd; 1: none).
+    points:
+        Emit each map's point cloud (PointPacket, world frame) as well.
+    """
+
+    name = "map.emvs"
+    inputs = {
+        "events": Port(Kind.EVENTS, doc="the events to map"),
+        "poses": Port(Kind.POSES, doc="camera poses (world-from-camera) covering the events"),
+    }
+    produces = (Kind.MAPS, Kind.POINTS)
+    heavy = True
+
+    def __init__(self, calib: str = "", planes: int = 100, min_depth: float = 0.3, max_depth: float = 5.0,
+                 spacing: Literal["inverse", "depth"] = "inverse", segment_events: int = 1024,
+                 segment_us: int = 10_000, keyframe_baseline: float = 0.15, min_baseline: float = 0.02,
+                 refine: bool = True, threshold_sigma: float = 2.0, threshold_c: float = 0.05,
+                 median_size: int = 5, points: bool = True) -> None:
+        self.camera: Camera = _camera(calib)
+        self.depths = depth_planes(planes, min_depth, max_depth, spacing)
+        self.rho = np.ascontiguousarray(1.0 / self.depths)
+        if segment_events < 1 or segment_us < 1:
+            raise ValueError("map.emvs: segment_events and segment_us must be >= 1")
+        if not 0 <= min_baseline < keyframe_baseline:
+            raise ValueError(f"map.emvs: need 0 <= min_baseline < keyframe_baseline, got {min_baseline}, "
+                             f"{keyframe_baseline}")
+        if median_size < 1 or median_size % 2 == 0:
+            raise ValueError(f"map.emvs: median_size must be odd and >= 1, got {median_size}")
+        self.segment_events, self.segment_us = int(segment_events), int(segment_us)
+        self.keyframe_baseline, self.min_baseline = float(keyframe_baseline), float(min_baseline)
+        self.map_options = {"refine": bool(refine), "threshold_sigma": float(threshold_sigma),
+                            "threshold_c": float(threshold_c), "median_size": int(median_size)}
+        self.points = bool(points)
+        self.K = np.array([[self.camera.fx, 0, self.camera.cx], [0, self.camera.fy, self.camera.cy], [0, 0, 1.0]])
+        self.counts = {"maps": 0, "no_translation": 0, "skipped_before_poses": 0, "skipped_after_poses": 0,
+                       "outside_view": 0}
+        self.scene_depth = math.sqrt(min_depth * max_depth)  # m, until a map says better
+        self._sensor: tuple[int, int] | None = None
+        self._rays = np.empty((0, 0, 2))
+        # poses so far: times (µs), positions (m), orientations (x, y, z, w)
+        self._kt = np.empty(0, np.int64)
+        self._kp = np.empty((0, 3))
+        self._kq = np.empty((0, 4))
+        # events waiting for their segment to close or its pose to come
+        self._t = np.empty(0, np.int64)
+        self._x = np.empty(0, np.uint16)
+        self._y = np.empty(0, np.uint16)
+        self._events_seen = 0
+        # the current reference view and its DSI
+        self._dsi: np.ndarray | None = None
+        self._ref: tuple[np.ndarray, np.ndarray, int] | None = None  # R_wr, t_wr (m), t_ref (µs)
+        self._baseline = 0.0  # m, largest distance of a segment's camera from the reference
+        self._voted = False   # the DSI has votes
+        self._last_t = 0      # µs, the last event voted into the DSI
+        self._mark = 0        # µs, the events' watermark
+        self._first_pose: int | None = None  # µs
+
+    #: For the conformance check: inline intrinsics of a 48x36 sensor, few planes.
+    conformance_params = {"calib": "40;40;23.5;17.5", "planes": 16, "min_depth": 0.5, "max_depth": 4.0,
+                          "segment_events": 64, "keyframe_baseline": 0.012, "min_baseline": 0.004}
+
+    @staticmethod
+    def conformance_stream() -> dict[str, Packet]:
+        """Events of points at 1-3 m seen by a camera sliding sideways, and
+        its poses at 1 kHz (for the conformance check)."""
+        return translating_points(duration_us=60_000, sensor=(48, 36), f=40.0)
+
+    def warmup(self) -> None:
+        z = np.zeros(2, np.uint16)
+        seg = np.zeros(2, np.int64)
+        trace = np.empty((4, 2), np.float32)
+        ray_traces(z, z, seg, np.zeros((1, 1, 2)), np.eye(3)[None], np.zeros((1, 3)), 1.0, 1.0, 0.0, 0.0, trace)
+        dsi = np.zeros((2, 2, 2), np.float32)
+        vote(trace, seg, np.ones(2), dsi)
+        depth_map(dsi, np.array([1.0, 2.0]), median_size=3)
+
+    # -- input ------------------------------------------------------------------
+    def process_ports(self, ports: Mapping[str, Packet]) -> list[Packet]:
+        poses = ports.get("poses")
+        if poses is not None and len(poses):
+            self._add_poses(poses)  # type: ignore[arg-type]
+        ev = ports.get("events")
+        if ev is not None:
+            self._mark = ev.t_end
+            if len(ev):
+                self._add_events(ev)  # type: ignore[arg-type]
+        return self._advance(final=False)
+
+    def finish(self) -> list[Packet]:
+        out = self._advance(final=True)
+        if self._dsi is not None and self._voted:
+            out += self._finalize()
+        if self._events_seen and self.counts["skipped_before_poses"] + self.counts["skipped_after_poses"] \
+                == self._events_seen:
+            span = (f"the poses span [{int(self._kt[0])}, {int(self._kt[-1])}] µs" if self._kt.size
+                    else "no pose arrived")
+            raise ValueError(f"map.emvs: none of the {self._events_seen} events lies within the poses on port "
+                             f"'poses' ({span}): connect poses that cover the events")
+        return out
+
+    def _add_poses(self, poses: PosePacket) -> None:
+        t = poses.t
+        pos = np.asarray(poses.position, np.float64)
+        q = np.asarray(poses.orientation, np.float64)
+        bad = np.flatnonzero(~np.isfinite(pos).all(axis=1) | ~np.isfinite(q).all(axis=1))
+        if bad.size:
+            i = int(bad[0])
+            raise ValueError(f"map.emvs: pose at t={int(t[i])} µs (port 'poses') is not finite: position "
+                             f"{pos[i].tolist()}, orientation {q[i].tolist()}")
+        norm = np.linalg.norm(q, axis=1)
+        off = np.flatnonzero(np.abs(norm - 1.0) > QUAT_TOL)
+        if off.size:
+            i = int(off[0])
+            raise ValueError(f"map.emvs: pose at t={int(t[i])} µs (port 'poses') has an orientation of norm "
+                             f"{norm[i]:.6g}, not a unit quaternion (x, y, z, w)")
+        prev = int(self._kt[-1]) if self._kt.size else None
+        if prev is not None and int(t[0]) < prev:
+            raise ValueError(f"map.emvs: poses go back in time on port 'poses': {int(t[0])} µs after {prev} µs")
+        if self._first_pose is None:  # the first pose: events before it have none
+            self._first_pose = int(t[0])
+            self._drop_before(self._first_pose)
+        self._kt = np.concatenate([self._kt, t])
+        self._kp = np.concatenate([self._kp, pos])
+        self._kq = np.concatenate([self._kq, q / norm[:, None]])
+
+    def _add_events(self, ev: EventPacket) -> None:
+        if self._sensor is None:
+            self._start(ev.sensor)
+        elif ev.sensor != self._sensor:
+            raise ValueError(f"map.emvs: the sensor changed from {self._sensor} to {ev.sensor}")
+        self._events_seen += len(ev)
+        self._t = np.concatenate([self._t, ev.t])
+        self._x = np.concatenate([self._x, ev.x])
+        self._y = np.concatenate([self._y, ev.y])
+        if self._first_pose is not None:
+            self._drop_before(self._first_pose)
+
+    def _start(self, sensor: tuple[int, int]) -> None:
+        w, h = sensor
+        size = self.camera.size
+        if size is not None and tuple(size) != (w, h):
+            raise ValueError(f"map.emvs: the calibration is for {size[0]}x{size[1]} px, the events for {w}x{h}")
+        self._sensor = (w, h)
+        u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+        xy = self.camera.back_project(np.stack([u.ravel(), v.ravel()], axis=1), 1.0)[:, :2]
+        self._rays = np.ascontiguousarray(xy.reshape(h, w, 2))
+
+    def _drop_before(self, t0: int) -> None:
+        n = int(np.searchsorted(self._t, t0, side="left"))
+        if n:
+            self.counts["skipped_before_poses"] += n
+            self._t, self._x, self._y = self._t[n:], self._x[n:], self._y[n:]
+
+    # -- segments -----------------------------------------------------------------
+    def _segments(self, final: bool) -> list[tuple[int, int]]:
+        """The closed segments of the waiting events, as index ranges: full
+        (``segment_events``), or ended by time (an event, or the events'
+        watermark, ``segment_us`` after its first); at the end, all."""
+        t, n, out, a = self._t, len(self._t), [], 0
+        while a < n:
+            b = min(a + self.segment_events, int(np.searchsorted(t, t[a] + self.segment_us, side="left")))
+            if b >= n and a + self.segment_events > n and not final and self._mark < t[a] + self.segment_us:
+                break  # open: more events may join it
+            out.append((a, min(b, n)))
+            a = out[-1][1]
+        return out
+
+    def _advance(self, final: bool) -> list[Packet]:
+        """Vote every closed segment whose pose can be interpolated; emit
+        the maps whose reference view the camera has left."""
+        segs = self._segments(final) if self._kt.size else []
+        t = self._t
+        mids = np.array([(int(t[a]) + int(t[b - 1])) // 2 for a, b in segs], np.int64)
+        ready = int(np.searchsorted(mids, int(self._kt[-1]), side="right")) if segs else 0
+        if final and self._t.size:  # what no pose covers now never will be
+            key = "skipped_after_poses" if self._kt.size else "skipped_before_poses"
+            self.counts[key] += int(len(t) - (segs[ready][0] if ready < len(segs) else len(t)))
+        if not ready:
+            if final:
+                self._t, self._x, self._y = self._t[:0], self._x[:0], self._y[:0]
+            return []
+        segs, mids = segs[:ready], mids[:ready]
+        starts = np.array([a for a, _ in segs], np.int64)
+        pos, q, _ = interpolate_poses(np.concatenate([mids, t[starts]]), self._kt, self._kp, self._kq)
+        n, run = len(segs), 0  # run: the first segment voting into the current DSI
+        out: list[Packet] = []
+        for s in range(n):
+            if self._ref is None:
+                self._new_reference(q[n + s], pos[n + s], int(t[starts[s]]))
+            assert self._ref is not None
+            b = float(np.linalg.norm(pos[s] - self._ref[1]))
+            if b > self.keyframe_baseline * self.scene_depth and (s > run or self._voted):
+                self._vote(segs[run:s], pos[run:s], q[run:s])
+                out += self._finalize()
+                self._new_reference(q[n + s], pos[n + s], int(t[starts[s]]))
+                run, b = s, 0.0
+            self._baseline = max(self._baseline, b)
+        self._vote(segs[run:], pos[run:], q[run:])
+        end = len(t) if final else segs[-1][1]
+        self._t, self._x, self._y = self._t[end:], self._x[end:], self._y[end:]
+        self._drop_knots(int(self._t[0]) if self._t.size else int(self._kt[-1]))
+        return out
+
+    def _new_reference(self, q: np.ndarray, p: np.ndarray, t_ref: int) -> None:
+        assert self._sensor is not None
+        w, h = self._sensor
+        self._ref = (np.asarray(quat_to_rot(q)), p.copy(), t_ref)
+        self._dsi = np.zeros((len(self.depths), h, w), np.float32)
+        self._baseline = 0.0
+        self._voted = False
+
+    def _vote(self, segs: list[tuple[int, int]], pos: np.ndarray, q: np.ndarray) -> None:
+        """The events of ``segs`` (with their poses) vote into the DSI."""
+        if not segs:
+            return
+        assert self._ref is not None and self._dsi is not None
+        R_wr, t_wr, _ = self._ref
+        a, b = segs[0][0], segs[-1][1]
+        R_re = np.einsum("ji,njk->nik", R_wr, np.asarray(quat_to_rot(q)))
+        C = (pos - t_wr) @ R_wr  # rows: R_wr^T (t_we - t_wr), the event camera centres in the reference frame
+        # planes in front of each segment's camera: Z_k > C_z (near to far)
+        first = np.searchsorted(self.depths, C[:, 2], side="right").astype(np.int64)
+        seg = np.repeat(np.arange(len(segs), dtype=np.int64), [e - s for s, e in segs])
+        x, y = self._x[a:b], self._y[a:b]
+        trace = np.empty((4, b - a), np.float32)
+        ok = ray_traces(x, y, seg, self._rays, np.ascontiguousarray(R_re), np.ascontiguousarray(C),
+                        self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy, trace)
+        self.counts["outside_view"] += (b - a) - int(ok)
+        vote(trace, first[seg], self.rho, self._dsi)
+        self._last_t, self._voted = int(self._t[b - 1]), True
+
+    def _finalize(self) -> list[Packet]:
+        """The current DSI as a map (and cloud), or nothing when the camera
+        did not translate enough."""
+        assert self._ref is not None and self._dsi is not None
+        dsi, (R_wr, t_wr, t_ref), t_map = self._dsi, self._ref, self._last_t
+        self._dsi, self._ref = None, None
+        if self._baseline < self.min_baseline * self.scene_depth:
+            self.counts["no_translation"] += 1
+            log.warning("map.emvs: the camera moved %.3g m from the reference view at %d µs, less than "
+                        "min_baseline x scene depth = %.3g m: no depth from pure rotation, no map",
+                        self._baseline, t_ref, self.min_baseline * self.scene_depth)
+            return []
+        depth, conf = depth_map(dsi, self.depths, **self.map_options)  # type: ignore[arg-type]
+        known = np.isfinite(depth)
+        if known.any():
+            self.scene_depth = float(np.median(depth[known]))
+        self.counts["maps"] += 1
+        from tectum.camera import rot_to_quat
+
+        pose = np.concatenate([t_wr, rot_to_quat(R_wr)])
+        tt = np.array([t_map], np.int64)
+        out: list[Packet] = [MapPacket(tt, depth=depth[None], confidence=conf[None], K=self.K[None],
+                                       pose=pose[None], t_ref=np.array([t_ref], np.int64), t_start=t_map,
+                                       t_end=t_map + 1)]
+        if self.points:
+            out.append(self._cloud(depth, conf, R_wr, t_wr, t_map))
+        return out
+
+    def _cloud(self, depth: np.ndarray, conf: np.ndarray, R_wr: np.ndarray, t_wr: np.ndarray,
+               t_map: int) -> PointPacket:
+        v, u = np.nonzero(np.isfinite(depth))
+        Z = depth[v, u].astype(np.float64)
+        pc = np.stack([(u - self.camera.cx) / self.camera.fx * Z, (v - self.camera.cy) / self.camera.fy * Z, Z],
+                      axis=1)
+        pw = pc @ R_wr.T + t_wr
+        return PointPacket(np.full(len(Z), t_map, np.int64), position=pw, intensity=conf[v, u],
+                           t_start=t_map, t_end=t_map + 1)
+
+    def _drop_knots(self, t_keep: int) -> None:
+        """Forget poses no waiting event needs (keep the last at or before ``t_keep``)."""
+        k = int(np.searchsorted(self._kt, t_keep, side="right")) - 1
+        if k > 0:
+            self._kt, self._kp, self._kq = self._kt[k:], self._kp[k:], self._kq[k:]
+
+
+def translating_points(duration_us: int, sensor: tuple[int, int], f: float, velocity: tuple[float, float, float] = (
+        0.5, 0.0, 0.0), n_points: int = 40, depth: tuple[float, float] = (1.0, 3.0), rate_hz: float = 1000.0,
+        period_us: int = 100, seed: int = 0) -> dict[str, Packet]:
+    """Events of ``n_points`` world points (depths uniform in ``depth``, m)
+    seen by a pinhole camera (focal ``f`` px, centred, no rotation) moving
+    at ``velocity`` (m/s, world = camera axes) from the origin: one event per
+    visible point every ``period_us``, at its rounded projection; and the
+    poses at ``rate_hz``. For tests and the conformance check."""
+    rng = np.random.default_rng(seed)
+    w, h = sensor
+    cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
+    Z = rng.uniform(depth[0], depth[1], n_points)
+    X = (rng.uniform(0.1, 0.9, n_points) * w - cx) / f * Z
+    Y = (rng.uniform(0.1, 0.9, n_points) * h - cy) / f * Z
+    ts = np.arange(0, duration_us, period_us, dtype=np.int64)
+    v = np.asarray(velocity, np.float64)
+    t_all, x_all, y_all = [], [], []
+    for t in ts:
+        c = v * t * 1e-6
+        Zc = Z - c[2]
+        u = f * (X - c[0]) / Zc + cx
+        vv = f * (Y - c[1]) / Zc + cy
+        ok = (Zc > 0) & (u > -0.5) & (vv > -0.5) & (u < w - 0.5) & (vv < h - 0.5)
+        t_all.append(np.full(int(ok.sum()), t))
+        x_all.append(np.round(u[ok]))
+        y_all.append(np.round(vv[ok]))
+    t_ev = np.concatenate(t_all)
+    ev = EventPacket.from_arrays(t_ev, np.concatenate(x_all), np.concatenate(y_all), np.ones(len(t_ev), np.int8),
+                                 sensor=sensor, t_start=0, t_end=duration_us)
+    tp = np.arange(0, duration_us + 1, int(1e6 / rate_hz), dtype=np.int64)
+    poses = PosePacket(tp, position=np.outer(tp * 1e-6, v), orientation=np.tile([0, 0, 0, 1.0], (len(tp), 1)),
+                       t_start=0, t_end=duration_us + 1)
+    return {"events": ev, "poses": poses}
