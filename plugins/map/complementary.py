@@ -69,7 +69,7 @@ class Complementary(HighPass):
     """
 
     name = "map.complementary"
-    inputs: Mapping[str, Port] = {
+    inputs = {
         "events": Port(Kind.EVENTS, doc="the events to integrate"),
         "frames": Port(Kind.FRAMES, required=False, doc="APS frames the estimate relaxes to (the low frequencies)"),
     }

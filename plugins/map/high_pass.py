@@ -77,7 +77,7 @@ class HighPass(Operator):
     """
 
     name = "map.high_pass"
-    inputs: Mapping[str, Port] = {"events": Port(Kind.EVENTS, doc="the events to integrate")}
+    inputs = {"events": Port(Kind.EVENTS, doc="the events to integrate")}
     produces = (Kind.MAPS,)
 
     #: For the conformance check: short windows over the 40 ms stream.
