@@ -85,7 +85,9 @@ def sender(msgs: list[bytes], after_s: float = 0.0, secret: bytes = b"", session
             if secret:
                 head = b""
                 while len(head) < 4 + HEADER + 16:
-                    head += await s.receive_some(4 + HEADER + 16 - len(head))
+                    got = await s.receive_some(4 + HEADER + 16 - len(head))
+                    assert got, "closed before the challenge"
+                    head += got
                 nonce = nonce_of(head[4:])
                 assert nonce is not None
                 await s.send_all(frame(auth(secret, nonce, session)))
