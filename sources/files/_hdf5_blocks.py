@@ -126,8 +126,8 @@ class BlockReader:
                 except OSError as e:
                     failed.append((a, b, d, e))
             out.append(col)
-        for a, b, d, e in sorted(failed, key=lambda f: f[0]):  # the first rows first, whichever the dataset
-            self._bad(d, a, b, e, keep, i, count)
+        for a, b, d, err in sorted(failed, key=lambda f: f[0]):  # the first rows first, whichever the dataset
+            self._bad(d, a, b, err, keep, i, count)
         return out, keep
 
     def _get(self, d: Any, a: int, b: int) -> np.ndarray:
