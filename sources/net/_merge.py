@@ -51,6 +51,7 @@ class Merger:
         self._marks: dict[int, dict[type, int]] = {}
         self._live: list[int] = []
         self._count = 0
+        self.refused = False
 
     def join(self, sid: int) -> None:
         self._live.append(sid)
@@ -66,26 +67,57 @@ class Merger:
         (the first events added fix them)."""
         return self.schema is None or event_schema(pkt) == self.schema
 
+    def _fit(self, pkt: Packet) -> bool:
+        """False for events of another schema than the stream's (the first
+        events fix it)."""
+        if not isinstance(pkt, EventPacket):
+            return True
+        if not self.fits(pkt):
+            return False
+        if self.schema is None and len(pkt):
+            self.schema = event_schema(pkt)
+        return True
+
+    def _trim(self, pkt: Packet) -> Packet | None:
+        """``pkt`` without what lies before the output's time (counted);
+        None when nothing is left."""
+        end = self._out_end.get(type(pkt))
+        if end is None or pkt.t_start >= end:
+            return pkt
+        keep = pkt.slice_time(end, None)
+        self.behind += len(pkt) - len(keep)
+        return keep if keep.t_end > keep.t_start else None
+
     def add(self, sid: int, pkt: Packet) -> bool:
         """A packet of sender ``sid`` (in its own time order); False (and
         nothing added) for events whose schema is not the stream's."""
-        kind = type(pkt)
-        if isinstance(pkt, EventPacket):
-            if not self.fits(pkt):
-                return False
-            if self.schema is None and len(pkt):
-                self.schema = event_schema(pkt)
-        end = self._out_end.get(kind)
-        if end is not None and pkt.t_start < end:
-            keep = pkt.slice_time(end, None)
-            self.behind += len(pkt) - len(keep)
-            if keep.t_end <= keep.t_start:
-                return True
-            pkt = keep
-        self._marks[sid][kind] = pkt.t_end
-        self._pending[sid].setdefault(kind, []).append(pkt)
-        self._count += len(pkt)
+        if not self._fit(pkt):
+            return False
+        kept = self._trim(pkt)
+        if kept is not None:
+            self._marks[sid][type(kept)] = kept.t_end
+            self._pending[sid].setdefault(type(kept), []).append(kept)
+            self._count += len(kept)
         return True
+
+    def through(self, sid: int, pkt: Packet) -> Packet | None:
+        """The fast path of a lone sender with nothing pending: ``pkt`` goes
+        straight out (trimmed to the output's time; None when nothing is
+        left of it or it does not fit). Otherwise it is added as by
+        :meth:`add` (None). :attr:`refused` tells whether it did not fit."""
+        if self._live != [sid] or any(q for d in self._pending.values() for q in d.values()):
+            self.refused = not self.add(sid, pkt)
+            return None
+        self.refused = not self._fit(pkt)
+        kept = None if self.refused else self._trim(pkt)
+        if kept is None:
+            return None
+        kind = type(kept)
+        end = self._out_end.get(kind)
+        if end is not None and kept.t_start > end:  # a gap (a new sender): the output covers it
+            kept = kept._take_slice(0, len(kept), end, kept.t_end)
+        self._out_end[kind] = self._marks[sid][kind] = kept.t_end
+        return kept
 
     def _watermark(self) -> int | None:
         marks = [min(m.values()) if m else None for m in (self._marks[s] for s in self._live)]

@@ -66,9 +66,14 @@ class Run:
         """Add sender ``sid``'s packets and send what the merge releases;
         False when events of another sensor or columns than the stream's
         came (nothing of them added)."""
+        m, ok = self.merger, True
         async with self._lock:
-            ok = all(self.merger.add(sid, p) for p in pkts)
-            await self._send(self.merger.release())
+            for p in pkts:
+                q = m.through(sid, p)
+                ok = ok and not m.refused
+                if q is not None:
+                    await self._send([q])
+            await self._send(m.release())
         return ok
 
     async def _send(self, pkts: list[Packet]) -> None:
