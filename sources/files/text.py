@@ -445,10 +445,9 @@ class TextSource(FileSource):
                 size += c.size
                 if events > _HOLD or size > _HOLD_BYTES:  # too much to hold: a pass for the extent only
                     held = []
-                    self.skipped_events, self.skipped_ranges = 0, []  # counted in the pass that keeps the events
                     for _ in self._parse(lambda n: _POOL.take(n), state):
                         pass
-                    self.skipped_events, self.skipped_ranges = 0, []
+                    self.skipped_events, self.skipped_ranges = 0, []  # counted by the pass that keeps the events
                     break
             self.close()
             sensor = (int(state[1]) + 1, int(state[2]) + 1)
