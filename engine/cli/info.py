@@ -37,6 +37,9 @@ def main(args: argparse.Namespace) -> int:
     for key in ("time_unit", "columns"):  # text files: what was assumed, and why
         if isinstance(info.get(key), str):
             lines.append((key.replace("_", " "), info[key]))
+    if info.get("indexed"):  # AEDAT 4.0: counted from the packet table, not decoded
+        lines.append(("counts", "from the file's packet table, not decoded (FILE?use_index=false decodes "
+                                "every packet and reports one that is corrupt)"))
     if info.get("skipped_events"):
         lines.append(("skipped", str(info["skipped_events"])))
     for k, v in lines:

@@ -236,7 +236,18 @@ class EventAssembler:
     per ``skip_bad``), keeps runs of equal timestamps in one packet (the last
     run of a chunk waits for the next chunk), clips to ``[t_min, t_max)``
     and makes the intervals tile time without gaps.
+
+    With ``skip_bad``, a time out of order is resolved by dropping the fewest
+    events that leave the rest in order (:func:`._kernels.longest_rise`): a
+    corrupt time, too high or too low, costs its own event, not everything
+    after it. To judge a too-high time by the events after it, the last
+    :attr:`LOOKAHEAD` events of each chunk wait for the next one (a packet
+    then ends just after its last event).
     """
+
+    #: Events held back for judging with the next chunk (``skip_bad``): a
+    #: run of up to this many bad times at a chunk's end is recognised.
+    LOOKAHEAD = 4096
 
     def __init__(self, src: FileSource, sensor: tuple[int, int], *, offset: int = 0,
                  check_geometry: bool = True) -> None:
@@ -247,6 +258,8 @@ class EventAssembler:
         self.last_t: int | None = None
         self.next_start: int | None = src.t_start_us
         self.carry: tuple[np.ndarray, ...] | None = None
+        self.floor: int | None = None  # skip_bad: events below (emitted time) are dropped
+        self.carry_from = 0  # skip_bad: byte offset of the chunk the oldest held-back event came from
         self.count = 0
         self._cols: tuple[np.ndarray, ...] | None = None
         self._k = 0
@@ -303,11 +316,24 @@ class EventAssembler:
             m = k + int(np.searchsorted(t[k:m], hi, side="left"))
         if m <= a:
             return []
-        i = a + int(np.searchsorted(t[a:m], t[m - 1], side="left"))
+        return self._split(t, x, y, p, a, m, k, byte_offset)
+
+    def _split(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, a: int, m: int, old: int,
+               byte_offset: int) -> list[EventPacket]:
+        """Events ``[a, m)``: a packet of the complete ones, the rest held
+        back (the last run of equal times; with ``skip_bad``, at least the
+        last :attr:`LOOKAHEAD` events, and the packet ends after its last)."""
+        skip = self.src.skip_bad
+        i = a + int(np.searchsorted(t[a:m], t[max(a, m - self.LOOKAHEAD) if skip else m - 1], side="left"))
         self.carry = (t[i:m].copy(), x[i:m].copy(), y[i:m].copy(), p[i:m].copy())
+        if i >= old:  # the first ``old`` events were held back before, from an earlier chunk
+            self.carry_from = byte_offset
         if i == a:
             return []
-        return [self._packet(t[a:i], x[a:i], y[a:i], p[a:i], int(t[i]))]
+        end = int(t[i - 1]) + 1 if skip else int(t[i])
+        if skip:
+            self.floor = end
+        return [self._packet(t[a:i], x[a:i], y[a:i], p[a:i], end)]
 
     def push(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray,
              byte_offset: int = 0, where: Any = None) -> list[EventPacket]:
@@ -316,21 +342,52 @@ class EventAssembler:
         function building that map (called only when something is wrong)."""
         if self.offset:
             t = t + self.offset
-        t, x, y, p = self._check(t, x, y, p, byte_offset, where)
+        old = 0
+        if self.src.skip_bad:
+            t, x, y, p, old = self._resync(t, x, y, p, byte_offset, where)
+        else:
+            t, x, y, p = self._check(t, x, y, p, byte_offset, where)
         if t.shape[0] == 0:
             return []
         t, x, y, p = self._clip(t, x, y, p)
         if self.carry is not None:
-            ct, cx, cy, cp = self.carry
-            t, x, y, p = (np.concatenate(a) for a in ((ct, t), (cx, x), (cy, y), (cp, p)))
+            old = self.carry[0].shape[0]
+            t, x, y, p = (np.concatenate(a) for a in zip(self.carry, (t, x, y, p)))
             self.carry = None
         if t.shape[0] == 0:
             return []
-        i = int(np.searchsorted(t, t[-1], side="left"))
-        self.carry = (t[i:], x[i:], y[i:], p[i:])
-        if i == 0:
-            return []
-        return [self._packet(t[:i], x[:i], y[:i], p[:i], int(t[i]))]
+        return self._split(t, x, y, p, 0, t.shape[0], old, byte_offset)
+
+    def _resync(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, byte_offset: int,
+                where: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+        """``skip_bad``: the held-back events and these, less the fewest that
+        break time order or lie outside the sensor (counted as skipped), and
+        how many of those kept were held back."""
+        from . import _kernels as K
+
+        k = 0
+        if self.carry is not None:  # judged again, with the events after them
+            k = self.carry[0].shape[0]
+            t, x, y, p = (np.concatenate(a) for a in zip(self.carry, (t, x, y, p)))
+            self.carry = None
+        ok = np.ones(t.shape[0], np.bool_)
+        if self.check_geometry:
+            ok = (x < self.sensor[0]) & (y < self.sensor[1])
+        keep = np.empty(t.shape[0], np.bool_)
+        kept = K.longest_rise(t, ok, -(1 << 62) if self.floor is None else self.floor, keep)
+        if kept < t.shape[0]:
+            bad = np.flatnonzero(~keep)
+            if callable(where):
+                where = where()
+            new = bad[bad >= k] - k
+            at = np.asarray(where)[new] if where is not None else np.full(new.shape[0], byte_offset, np.int64)
+            lo = [self.carry_from] if new.shape[0] < bad.shape[0] else []  # held back: in an earlier chunk
+            hi = [byte_offset - 1] if lo else []
+            self.src._note_skip(min(lo + at.tolist()), max(hi + at.tolist()), int(bad.shape[0]))
+            t, x, y, p = t[keep], x[keep], y[keep], p[keep]
+        if t.shape[0]:
+            self.last_t = int(t[-1])
+        return t, x, y, p, int(keep[:k].sum())
 
     def finish(self) -> list[EventPacket]:
         """End of file: the held-back run, or an empty packet for the range."""
@@ -386,21 +443,13 @@ class EventAssembler:
         if callable(where):
             where = where()
         at = int(where[i]) if where is not None else byte_offset
-        if not self.src.skip_bad:
-            w, h = self.sensor
-            if x[i] >= w or y[i] >= h:
-                msg = f"event ({int(x[i])}, {int(y[i])}) lies outside the {w}x{h} sensor"
-            else:
-                before = prev if i == 0 else int(np.max(t[:i]))
-                msg = f"timestamp decreases: {int(t[i])} µs after {before} µs"
-            raise FormatError(msg, path=self.src.path, offset=at)
-        keep = ~bad
-        dropped = int(bad.sum())
-        self.src._note_skip(at, int(where[np.flatnonzero(bad)[-1]]) if where is not None else at, dropped)
-        t, x, y, p = t[keep], x[keep], y[keep], p[keep]
-        if t.shape[0]:
-            self.last_t = int(t[-1])
-        return t, x, y, p
+        w, h = self.sensor
+        if x[i] >= w or y[i] >= h:
+            msg = f"event ({int(x[i])}, {int(y[i])}) lies outside the {w}x{h} sensor"
+        else:
+            before = prev if i == 0 else int(np.max(t[:i]))
+            msg = f"timestamp decreases: {int(t[i])} µs after {before} µs"
+        raise FormatError(msg, path=self.src.path, offset=at)
 
 
 def record_offsets(at: int, size: int, rows: int | np.ndarray) -> np.ndarray:

@@ -78,6 +78,8 @@ def decode_evt2(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
             raw = w & 0x0FFFFFFF
             if have == 1 and raw < last_raw and last_raw - raw > (1 << 27):
                 wraps += 1
+            elif have == 1 and raw > last_raw and raw - last_raw > (1 << 27):
+                wraps -= 1  # a step back across a wrap (a corrupt word): unrolled to the nearest time
             last_raw = raw
             th = (wraps << 28) + raw
             have = 1
@@ -241,6 +243,61 @@ def check_events(t, x, y, lo, hi, offset, prev, w, h):  # pragma: no cover - num
     return -1
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _wrap_step(have, last, raw, half):  # pragma: no cover - numba
+    """+1 when ``raw`` falls from ``last`` by more than ``half`` (a wrap),
+    -1 when it rises by more than ``half`` (a step back across a wrap: a
+    corrupt value), else 0: times unroll to the nearest, so a single bad
+    value costs that value alone."""
+    if have == 0:
+        return 0
+    if raw < last and last - raw > half:
+        return 1
+    if raw > last and raw - last > half:
+        return -1
+    return 0
+
+
+# --- resynchronisation after bad times (skip_bad) ---------------------------------
+@njit(cache=True, nogil=True)
+def longest_rise(t, ok, floor, keep):  # pragma: no cover - numba
+    """Mark in ``keep`` a longest non-decreasing run of ``t`` (a subsequence)
+    among the events with ``ok`` set and ``t >= floor``; returns its length.
+
+    Dropping the fewest events that break time order removes a corrupt time
+    (too high or too low) alone and keeps everything after it. Among runs of
+    equal length, the one ending lowest is kept (a too-high time is dropped
+    before the good ones after it). Patience sorting: O(n log n)."""
+    n = t.shape[0]
+    tails = np.empty(n, np.int64)  # smallest last time of a run of each length
+    tail_i = np.empty(n, np.int64)
+    back = np.empty(n, np.int64)
+    runs = 0
+    for i in range(n):
+        keep[i] = False
+        v = t[i]
+        if not ok[i] or v < floor:
+            continue
+        lo = 0
+        hi = runs
+        while lo < hi:  # first run whose last time is above v
+            mid = (lo + hi) >> 1
+            if tails[mid] > v:
+                hi = mid
+            else:
+                lo = mid + 1
+        tails[lo] = v
+        tail_i[lo] = i
+        back[i] = tail_i[lo - 1] if lo > 0 else -1
+        if lo == runs:
+            runs += 1
+    k = tail_i[runs - 1] if runs > 0 else -1
+    while k >= 0:
+        keep[k] = True
+        k = back[k]
+    return runs
+
+
 # --- Prophesee DAT (EventCD / Event2d: 32-bit time, 14-bit x, 14-bit y, 4-bit p) -----
 # state: 0 wraps, 1 last raw time, 2 have last
 DAT_STATE = 3
@@ -263,18 +320,20 @@ def decode_dat(records, state, t, x, y, p):  # pragma: no cover - numba
         xo = x[i:j]
         yo = y[i:j]
         po = p[i:j]
-        # a wrap is a fall of more than half the 32-bit range
+        # a wrap is a fall of more than half the 32-bit range; a rise of more
+        # than half is a step back across one (a corrupt record): each time is
+        # unrolled to the one nearest the previous, so one bad record cannot
+        # shift every later time by 2^32 µs
         prev = last if have == 1 else np.int64(r[0] & np.uint64(0xFFFFFFFF))
-        drop = np.int64(0)
+        jump = np.int64(0)
         for k in range(j - i):
             raw = np.int64(r[k] & np.uint64(0xFFFFFFFF))
-            drop = max(drop, prev - raw)
+            jump = max(jump, abs(prev - raw))
             prev = raw
-        if drop > half:
+        if jump > half:
             for k in range(j - i):
                 raw = np.int64(r[k] & np.uint64(0xFFFFFFFF))
-                if have == 1 and raw < last and last - raw > half:
-                    wraps += 1
+                wraps += _wrap_step(have, last, raw, half)
                 last = raw
                 have = 1
                 to[k] = (wraps << 32) + raw
@@ -310,19 +369,21 @@ def decode_aedat2(words, state, davis, w, h, t, x, y, p, where, imu_t, imu_v):  
     APS/IMU, bits 22-30 y (bottom-left), bits 12-21 x (mirrored), bit 11
     polarity (1 = ON), bit 10 external event; IMU
     words are APS-type with bits 10-11 = 3, bits 28-30 the sample's component
-    and bits 12-27 its value (7 words per sample).
-    Returns (n_events, n_imu_words)."""
+    and bits 12-27 its value (7 words per sample). A DVS128 address with any
+    of bits 16-31 set is no address (a corrupt record): not decoded, counted.
+    Returns (n_events, n_imu_words, first bad record or -1, n_bad)."""
     wraps = state[0]
     last = state[1]
     have = state[2]
     n = 0
     ni = 0
+    bad = -1
+    nbad = 0
     m = words.shape[0] // 2
     for i in range(m):
         a = np.int64(words[2 * i])
         raw = np.int64(words[2 * i + 1])
-        if have == 1 and raw < last and last - raw > (np.int64(1) << 31):
-            wraps += 1
+        wraps += _wrap_step(have, last, raw, np.int64(1) << 31)
         last = raw
         have = 1
         ts = (wraps << 32) + raw
@@ -341,6 +402,11 @@ def decode_aedat2(words, state, davis, w, h, t, x, y, p, where, imu_t, imu_v):  
             y[n] = h - 1 - ((a >> 22) & 0x1FF)
             p[n] = 1 if (a >> 11) & 1 else -1
         else:
+            if a >> 16:
+                if bad < 0:
+                    bad = i
+                nbad += 1
+                continue
             if (a >> 15) & 1:
                 continue
             t[n] = ts
@@ -352,4 +418,4 @@ def decode_aedat2(words, state, davis, w, h, t, x, y, p, where, imu_t, imu_v):  
     state[0] = wraps
     state[1] = last
     state[2] = have
-    return n, ni
+    return n, ni, bad, nbad

@@ -134,7 +134,13 @@ class Aedat2Source(FileSource):
             t, x, y = np.empty(m, np.int64), np.empty(m, np.uint16), np.empty(m, np.uint16)
             p, where = np.empty(m, np.int8), np.empty(m, np.int64)
             imu_t, imu_v = np.empty(m, np.int64), np.empty((m, 2), np.int64)
-            n, ni = K.decode_aedat2(words, state, davis, sensor[0], sensor[1], t, x, y, p, where, imu_t, imu_v)
+            n, ni, bad, nbad = K.decode_aedat2(words, state, davis, sensor[0], sensor[1], t, x, y, p, where,
+                                               imu_t, imu_v)
+            if nbad:
+                if not self.skip_bad:
+                    self._fail(f"address 0x{int(words[2 * bad]):08x} is no DVS128 address (bits 16-31 set)",
+                               pos + 8 * bad)
+                self._note_skip(pos + 8 * bad, pos + len(buf) - 1, int(nbad))
             yield from asm.push(t[:n], x[:n], y[:n], p[:n], pos, pos + 8 * where[:n])
             if ni:
                 yield from imu.push(imu_t[:ni], imu_v[:ni])

@@ -139,6 +139,11 @@ class Aedat4Source(FileSource):
     threads, into one :class:`tectum.EventPacket` per read rather than one
     per file packet; other compressions go through Python one packet at a
     time. Only the first events stream is read (one sensor per source).
+
+    With ``skip_bad``, a packet that does not decode is skipped and counted
+    in :attr:`skipped_events` as the elements (events, samples, frames) the
+    packet table lists for it (1 when the file has no table); when a packet
+    header is broken, reading resumes at the next packet the table lists.
     """
 
     name = "aedat4"
@@ -156,6 +161,7 @@ class Aedat4Source(FileSource):
         if not set(wanted) <= set(names):
             raise ValueError(f"streams must be among {list(names)}, got {streams!r}")
         self._kinds = {names[w] for w in wanted}
+        self._tab: np.ndarray | None = None  # the packet table, for skip_bad's counts and resumption
 
     @classmethod
     def sniff(cls, head: bytes) -> bool:
@@ -207,8 +213,10 @@ class Aedat4Source(FileSource):
         ranged = self.t_start_us is not None or self.t_end_us is not None
         # the table also saves reading frames (most of a DAVIS file) when they are not asked for
         frames_unread = any(s.type_id == "FRME" and s.id not in want for s in streams.values())
-        entries = self._table(f, comp, dtp, start) if self.use_index and (ranged or frames_unread) else None
-        if entries is not None and (ranged or _tiles(entries, start, dtp)):
+        wants_table = self.use_index and (ranged or frames_unread or self.skip_bad)
+        entries = self._table(f, comp, dtp, start) if wants_table else None
+        self._tab = entries if self.skip_bad else None
+        if entries is not None and (ranged or frames_unread) and (ranged or _tiles(entries, start, dtp)):
             pick = np.isin(entries[:, 1], list(want)) & (entries[:, 5] >= lo) & (entries[:, 4] < hi)
             chunks = self._indexed(f, entries[pick, 0] - 8, entries[pick, 0] + entries[pick, 2], comp)
         else:
@@ -252,23 +260,43 @@ class Aedat4Source(FileSource):
                 if k < rows.shape[0] or status:
                     break
             if status or (i < have and (have < n or pos >= limit)):  # broken, or cut by the end of the data
-                self._bad_tail(buf, base, i, have, limit)
-                return
+                resume = self._bad_tail(buf, base, i, have, limit)
+                if resume is None:
+                    return
+                pos, carry, need = resume, carry[:0], 8
+                f.seek(pos)
+                continue
             if have < n:
                 return
             carry = buf[i:have].copy()
             need = 8 + int.from_bytes(carry[4:8].tobytes(), "little") if carry.shape[0] >= 8 else 8
 
-    def _bad_tail(self, buf: np.ndarray, base: int, i: int, have: int, limit: int) -> None:
+    def _bad_tail(self, buf: np.ndarray, base: int, i: int, have: int, limit: int) -> int | None:
         """The data ends (or breaks) at ``buf[i]`` inside a packet: raise, or
-        with ``skip_bad`` count the rest as skipped."""
+        with ``skip_bad`` count what is lost as skipped and return where the
+        next packet the table lists starts (None: nothing to resume at)."""
         at = base + i
         if not self.skip_bad:
             if have - i < 8:
                 self._fail("file ends inside a packet header (truncated)", at)
             sid, size = struct.unpack_from("<ii", buf.data, i)
             self._fail(f"packet size {size} (stream {sid}) runs past the end of the data (truncated or corrupt)", at)
-        self._note_skip(at, limit - 1, 1)
+        heads = self._tab[:, 0] - 8 if self._tab is not None else np.empty(0, np.int64)
+        after = heads[heads > at]
+        resume = int(after.min()) if after.shape[0] else None
+        end = limit if resume is None else resume
+        self._note_skip(at, end - 1, self.lost(at, end))
+        return resume
+
+    def lost(self, first: int, end: int) -> int:
+        """Elements (events, samples, frames) the packet table lists in the
+        packets whose headers lie in ``[first, end)``: what a skip of those
+        bytes loses (1 when the file has no table, or lists none there)."""
+        if self._tab is None:
+            return 1
+        heads = self._tab[:, 0] - 8
+        inside = (heads >= first) & (heads < end)
+        return int(self._tab[inside, 3].sum()) if inside.any() else 1
 
     def _indexed(self, f: Any, heads: np.ndarray, ends: np.ndarray,
                  comp: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
@@ -301,31 +329,45 @@ class Aedat4Source(FileSource):
                 if got < b - a:
                     self._fail("file ends inside a packet (truncated)", a + got)
                 o += got
-            rows = self._scan_all(buf, comp)
-            span = np.searchsorted(at, rows[:, 0] - 8, side="right") - 1
-            rows[:, 8] = np.array([s[0] for s in spans[i:j]], np.int64)[span] + rows[:, 0] - 8 - at[span]
+            first = np.array([s[0] for s in spans[i:j]], np.int64)
             asked = np.array([a for sp in spans[i:j] for a in sp[2]], np.int64)
+            into = at[np.searchsorted(first, asked, side="right") - 1] + asked - first[
+                np.searchsorted(first, asked, side="right") - 1]  # where each asked packet starts in buf
+            rows = self._scan_all(buf, comp, np.sort(into))
+            span = np.searchsorted(at, rows[:, 0] - 8, side="right") - 1
+            rows[:, 8] = first[span] + rows[:, 0] - 8 - at[span]
             missing = asked[~np.isin(asked, rows[:, 8])]
-            if missing.shape[0]:
+            if missing.shape[0] and not self.skip_bad:
                 self._fail("packet table entry does not match the packet header", int(missing[0]))
+            for a in missing.tolist():
+                self._note_skip(a, a + 7, self.lost(a, a + 1))
             yield buf, rows
             i = j
 
-    def _scan_all(self, buf: np.ndarray, comp: int) -> np.ndarray:
+    def _scan_all(self, buf: np.ndarray, comp: int, starts: np.ndarray) -> np.ndarray:
         """The rows of the packets in ``buf`` (from its start, while they
-        parse), with room for the file offset (the last column)."""
+        parse; where one does not, from the next of ``starts``, the buffer
+        offsets of the packets the table lists), with room for the file
+        offset (the last column)."""
         rows = np.empty((4096, 9), np.int64)
         found, at = [], 0
         while at < buf.shape[0]:
             k, at, _ = AK.scan_packets(buf, at, buf.shape[0], _MAX_PACKET, comp in (1, 2), rows)
-            if not k:
-                break
-            found.append(rows[:k].copy())
+            if k:
+                found.append(rows[:k].copy())
+            if k < rows.shape[0] and at < buf.shape[0]:  # stopped at a broken header: resume after it
+                nxt = starts[starts > at]
+                if not nxt.shape[0]:
+                    break
+                at = int(nxt[0])
         return np.concatenate(found) if found else rows[:0].copy()
 
     def info(self) -> dict[str, Any]:
-        """From the packet table when there is one (no decoding)."""
-        entries = self.packet_table()
+        """From the packet table when there is one (no decoding: the counts
+        are the table's, and a packet that does not decode goes unnoticed;
+        ``indexed`` says so), else, or with ``use_index=False``, by decoding
+        every packet."""
+        entries = self.packet_table() if self.use_index else None
         if entries is None or self.t_start_us is not None or self.t_end_us is not None:
             return super().info()
         ev_ids = {s.id for s in self.streams.values() if s.type_id == "EVTS"}
@@ -421,13 +463,13 @@ class _Batch:
                 k = getattr(e, "packet", 0)
                 if not self.src.skip_bad:
                     self.src._fail(f"packet of a {type_id} stream does not decode: {e}", poss[k])
-                self.src._note_skip(poss[k], poss[k] + 8 + len(bufs[k]) - 1, 1)
+                self.src._note_skip(poss[k], poss[k] + 8 + len(bufs[k]) - 1, self.src.lost(poss[k], poss[k] + 1))
                 bufs, poss = bufs[:k] + bufs[k + 1:], poss[:k] + poss[k + 1:]
 
     def _bad(self, sid: int | None, what: str, pos: int, size: int) -> None:
         if not self.src.skip_bad:
             self.src._fail(f"packet of stream {sid} ({self.kinds.get(sid or 0, '?')}) {what}", pos)
-        self.src._note_skip(pos, pos + 8 + size - 1, 1)
+        self.src._note_skip(pos, pos + 8 + size - 1, self.src.lost(pos, pos + 1))
 
     def _samples(self, sid: int, parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[list[Any], list[int]]:
         """The decompressed packets of an IMU or trigger stream, and where

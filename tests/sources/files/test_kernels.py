@@ -117,25 +117,28 @@ def test_trigger_words_give_channel_and_value():
 
 
 def ref_dat(times, data):
-    out, wraps, last = [], 0, None
+    """Each 32-bit time unrolled to the value nearest the previous one (a fall
+    of more than half the range is a wrap, a rise of more than half a step
+    back across one)."""
+    out, t = [], None
     for raw, d in zip(times, data):
-        if last is not None and raw < last and last - raw > 1 << 31:
-            wraps += 1
-        last = raw
-        out.append(((wraps << 32) + raw, d & 0x3FFF, (d >> 14) & 0x3FFF, 1 if d >> 28 else -1))
+        t = raw if t is None else t + ((raw - t + (1 << 31)) % (1 << 32)) - (1 << 31)
+        out.append((t, d & 0x3FFF, (d >> 14) & 0x3FFF, 1 if d >> 28 else -1))
     return out
 
 
 @settings(max_examples=40, deadline=None)
 @given(st.integers(1, 12_000), st.lists(st.integers(0, 12_000), max_size=3), st.integers(0, 2**32 - 1),
-       st.integers(0, 4))
-def test_dat_unrolls_wraps_in_any_chunking(n, cuts, t0, n_wraps):
-    """32-bit times falling by more than half their range count one wrap,
+       st.integers(0, 6), st.integers(0, 2))
+def test_dat_unrolls_wraps_in_any_chunking(n, cuts, t0, n_jumps, n_back):
+    """32-bit times falling by more than half their range count one wrap, a
+    time rising by more than half (a bad record) steps back across one,
     wherever the wraps and the chunk boundaries (vector blocks) fall."""
     rng = np.random.default_rng(n)
     steps = rng.integers(0, 1 << 20, n).astype(np.int64)
-    steps[rng.integers(0, n, n_wraps)] += 1 << 31  # jumps that wrap the 32-bit time
+    steps[rng.integers(0, n, n_jumps)] += (1 << 31) - (1 << 20)  # large jumps: two make a wrap
     times = ((t0 + np.cumsum(steps)) & 0xFFFFFFFF).astype(np.uint64)
+    times[rng.integers(0, n, n_back)] ^= np.uint64(1 << 31)  # corrupt records, half the range away
     data = rng.integers(0, 1 << 32, n, dtype=np.uint64)
     rec = times | (data << np.uint64(32))
     state = np.zeros(K.DAT_STATE, np.int64)
