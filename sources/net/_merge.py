@@ -171,7 +171,7 @@ class Merger:
         end = max(p.t_end for p in parts)
         self._out_end[kind] = end
         if kind is EventPacket and self.schema is not None:  # ticks of another sensor (before it was fixed)
-            parts = [p for p in parts if event_schema(p) == self.schema] or parts[:1]  # type: ignore[arg-type]
+            parts = [p for p in parts if isinstance(p, EventPacket) and event_schema(p) == self.schema] or parts[:1]
         if len(parts) == 1:
             p = parts[0]
             one = p if (p.t_start, p.t_end) == (start, end) else p._take_slice(0, len(p), start, end)
