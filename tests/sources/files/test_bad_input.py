@@ -3,7 +3,9 @@ fuzzing every parser never crashes, hangs or returns invalid packets."""
 
 from __future__ import annotations
 
+import importlib.util
 import os
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -229,3 +231,126 @@ def test_empty_file_is_an_error(ext: str, verb: str, tmp_path: Path, capsys) -> 
     code, err = _cli(["info", str(f)] if verb == "info" else ["convert", "--skip-bad", str(f), str(out)], capsys)
     assert code != 0 and len(err) == 1 and "error:" in err[0], err
     assert not out.exists() and [p.name for p in tmp_path.iterdir()] == [f.name]
+
+
+# -- damage with skip_bad, over every binary format (issue 20, items 14-15) -----------------
+def _aedat2_bytes(ev: EventPacket) -> tuple[bytes, int]:
+    """jAER DVS128 layout: big-endian (address, time) pairs (x mirrored, y from the bottom, bit 0 OFF)."""
+    head = b"#!AER-DAT2.0\r\n# AEChip: ch.unizh.ini.jaer.chip.retina.DVS128\r\n"
+    pairs = np.empty((len(ev), 2), ">u4")
+    pairs[:, 0] = ((127 - ev.y.astype(np.int64)) << 8) | ((127 - ev.x.astype(np.int64)) << 1) | (ev.p < 0)
+    pairs[:, 1] = ev.t
+    return head + pairs.tobytes(), len(head)
+
+
+def _aedat31_bytes(ev: EventPacket, per: int = 100) -> tuple[bytes, int]:
+    """libcaer polarity packets (28-byte header, 8-byte events: valid bit,
+    polarity bit 1, y bits 2-16, x bits 17-31; int32 µs)."""
+    head = b"#!AER-DAT3.1\r\n#Source 1: DAVIS346\r\n#!END-HEADER\r\n"
+    out = [head]
+    for k in range(0, len(ev), per):
+        n = min(per, len(ev) - k)
+        out.append(struct.pack("<hhiiiiii", 1, 1, 8, 4, 0, n, n, n))  # polarity, source 1, 8-byte events
+        rec = np.empty((n, 2), "<u4")
+        rec[:, 0] = 1 | ((ev.p[k:k + n] > 0).astype(np.uint32) << 1) | (ev.y[k:k + n].astype(np.uint32) << 2) | (
+            ev.x[k:k + n].astype(np.uint32) << 17)
+        rec[:, 1] = ev.t[k:k + n]
+        out.append(rec.tobytes())
+    return b"".join(out), len(head)
+
+
+def _bag_bytes(ev: EventPacket, path: Path) -> bytes:
+    from rosbags.rosbag1 import Writer
+
+    from tectum.sources.files.rosbag import typestore
+
+    ts = typestore(1)
+    T = ts.types
+    Time = T["builtin_interfaces/msg/Time"]
+    with Writer(path) as w:
+        c = w.add_connection("/dvs/events", "dvs_msgs/msg/EventArray", typestore=ts)
+        for k in range(0, len(ev), 100):
+            evs = [T["dvs_msgs/msg/Event"](x=int(x), y=int(y), ts=Time(sec=1, nanosec=int(t) * 1000), polarity=bool(p > 0))
+                   for t, x, y, p in zip(ev.t[k:k + 100], ev.x[k:k + 100], ev.y[k:k + 100], ev.p[k:k + 100])]
+            hdr = T["std_msgs/msg/Header"](seq=k, stamp=evs[0].ts, frame_id="cam")
+            msg = T["dvs_msgs/msg/EventArray"](header=hdr, height=48, width=64, events=evs)
+            w.write(c, 1_000_000_000 + int(ev.t[k]) * 1000, ts.serialize_ros1(msg, "dvs_msgs/msg/EventArray"))
+    return path.read_bytes()
+
+
+#: format -> (source name, file extension, record size in bytes (0: no fixed records), events a byte can yield)
+DAMAGED = {"evt2": ("evt2", ".raw", 0, 1 / 4), "evt3": ("evt3", ".raw", 0, 12 / 2), "dat": ("dat", ".dat", 8, 1 / 8),
+           "npy": ("npy", ".npy", 0, 1), "aedat2": ("aedat2", ".aedat", 8, 1 / 8),
+           "aedat31": ("aedat31", ".aedat", 8, 1 / 8), "aedat4": ("aedat4", ".aedat4", 0, 1),
+           "rosbag": ("rosbag", ".bag", 0, 1 / 13)}
+
+
+@pytest.fixture(scope="module")
+def damage_files(small_files, tmp_path_factory) -> dict[str, tuple[bytes, int]]:
+    """Each format's small file of :func:`sample` and where its records start."""
+    ev = sample()
+    out = _Files()
+    for name in ("evt2", "evt3"):
+        out[name] = (small_files[name], small_files[name].index(b"% end\n") + 6)
+    out["dat"] = (small_files["dat"], len(small_files["dat"]) - 8 * len(ev))
+    itemsize = (len(small_files["npy"]) - 128) // len(ev)
+    out["npy"] = (small_files["npy"], len(small_files["npy"]) - itemsize * len(ev))
+    out["aedat2"] = _aedat2_bytes(ev)
+    out["aedat31"] = _aedat31_bytes(ev)
+    out["aedat4"] = (small_files["aedat4"], 0)
+    for name, cls_name, kw in (("aedat2", "aedat2", {"sensor": "128x128"}), ("aedat31", "aedat31", {})):
+        f = tmp_path_factory.mktemp("ok") / "ok.aedat"
+        f.write_bytes(out[name][0])
+        got = concat([q for q in next(c for c in SOURCES if c.name == cls_name)(str(f), **kw).packets()])
+        assert same_events(got, ev), name  # the builders write what the readers read
+    if importlib.util.find_spec("rosbags") is not None:
+        out["rosbag"] = (_bag_bytes(ev, tmp_path_factory.mktemp("bag") / "s.bag"), 0)
+    return out
+
+
+@pytest.mark.abuse
+@pytest.mark.parametrize("fmt", list(DAMAGED))
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_fuzz_damage_with_skip_bad(fmt: str, data, damage_files, tmp_path_factory) -> None:
+    """Cut, overwritten or spliced files read with skip_bad: a FormatError
+    naming the file (damage the reader cannot pass) or packets obeying the
+    contract (pixels on the sensor, time never decreasing, across packets
+    too); never more events than the bytes can hold; and where single
+    bytes of fixed-size records were overwritten, every record is either
+    kept or counted as skipped."""
+    if fmt not in damage_files:
+        pytest.skip("rosbags not installed")
+    name, ext, size, per_byte = DAMAGED[fmt]
+    raw, head = damage_files[fmt]
+    out = bytearray(raw)
+    op = data.draw(st.sampled_from(["truncate", "flip", "flip-body", "splice"]))
+    if op == "truncate":
+        out = out[:data.draw(st.integers(0, len(out)))]
+    elif op.startswith("flip"):
+        lo = head if op == "flip-body" else 0
+        for _ in range(data.draw(st.integers(1, 8))):
+            out[data.draw(st.integers(lo, len(out) - 1))] = data.draw(st.integers(0, 255))
+    else:
+        i = data.draw(st.integers(0, len(out)))
+        out[i:i] = data.draw(st.binary(max_size=64))
+    f = tmp_path_factory.mktemp("dmg") / ("f" + ext)
+    f.write_bytes(bytes(out))
+    cls = next(c for c in SOURCES if c.name == name)
+    kw = {"npy": {"sensor": "64x48"}, "aedat2": {"sensor": "128x128"}}.get(fmt, {})
+    src = cls(str(f), skip_bad=True, chunk_bytes=data.draw(st.sampled_from([64, 1000, 1 << 22])), **kw)
+    try:
+        pkts = [q for q in src.packets() if isinstance(q, EventPacket)]
+    except FormatError as e:
+        assert e.path == str(f)
+        return
+    for q in pkts:
+        q.validate()
+    t = np.concatenate([q.t for q in pkts]) if pkts else np.empty(0, np.int64)
+    assert np.all(np.diff(t) >= 0)
+    for a, b in zip(pkts, pkts[1:]):
+        assert a.t_end <= b.t_start
+    kept = int(t.shape[0])
+    assert kept <= len(out) * per_byte + 1
+    if op == "flip-body" and fmt in ("dat", "npy"):
+        assert kept + src.skipped_events == len(sample()), (kept, src.skipped_events)
