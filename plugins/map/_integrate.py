@@ -56,6 +56,15 @@ def integrate_events(t, x, y, p, D, t_last, alpha_per_us, c_on, c_off):  # type:
         t_last[yi, xi] = ti
 
 
+@njit(cache=True, nogil=True, fastmath=True, inline="always")
+def _decay(tl, t, a):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+    """The factor ``exp(-a (t - tl))`` (float32) of a value last updated at
+    ``tl`` µs, read at ``t``; 0 for a pixel never updated."""
+    if tl == NEVER:
+        return np.float32(0.0)
+    return np.exp(-a * np.float32(t - tl))
+
+
 @njit(cache=True, nogil=True, fastmath=True)
 def read_map(D, t_last, base, t, alpha_per_us, image, confidence):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     """The map at ``t`` µs: ``image = base + D exp(-alpha_per_us (t - t_last))``
@@ -68,10 +77,7 @@ def read_map(D, t_last, base, t, alpha_per_us, image, confidence):  # type: igno
     has_base = base.shape[0] > 0
     for j in range(h):
         for i in range(w):
-            tl = t_last[j, i]
-            k = np.float32(0.0)
-            if tl != NEVER:
-                k = np.exp(-a * np.float32(t - tl))
+            k = _decay(t_last[j, i], t, a)
             v = D[j, i] * k
             if has_base:
                 v += base[j, i]
@@ -90,10 +96,7 @@ def switch_base(D, t_last, old_base, new_base, t, alpha_per_us):  # type: ignore
     has_old = old_base.shape[0] > 0
     for j in range(h):
         for i in range(w):
-            tl = t_last[j, i]
-            v = np.float32(0.0)
-            if tl != NEVER:
-                v = D[j, i] * np.exp(-a * np.float32(t - tl))
+            v = D[j, i] * _decay(t_last[j, i], t, a)
             if has_old:
                 v += old_base[j, i]
             D[j, i] = v - new_base[j, i]
