@@ -58,7 +58,7 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
-from tectum import EventPacket, Kind, MapPacket, Operator, Packet, PosePacket, Port, concat
+from tectum import EventPacket, Kind, MapPacket, Operator, Packet, Port, PosePacket, concat
 from tectum.camera import QUAT_TOL, Camera, quat_conj, quat_mul, rot_to_quat, so3_exp
 from tectum.plugins.repr.motion_compensated import _camera
 

@@ -42,7 +42,7 @@ def test_poisson_gives_back_the_image_of_its_forward_differences(shape, wrap):
 def test_poisson_is_the_least_squares_fit_of_inconsistent_gradients():
     """Noisy gradients (no image has them): the solve's image has a zero
     gradient of the least-squares cost, checked against scipy's lsqr."""
-    from scipy.sparse import diags, kron, eye, vstack
+    from scipy.sparse import diags, eye, kron, vstack
     from scipy.sparse.linalg import lsqr
 
     h, w = 7, 9
