@@ -22,10 +22,14 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from numba import config as numba_config
 
 from tectum import EventPacket, FramePacket, Packet
 from tectum.sinks.files.aedat4 import write_aedat4
 from tectum.sources.files.aedat4 import Aedat4Source
+
+#: LZ4 decodes through a numba intrinsic, which pure Python (NUMBA_DISABLE_JIT=1, the coverage run) cannot call
+COMPRESSIONS = ["none", "zstd"] if numba_config.DISABLE_JIT else ["none", "lz4", "none", "zstd"]
 
 
 @st.composite
@@ -75,7 +79,7 @@ def check_round_trip(path: Path, written: list[Packet], compression: str) -> Non
 
 @pytest.mark.parametrize("sensor", [(346, 260), (128, 128)], ids=["346x260", "128x128"])
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(data=st.data(), compression=st.sampled_from(["none", "lz4", "none", "zstd"]))
+@given(data=st.data(), compression=st.sampled_from(COMPRESSIONS))
 def test_aedat4_events_and_frames_equal_what_was_written(tmp_path: Path, sensor: tuple[int, int],
                                                          data: st.DataObject, compression: str) -> None:
     written = data.draw(streams(sensor))
