@@ -231,14 +231,45 @@ class RosbagSource(FileSource):
             reader = (Reader1 if version == 1 else Reader2)(root)
             reader.open()
         except Exception as e:  # rosbags raises its own error classes, OSError, KeyError...
+            if version == 1 and root.stat().st_size > 0:
+                yield from self._unindexed(root, e)
+                return
             raise FormatError(f"bag does not open: {e}", path=self.path) from None
         self._files.append(reader)
+        conns = self._select(list(reader.connections))
+        yield from self._decode(version, self._messages(reader, conns))
+
+    def _unindexed(self, root: Path, why: Exception) -> Iterator[Packet]:
+        """A ROS 1 bag whose index does not read (a bag cut short loses it):
+        with ``skip_bad``, its complete messages, read record by record;
+        else a FormatError saying where the complete records end."""
+        import mmap
+
+        from ._ros1_scan import Scan, ros1_messages, scan_ros1
+
+        with open(root, "rb") as f:
+            data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+        self._files.append(data)
+        try:
+            found = scan_ros1(data)
+        except (ValueError, KeyError, struct.error) as e:
+            raise FormatError(f"bag does not open ({why}) and its records do not read: {e}", path=self.path) from None
+        where = f"cut short: its records end at byte {found.cut}" if found.cut is not None else "index damaged"
+        if not self.skip_bad:
+            self._fail(f"bag does not open ({why}): {where} (skip_bad reads the complete messages)", found.cut)
+        picked = self._select(list(found.connections.values()))
+        scan = Scan({}, None)
+        yield from self._decode(1, (m for m in ros1_messages(data, scan) if m[0] in picked))
+        if found.cut is not None:
+            self._note_skip(found.cut, len(data) - 1, 1)
+
+    def _decode(self, version: int, messages: Iterator[tuple[Any, int, bytes]]) -> Iterator[Packet]:
+        """The packets of the bag's ``messages`` (connection, time, raw)."""
         store = typestore(version)
         deser = store.deserialize_ros1 if version == 1 else store.deserialize_cdr
-        conns = self._select(list(reader.connections))
         decoder = _Decoder(self, version)
         count: dict[str, int] = {}
-        for conn, _, raw in self._messages(reader, conns):
+        for conn, _, raw in messages:
             k = count[conn.topic] = count.get(conn.topic, 0) + 1
             try:
                 yield from decoder.message(deser, conn, raw)

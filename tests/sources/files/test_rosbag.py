@@ -252,3 +252,51 @@ def test_event_packet_fields_read_directly(ros: int, frame_id: str, encoding: st
     assert np.array_equal(data, events)
     with pytest.raises(ValueError):
         event_packet_fields(raw[:-5], ros)
+
+
+@pytest.mark.abuse
+@pytest.mark.parametrize("compression", ["none", "bz2"])
+def test_cut_bag_names_the_offset_and_keeps_what_is_complete(tmp_path: Path, small_stream: EventPacket,
+                                                             compression: str) -> None:
+    """A ROS 1 bag cut short loses its index (written last), so it does not
+    open: the error gives the byte where the complete records end; with
+    skip_bad, every message wholly before the cut is read (uncompressed
+    chunks; compressed ones down to the last complete chunk)."""
+    from rosbags.rosbag1 import Reader, Writer
+
+    ev = small_stream.slice_time(0, 6_000)
+    ev = EventPacket(ev.t + 1_600_000_000_000_000, ev.x, ev.y, ev.p, sensor=ev.sensor)
+    ts = typestore(1)
+    T = ts.types
+    Time = T["builtin_interfaces/msg/Time"]
+    path = tmp_path / "full.bag"
+    w = Writer(path)
+    if compression == "bz2":
+        w.set_compression(Writer.CompressionFormat.BZ2)
+    w.chunk_threshold = 1500  # several chunks
+    with w:
+        c = w.add_connection("/dvs/events", "dvs_msgs/msg/EventArray", typestore=ts)
+        for q in ev.batches(40):
+            evs = [T["dvs_msgs/msg/Event"](x=int(x), y=int(y), ts=Time(sec=int(t) // 1_000_000,
+                   nanosec=int(t) % 1_000_000 * 1000), polarity=bool(p > 0)) for t, x, y, p in zip(q.t, q.x, q.y, q.p)]
+            msg = T["dvs_msgs/msg/EventArray"](header=T["std_msgs/msg/Header"](seq=0, stamp=evs[0].ts, frame_id="c"),
+                                               height=48, width=64, events=evs)
+            w.write(c, int(q.t[0]) * 1000, ts.serialize_ros1(msg, "dvs_msgs/msg/EventArray"))
+    data = path.read_bytes()
+    with Reader(path) as r:  # where each message's record ends in the file (uncompressed chunks)
+        ends = [data.index(raw) + len(raw) for _, _, raw in r.messages()] if compression == "none" else None
+    n_per = [len(q) for q in ev.batches(40)]
+    first = 13 + 8 + sum(struct.unpack_from("<i", data, 13 + k)[0] for k in (0, 4 + struct.unpack_from("<i", data, 13)[0]))
+    for cut in (first + (len(data) - first) // 3, first + (len(data) - first) // 2 + 7, len(data) - 30):
+        f = tmp_path / "cut.bag"
+        f.write_bytes(data[:cut])
+        with pytest.raises(FormatError, match="cut short") as e:
+            list(RosbagSource(str(f)).packets())
+        assert 13 < e.value.offset <= cut
+        src = RosbagSource(str(f), skip_bad=True)
+        got = concat([q for q in src.packets() if isinstance(q, EventPacket)])
+        assert len(got) and src.skipped_events == 1 and src.skipped_ranges == [(e.value.offset, cut - 1)]
+        for col in "txyp":
+            assert np.array_equal(getattr(got, col), getattr(ev, col)[:len(got)])
+        if ends is not None:
+            assert len(got) == sum(k for k, end in zip(n_per, ends) if end <= cut)
