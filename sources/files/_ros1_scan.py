@@ -13,6 +13,7 @@ field says what a record is: 0x03 bag header, 0x05 chunk (``compression``
 from __future__ import annotations
 
 import bz2
+import mmap
 import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -21,6 +22,8 @@ from typing import Any
 __all__ = ["Connection", "scan_ros1", "ros1_messages"]
 
 MAGIC = b"#ROSBAG V2.0\n"
+#: What the scan reads: the file's bytes, or the file mapped (slices are bytes).
+Buffer = bytes | memoryview | mmap.mmap
 _OP_MESSAGE, _OP_CHUNK, _OP_CONNECTION = 0x02, 0x05, 0x07
 
 
@@ -55,7 +58,7 @@ def _fields(raw: bytes | memoryview) -> dict[str, bytes]:
     return out
 
 
-def _records(buf: bytes | memoryview, pos: int, end: int) -> Iterator[tuple[dict[str, bytes], int, int]]:
+def _records(buf: Buffer, pos: int, end: int) -> Iterator[tuple[dict[str, bytes], int, int]]:
     """(header fields, data start, data end) of the complete records
     in ``buf[pos:end]``; stops at the first incomplete one."""
     while pos + 4 <= end:
@@ -89,7 +92,7 @@ def _unpack(fields: dict[str, bytes], data: bytes | memoryview) -> bytes | memor
     raise ValueError(f"chunk compression {comp!r} is not none, bz2 or lz4")
 
 
-def ros1_messages(data: bytes | memoryview, scan: Scan) -> Iterator[tuple[Connection, int, bytes]]:
+def ros1_messages(data: Buffer, scan: Scan) -> Iterator[tuple[Connection, int, bytes]]:
     """The complete messages of a ROS 1 bag's bytes ``data``, in file order
     (``(connection, time ns, serialized message)``), filling ``scan`` with
     the connections met and where the complete records end. A chunk cut
@@ -107,7 +110,7 @@ def ros1_messages(data: bytes | memoryview, scan: Scan) -> Iterator[tuple[Connec
             yield from _in(*cut, scan)
 
 
-def _cut_chunk(data: bytes | memoryview, at: int) -> tuple[dict[str, bytes], bytes | memoryview] | None:
+def _cut_chunk(data: Buffer, at: int) -> tuple[dict[str, bytes], bytes | memoryview] | None:
     """The header and the bytes present of an uncompressed chunk cut short at ``at``."""
     if at + 4 > len(data):
         return None
@@ -136,7 +139,7 @@ def _in(fields: dict[str, bytes], body: bytes | memoryview, scan: Scan) -> Itera
             yield scan.connections[cid], sec * 1_000_000_000 + nsec, bytes(body)
 
 
-def scan_ros1(data: bytes | memoryview) -> Scan:
+def scan_ros1(data: Buffer) -> Scan:
     """The connections of a ROS 1 bag and where its complete records end."""
     scan = Scan({}, None)
     for _ in ros1_messages(data, scan):

@@ -48,7 +48,7 @@ class NpySource(FileSource):
             m = next((a for a in al if a in dtype.names), None)
             if m is None:
                 self._fail(f"no field for {k!r} among {dtype.names}")
-            field = dtype.fields[m][0]
+            field = dtype[m]
             if field.shape != () or field.kind not in ("iu" if k == "t" else "iub"):
                 what = f"an array of shape {field.shape}" if field.shape != () else f"of type {field}"
                 self._fail(f"field {m!r} is {what}, not an integer{' (µs)' if k == 't' else ''}")
