@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from event_files import AEDAT2_DVS128_HEADER, aedat2_dvs128, dvs_bag
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -234,15 +235,6 @@ def test_empty_file_is_an_error(ext: str, verb: str, tmp_path: Path, capsys) -> 
 
 
 # -- damage with skip_bad, over every binary format (issue 20, items 14-15) -----------------
-def _aedat2_bytes(ev: EventPacket) -> tuple[bytes, int]:
-    """jAER DVS128 layout: big-endian (address, time) pairs (x mirrored, y from the bottom, bit 0 OFF)."""
-    head = b"#!AER-DAT2.0\r\n# AEChip: ch.unizh.ini.jaer.chip.retina.DVS128\r\n"
-    pairs = np.empty((len(ev), 2), ">u4")
-    pairs[:, 0] = ((127 - ev.y.astype(np.int64)) << 8) | ((127 - ev.x.astype(np.int64)) << 1) | (ev.p < 0)
-    pairs[:, 1] = ev.t
-    return head + pairs.tobytes(), len(head)
-
-
 def _aedat31_bytes(ev: EventPacket, per: int = 100) -> tuple[bytes, int]:
     """libcaer polarity packets (28-byte header, 8-byte events: valid bit,
     polarity bit 1, y bits 2-16, x bits 17-31; int32 µs)."""
@@ -257,25 +249,6 @@ def _aedat31_bytes(ev: EventPacket, per: int = 100) -> tuple[bytes, int]:
         rec[:, 1] = ev.t[k:k + n]
         out.append(rec.tobytes())
     return b"".join(out), len(head)
-
-
-def _bag_bytes(ev: EventPacket, path: Path) -> bytes:
-    from rosbags.rosbag1 import Writer
-
-    from tectum.sources.files.rosbag import typestore
-
-    ts = typestore(1)
-    T = ts.types
-    Time = T["builtin_interfaces/msg/Time"]
-    with Writer(path) as w:
-        c = w.add_connection("/dvs/events", "dvs_msgs/msg/EventArray", typestore=ts)
-        for k in range(0, len(ev), 100):
-            evs = [T["dvs_msgs/msg/Event"](x=int(x), y=int(y), ts=Time(sec=1, nanosec=int(t) * 1000), polarity=bool(p > 0))
-                   for t, x, y, p in zip(ev.t[k:k + 100], ev.x[k:k + 100], ev.y[k:k + 100], ev.p[k:k + 100])]
-            hdr = T["std_msgs/msg/Header"](seq=k, stamp=evs[0].ts, frame_id="cam")
-            msg = T["dvs_msgs/msg/EventArray"](header=hdr, height=48, width=64, events=evs)
-            w.write(c, 1_000_000_000 + int(ev.t[k]) * 1000, ts.serialize_ros1(msg, "dvs_msgs/msg/EventArray"))
-    return path.read_bytes()
 
 
 #: format -> (source name, file extension, record size in bytes (0: no fixed records), events a byte can yield)
@@ -295,7 +268,7 @@ def damage_files(small_files, tmp_path_factory) -> dict[str, tuple[bytes, int]]:
     out["dat"] = (small_files["dat"], len(small_files["dat"]) - 8 * len(ev))
     itemsize = (len(small_files["npy"]) - 128) // len(ev)
     out["npy"] = (small_files["npy"], len(small_files["npy"]) - itemsize * len(ev))
-    out["aedat2"] = _aedat2_bytes(ev)
+    out["aedat2"] = (aedat2_dvs128(ev), len(AEDAT2_DVS128_HEADER))
     out["aedat31"] = _aedat31_bytes(ev)
     out["aedat4"] = (small_files["aedat4"], 0)
     for name, cls_name, kw in (("aedat2", "aedat2", {"sensor": "128x128"}), ("aedat31", "aedat31", {})):
@@ -304,7 +277,9 @@ def damage_files(small_files, tmp_path_factory) -> dict[str, tuple[bytes, int]]:
         got = concat([q for q in next(c for c in SOURCES if c.name == cls_name)(str(f), **kw).packets()])
         assert same_events(got, ev), name  # the builders write what the readers read
     if importlib.util.find_spec("rosbags") is not None:
-        out["rosbag"] = (_bag_bytes(ev, tmp_path_factory.mktemp("bag") / "s.bag"), 0)
+        t = ev.t + 1_000_000  # µs since the epoch: 1 s on
+        bag_ev = EventPacket(t, ev.x, ev.y, ev.p, sensor=ev.sensor)
+        out["rosbag"] = (dvs_bag(tmp_path_factory.mktemp("bag") / "s.bag", bag_ev), 0)
     return out
 
 

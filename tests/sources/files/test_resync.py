@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from event_files import AEDAT2_DVS128_HEADER, aedat2_dvs128, dvs_bag
 
 from tectum import EventPacket, concat
 from tectum.sinks.files import SINKS
@@ -60,15 +61,9 @@ def npy_file(path: Path, ev: EventPacket) -> tuple[bytes, Callable[[int], tuple[
 
 
 def aedat2_file(path: Path, ev: EventPacket) -> tuple[bytes, Callable[[int], tuple[int, str]]]:
-    """jAER DVS128 layout, from the spec: big-endian (address, time) pairs;
-    x stored mirrored, y from the bottom, bit 0 set for OFF."""
-    head = b"#!AER-DAT2.0\r\n# AEChip: ch.unizh.ini.jaer.chip.retina.DVS128\r\n"
-    addr = ((127 - ev.y.astype(np.int64)) << 8) | ((127 - ev.x.astype(np.int64)) << 1) | (ev.p < 0)
-    pairs = np.empty((len(ev), 2), ">u4")
-    pairs[:, 0], pairs[:, 1] = addr, ev.t
-    data = head + pairs.tobytes()
+    data = aedat2_dvs128(ev)
     path.write_bytes(data)
-    return data, lambda i: (len(head) + 8 * i + 4, ">u4")
+    return data, lambda i: (len(AEDAT2_DVS128_HEADER) + 8 * i + 4, ">u4")
 
 
 FORMATS = {"dat": (dat_file, ".dat"), "npy": (npy_file, ".npy"), "aedat2": (aedat2_file, ".aedat")}
@@ -161,33 +156,13 @@ def test_dat_high_time_is_no_wrap(tmp_path: Path) -> None:
 
 
 # -- bags ------------------------------------------------------------------------------
-def bag_file(path: Path, ev: EventPacket, per_msg: int = 250) -> None:
-    """A ROS 1 bag of dvs_msgs/EventArray messages, written with rosbags."""
-    from rosbags.rosbag1 import Writer
-
-    from tectum.sources.files.rosbag import typestore
-
-    ts = typestore(1)
-    T = ts.types
-    Time, Ev = T["builtin_interfaces/msg/Time"], T["dvs_msgs/msg/Event"]
-    with Writer(path) as w:
-        c = w.add_connection("/dvs/events", "dvs_msgs/msg/EventArray", typestore=ts)
-        for k in range(0, len(ev), per_msg):
-            t, x, y, p = (a[k:k + per_msg] for a in (ev.t, ev.x, ev.y, ev.p))
-            evs = [Ev(x=int(a), y=int(b), ts=Time(sec=int(s) // 1_000_000, nanosec=int(s) % 1_000_000 * 1000),
-                      polarity=bool(c > 0)) for s, a, b, c in zip(t, x, y, p)]
-            hdr = T["std_msgs/msg/Header"](seq=k, stamp=evs[0].ts, frame_id="cam")
-            msg = T["dvs_msgs/msg/EventArray"](header=hdr, height=ev.sensor[1], width=ev.sensor[0], events=evs)
-            w.write(c, int(t[0]) * 1000, ts.serialize_ros1(msg, "dvs_msgs/msg/EventArray"))
-
-
 @pytest.mark.parametrize("how", ["spike", "dip", "zero"])
 def test_bag_one_corrupt_time_costs_one_event(tmp_path: Path, how: str) -> None:
     pytest.importorskip("rosbags")
     ev = stream(3_000)
     ev = EventPacket(ev.t + 1_600_000_000_000_000, ev.x, ev.y, ev.p, sensor=ev.sensor)
     f = tmp_path / "b.bag"
-    bag_file(f, ev)
+    dvs_bag(f, ev, per_msg=250)
     raw = bytearray(f.read_bytes())
     i = 1_234
     sec, us = divmod(int(ev.t[i]), 1_000_000)
