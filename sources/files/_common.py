@@ -370,12 +370,11 @@ class EventAssembler:
             k = self.carry[0].shape[0]
             t, x, y, p = (np.concatenate(a) for a in zip(self.carry, (t, x, y, p)))
             self.carry = None
-        ok = np.ones(t.shape[0], np.bool_)
-        if self.check_geometry:
-            ok = (x < self.sensor[0]) & (y < self.sensor[1])
-        keep = np.empty(t.shape[0], np.bool_)
+        n = t.shape[0]
+        ok = (x < self.sensor[0]) & (y < self.sensor[1]) if self.check_geometry else np.ones(n, np.bool_)
+        keep = np.empty(n, np.bool_)
         kept = K.longest_rise(t, ok, -(1 << 62) if self.floor is None else self.floor, keep)
-        if kept < t.shape[0]:
+        if kept < n:
             bad = np.flatnonzero(~keep)
             if callable(where):
                 where = where()

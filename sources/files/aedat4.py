@@ -331,8 +331,8 @@ class Aedat4Source(FileSource):
                 o += got
             first = np.array([s[0] for s in spans[i:j]], np.int64)
             asked = np.array([a for sp in spans[i:j] for a in sp[2]], np.int64)
-            into = at[np.searchsorted(first, asked, side="right") - 1] + asked - first[
-                np.searchsorted(first, asked, side="right") - 1]  # where each asked packet starts in buf
+            sp = np.searchsorted(first, asked, side="right") - 1
+            into = at[sp] + asked - first[sp]  # where each asked packet starts in buf
             rows = self._scan_all(buf, comp, np.sort(into))
             span = np.searchsorted(at, rows[:, 0] - 8, side="right") - 1
             rows[:, 8] = first[span] + rows[:, 0] - 8 - at[span]
