@@ -38,8 +38,9 @@ Steps (IJCV 2018 Sec. 3-4; the kernels are in :mod:`._dsi`):
 Output: a :class:`~tectum.MapPacket` per map, stamped at its last event
 (µs), with ``depth`` (m, float32 (H, W), NaN where unknown), ``confidence``
 (votes), ``K`` (the undistorted reference view's intrinsics), ``pose`` (the
-reference view, world-from-camera) and an extra column ``t_ref`` (µs, the
-reference view's time); and with ``points=True`` a
+reference view, world-from-camera) and extra columns ``t_ref`` (µs, the
+reference view's time) and ``baseline`` (m, the farthest the camera got from
+the reference view while its events voted); and with ``points=True`` a
 :class:`~tectum.PointPacket` of the same time: the map's pixels
 back-projected into the world (m), ``intensity`` the confidence. Both go
 out on the one output stream: ``--sink depth.npz`` stores the maps (and the
@@ -69,7 +70,7 @@ from typing import Literal
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from tectum import EventPacket, Kind, MapPacket, Operator, Packet, PointPacket, PosePacket, Port
+from tectum import EventPacket, Kind, MapPacket, Operator, Packet, PointPacket, Port, PosePacket
 from tectum.camera import QUAT_TOL, Camera, interpolate_poses, quat_to_rot
 from tectum.plugins.repr.motion_compensated import _camera
 
@@ -417,7 +418,8 @@ class Emvs(Operator):
         pose = np.concatenate([t_wr, rot_to_quat(R_wr)])
         tt = np.array([t_map], np.int64)
         out: list[Packet] = [MapPacket(tt, depth=depth[None], confidence=conf[None], K=self.K[None],
-                                       pose=pose[None], t_ref=np.array([t_ref], np.int64), t_start=t_map,
+                                       pose=pose[None], t_ref=np.array([t_ref], np.int64),
+                                       baseline=np.array([self._baseline]), t_start=t_map,
                                        t_end=t_map + 1)]
         if self.points:
             out.append(self._cloud(depth, conf, R_wr, t_wr, t_map))
