@@ -71,7 +71,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 from tectum import EventPacket, Kind, MapPacket, Operator, Packet, PointPacket, Port, PosePacket
-from tectum.camera import QUAT_TOL, Camera, interpolate_poses, quat_to_rot
+from tectum.camera import QUAT_TOL, Camera, interpolate_poses, quat_to_rot, rot_to_quat
 from tectum.plugins.repr.motion_compensated import _camera
 
 from ._dsi import argmax_depth, masked_median, ray_traces, vote
@@ -144,8 +144,10 @@ class Emvs(Operator):
         calibration beside the source recording.
     planes:
         Depth planes of the DSI.
-    min_depth, max_depth:
-        Depth range of the DSI, m.
+    min_depth:
+        Depth of the DSI's nearest plane, m.
+    max_depth:
+        Depth of its farthest plane, m.
     spacing:
         ``inverse`` (uniform in 1/depth, the paper's) or ``depth``.
     segment_events:
@@ -413,8 +415,6 @@ class Emvs(Operator):
         if known.any():
             self.scene_depth = float(np.median(depth[known]))
         self.counts["maps"] += 1
-        from tectum.camera import rot_to_quat
-
         pose = np.concatenate([t_wr, rot_to_quat(R_wr)])
         tt = np.array([t_map], np.int64)
         out: list[Packet] = [MapPacket(tt, depth=depth[None], confidence=conf[None], K=self.K[None],
