@@ -31,7 +31,8 @@ settings.register_profile(
     "random", derandomize=False, max_examples=100, deadline=None, print_blob=True,
     suppress_health_check=[HealthCheck.too_slow],
 )
-settings.load_profile(os.environ.get("TECTUM_HYPOTHESIS", "ci"))
+PROFILE = os.environ.get("TECTUM_HYPOTHESIS", "ci")
+settings.load_profile(PROFILE)
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -39,7 +40,7 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 def pytest_report_header(config: pytest.Config) -> str:
-    return f"hypothesis profile: {settings._current_profile} (TECTUM_HYPOTHESIS=random for fresh draws)"
+    return f"hypothesis profile: {PROFILE} (TECTUM_HYPOTHESIS=random for fresh draws)"
 
 
 @pytest.fixture
