@@ -84,6 +84,7 @@ from typing import Any
 from tectum import EventPacket, Kind, Packet, Source, concat
 from tectum.hookspecs import hookimpl
 
+from .davis import DavisConfig
 from .noise import PRESETS, SensorModel, sensor_model
 from .scenes import BUILTIN, load_scene, scene_names
 from .sim import Simulator, Truth
@@ -127,6 +128,11 @@ def describe_scenes() -> dict[str, str]:
     return {n: BUILTIN[n](346, 260).get("description", "") for n in scene_names()}
 
 
+def _scene_spec(url: str) -> str:
+    """The scene named by ``simulate:SCENE`` (default ``rotation``)."""
+    return (url.split(":", 1)[1] if ":" in url else url).split("?", 1)[0] or "rotation"
+
+
 class SimulateSource(Source):
     """Simulated events (``simulate:SCENE``) with truth columns, plus poses,
     APS frames and IMU as side streams when asked.
@@ -145,17 +151,29 @@ class SimulateSource(Source):
 
     name = "simulate"
     schemes = ("simulate",)
+    produces = (Kind.EVENTS, Kind.POSES, Kind.FRAMES, Kind.IMU)  # all it can give; an instance says which
+
+    @classmethod
+    def kinds_for(cls, arg: str, params: Mapping[str, Any]) -> tuple[Kind, ...]:
+        """Events, poses with ``poses``, and with ``davis`` the APS frames and
+        IMU samples the scene's ``davis`` section asks for (ports are wired by
+        these before the source opens)."""
+        kinds = [Kind.EVENTS]
+        if params.get("poses"):
+            kinds.append(Kind.POSES)
+        if params.get("davis"):
+            spec: str | Mapping[str, Any] = params.get("scene") or _scene_spec(arg)
+            scene = load_scene(spec, params.get("sensor"), float(params.get("fps", 0.0)))
+            cfg = DavisConfig.from_spec(scene.get("davis"))
+            kinds += [k for k, on in ((Kind.FRAMES, cfg.aps_rate_hz > 0), (Kind.IMU, cfg.imu_rate_hz > 0)) if on]
+        return tuple(kinds)
 
     def __init__(self, url: str = "simulate:rotation", duration_us: int | None = None, seed: int = 0,
                  preset: str = "ideal", sensor: str | None = None, window_us: int = 10_000,
                  poses: bool = False, davis: bool = False, truth_columns: bool = True, truth_fps: float = 0.0,
                  pose_rate_hz: float = 1000.0, model: dict[str, float] | None = None,
                  scene: Mapping[str, Any] | None = None, fps: float = 0.0) -> None:
-        spec: str | Mapping[str, Any] = url.split(":", 1)[1] if ":" in url else url
-        if scene is not None:
-            spec = scene
-        elif not spec:
-            spec = "rotation"
+        spec: str | Mapping[str, Any] = scene if scene is not None else _scene_spec(url)
         if window_us <= 0:
             raise ValueError("window_us must be > 0")
         self.sim = make_simulator(spec, duration_us, seed=seed, preset=preset, sensor=sensor, truth_fps=truth_fps,
