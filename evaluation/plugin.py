@@ -25,6 +25,8 @@ SUITES = {
     "flow": "flow and lifetime speed and accuracy (analytic edges, simulator, gyro truth), failure maps",
     "map": "map reconstruction, panoramic mosaic and EMVS depth: speed, and accuracy against simulator truth "
            "(Pearson/SSIM, AbsRel), failure maps",
+    "tracker": "angular velocity and ego-motion: speed, latency, RMS error against simulator truth and IMU, "
+               "the model ladder's confusion matrix",
     "simulate": "simulator generation speed (Mev/s at 346x260)",
     "net": "TCP rate and UDP loss and latency on loopback",
 }

@@ -1,0 +1,15 @@
+"""Family ``tracker``: the camera's motion from events: angular velocity by
+contrast maximisation (``tracker.angular_velocity``) and ego-motion with a
+model ladder that picks the simplest adequate motion model
+(``tracker.ego_motion``)."""
+
+from __future__ import annotations
+
+from tectum.hookspecs import hookimpl
+
+__all__: list[str] = []
+
+
+@hookimpl
+def tectum_register_operators(registry) -> None:  # type: ignore[no-untyped-def]
+    pass
