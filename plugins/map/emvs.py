@@ -407,7 +407,8 @@ class Emvs(Operator):
         if self._baseline < self.min_baseline * self.scene_depth:
             self.counts["no_translation"] += 1
             log.warning("map.emvs: the camera moved %.3g m from the reference view at %d µs, less than "
-                        "min_baseline x scene depth = %.3g m: no depth from pure rotation, no map",
+                        "min_baseline x scene depth = %.3g m: too little translation for depth (pure rotation "
+                        "or standing still), no map",
                         self._baseline, t_ref, self.min_baseline * self.scene_depth)
             return []
         depth, conf = depth_map(dsi, self.depths, **self.map_options)  # type: ignore[arg-type]
