@@ -4,6 +4,8 @@ Each verb module defines ``HELP`` (one line), ``add_arguments(parser)`` and
 ``main(args) -> int``. Errors a user can cause (bad arguments, missing or
 damaged files, invalid pipelines) end the command with one line on stderr,
 ``tectum VERB: error: ...``, and a non-zero exit status, never a traceback.
+SIGTERM is handled like SIGINT: ``tectum VERB: interrupted by SIGTERM``,
+unfinished output removed, exit status 143 (130 for SIGINT); see ``_signals``.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import signal
 import sys
 from collections.abc import Sequence
 from typing import NoReturn
@@ -57,23 +60,29 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``tectum`` command; returns the exit status."""
     from tectum.errors import TectumError
 
+    from ._signals import exit_status, term_like_int
+
     parser = _parser()
     args = parser.parse_args(argv)
     if not getattr(args, "_main", None):
         parser.print_help()
         return 2
     try:
-        status = int(args._main(args) or 0)
-        sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
-        return status
+        with term_like_int():
+            try:
+                status = int(args._main(args) or 0)
+                sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
+                return status
+            except KeyboardInterrupt:  # SIGINT or SIGTERM: unfinished output was removed
+                name = signal.Signals(exit_status() - 128).name
+                print(f"tectum {args.verb}: interrupted by {name}", file=sys.stderr)
+                return exit_status()
     except BrokenPipeError:  # `tectum ... | head`: the reader has gone, so stop quietly
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141  # 128 + SIGPIPE, as a shell reports a command killed by a closed pipe
     except (TectumError, OSError, ValueError) as e:
         print(f"tectum {args.verb}: error: {_one_line(e)}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        return 130
 
 
 def _one_line(e: BaseException) -> str:

@@ -1,5 +1,10 @@
 """``tectum convert IN OUT``: stream events from any readable format to any
-writable one (formats from content / extension)."""
+writable one (formats from content / extension).
+
+Ctrl-C or SIGTERM stops it between packets: the output is not written (its
+temporary file is removed) and the exit status is 130 or 143. A signal that
+comes while the finished file is being committed lets the commit complete
+(the file is whole and reopens) and still exits with that status."""
 
 from __future__ import annotations
 
@@ -25,31 +30,36 @@ def main(args: argparse.Namespace) -> int:
 
     from ._args import open_source, split_query
     from ._progress import Progress, wanted
+    from ._signals import deferred
     from ._unwritten import unwritten_lines
 
-    src, sink = open_source(args.input, args.output, sensor=args.sensor, skip_bad=args.skip_bad or None,
-                            t_start_us=args.start_us, t_end_us=args.end_us)
-    out = split_query(args.output)[0]
-    written: dict[str, int] = {}  # kind -> events or samples
-    refused: dict[str, int] = {}  # kinds the sink does not take -> events or samples
-    known = args.start_us is not None and args.end_us is not None
-    progress = Progress(args.end_us - args.start_us if known else None) if wanted(args.quiet) else None
-    sink.open()
-    try:
-        for pkt in src.packets():
+    with deferred() as check:  # a signal stops the work between packets, never inside h5py
+        src, sink = open_source(args.input, args.output, sensor=args.sensor, skip_bad=args.skip_bad or None,
+                                t_start_us=args.start_us, t_end_us=args.end_us)
+        out = split_query(args.output)[0]
+        written: dict[str, int] = {}  # kind -> events or samples
+        refused: dict[str, int] = {}  # kinds the sink does not take -> events or samples
+        known = args.start_us is not None and args.end_us is not None
+        progress = Progress(args.end_us - args.start_us if known else None) if wanted(args.quiet) else None
+        try:
+            sink.open()
+            for pkt in src.packets():
+                check()
+                if progress is not None:
+                    progress.update(pkt)
+                counts = written if accepts(sink.consumes, pkt.kind) else refused
+                if counts is written:
+                    sink.write(pkt)
+                counts[str(pkt.kind)] = counts.get(str(pkt.kind), 0) + len(pkt)
+            check()
+        except BaseException:
+            sink.abort()  # the temporary file goes: no output
+            raise
+        finally:
             if progress is not None:
-                progress.update(pkt)
-            counts = written if accepts(sink.consumes, pkt.kind) else refused
-            if counts is written:
-                sink.write(pkt)
-            counts[str(pkt.kind)] = counts.get(str(pkt.kind), 0) + len(pkt)
-    except BaseException:
-        sink.abort()
-        raise
-    finally:
-        if progress is not None:
-            progress.done()
-    sink.close()
+                progress.done()
+        sink.close()
+    check()
     for kind, n in getattr(sink, "not_written", {}).items():  # taken, then left out by the sink
         written[kind] -= n
         refused[kind] = refused.get(kind, 0) + n

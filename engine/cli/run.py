@@ -6,11 +6,12 @@ import argparse
 import json
 import sys
 
-from tectum import BatchPolicy, Pipeline, run
+from tectum import BatchPolicy, Pipeline
 from tectum._stats import amounts
 
 from ._args import split_op, split_query
 from ._progress import attach
+from ._signals import exit_status, run_until_signal
 from ._unwritten import unwritten_lines
 
 HELP = "run SOURCE through operators into sinks, or run PIPELINE.toml"
@@ -84,7 +85,7 @@ def main(args: argparse.Namespace) -> int:
         p.sink(NullSink(), p.nodes[-1].id, id="count")
     attach(p, args.quiet, total_us=_span(p))
     plan = p.validate()
-    stats = run(plan)
+    stats = run_until_signal(plan)
     for node in plan.of_role("sink"):
         for line in unwritten_lines(node.spec.name, node.cls, stats.nodes[node.id].not_written):
             print(line, file=sys.stderr)
@@ -101,5 +102,5 @@ def main(args: argparse.Namespace) -> int:
             json.dump(stats.as_dict(), f, indent=1)
     if any(s.counters.get("interrupted") for s in stats.nodes.values()):  # a live source ended on Ctrl-C
         print("tectum run: interrupted (what was received before it is kept)", file=sys.stderr)
-        return 130
+        return exit_status()
     return 0
