@@ -118,6 +118,13 @@ class TextSink(FileSink):
     def _empty(self) -> None:
         self._begin(EventPacket.empty((1, 1), 0))
 
+    def _end(self) -> None:
+        # A stream without events still leaves a file that says so: a 0-byte
+        # text file reads back as an error (an empty file is a damaged one).
+        if self.count == 0 and not self.header:
+            assert self.f is not None
+            self.f.write(b"# tectum: no events\n")
+
     def _events(self, packet: EventPacket) -> None:
         assert self.f is not None
         digits = _UNIT_DIGITS[self.time_unit]
