@@ -7,9 +7,11 @@ from __future__ import annotations
 
 from tectum.hookspecs import hookimpl
 
-__all__: list[str] = []
+from .angular_velocity import AngularVelocity
+
+__all__: list[str] = ["AngularVelocity"]
 
 
 @hookimpl
 def tectum_register_operators(registry) -> None:  # type: ignore[no-untyped-def]
-    pass
+    registry.add_operator(AngularVelocity)
