@@ -44,6 +44,7 @@ def test_from_arrays_converts_polarity_and_dtypes():
         (dict(t_end=2), "outside the packet interval"),
     ],
 )
+@pytest.mark.abuse
 def test_validate_names_the_bad_event(kw, message):
     t = kw.pop("t", [1, 2])
     x = kw.pop("x", [0, 1])
@@ -143,22 +144,26 @@ def test_from_structured_seconds():
     ([1e30], "sample 0"),
     ([0.5, 1.0], "whole µs"),
 ])
+@pytest.mark.abuse
 def test_non_finite_or_fractional_times_are_rejected(t, message):
     """Regression: NaN/inf/1e30 became INT64_MIN, 0.5 s truncated to 0."""
     with pytest.raises(tectum.PacketError, match=message):
         tectum.EventPacket.from_arrays(t, [0] * len(t), [0] * len(t), [1] * len(t), sensor=(4, 4))
 
 
+@pytest.mark.abuse
 def test_seconds_only_when_asked():
     pkt = tectum.EventPacket.from_arrays([0.5, 1.0000015], [0, 1], [0, 0], [1, 0], sensor=(4, 4), time_unit="s")
     assert pkt.t.tolist() == [500_000, 1_000_002]
 
 
+@pytest.mark.abuse
 def test_nan_coordinates_are_rejected_not_zeroed():
     with pytest.raises(tectum.PacketError, match="event 1 has x=nan"):
         tectum.EventPacket.from_arrays([0, 1], [0.0, float("nan")], [0, 0], [1, 1], sensor=(4, 4))
 
 
+@pytest.mark.abuse
 def test_unsorted_times_name_the_first_decreasing_index():
     with pytest.raises(tectum.PacketError, match="timestamps decrease at index 2: 30 then 21"):
         tectum.EventPacket.from_arrays([20, 30, 21], [0, 0, 0], [0, 0, 0], [1, 1, 1], sensor=(4, 4))

@@ -8,6 +8,7 @@ import struct
 import zlib
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -122,6 +123,7 @@ def test_fragments_out_of_place_are_rejected_and_counted() -> None:
     assert len(got) == 1 and np.array_equal(got[0].images, img.images)
 
 
+@pytest.mark.abuse
 @settings(max_examples=60, deadline=None)
 @given(st.data())
 def test_mutated_samples_messages_never_crash_or_overallocate(data) -> None:

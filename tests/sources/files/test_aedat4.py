@@ -259,6 +259,7 @@ def many_packets(tmp_path_factory) -> bytes:
     return f.read_bytes()
 
 
+@pytest.mark.abuse
 @settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.data())
 def test_fuzz_compiled_path(many_packets: bytes, data, tmp_path_factory) -> None:

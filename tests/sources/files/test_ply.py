@@ -184,6 +184,7 @@ def test_run_info_and_convert_keep_every_point(tmp_path: Path, capsys: pytest.Ca
         assert_streams_equal([pts], list(open_file(str(path)).packets()), str(path))
 
 
+@pytest.mark.abuse
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(blob=st.binary(max_size=300), binary=st.booleans())
 def test_fuzz_random_bytes(tmp_path_factory, blob: bytes, binary: bool) -> None:

@@ -6,6 +6,7 @@ import socket
 import zlib
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -14,6 +15,8 @@ from tectum.sources.net._wire import HEADER, Receiver, chunks, encode_end, encod
 from tectum.sources.net.source import NetSource
 from tectum.sources.pattern import moving_bars
 from tectum.testing import ListSink
+
+pytestmark = pytest.mark.abuse
 
 
 def _stream(n_windows: int = 2) -> tuple[list[bytes], tectum.EventPacket]:
