@@ -148,6 +148,7 @@ class Aedat2Source(FileSource):
             if self.t_end_us is not None and asm.last_t is not None and asm.last_t >= self.t_end_us:
                 break
         yield from asm.finish()
+        yield from imu.finish()
 
 
 class _ImuAssembler:
@@ -162,7 +163,11 @@ class _ImuAssembler:
         self.pending_v = np.empty((0, 2), np.int64)
         self.next_start: int | None = None
 
-    def push(self, t: np.ndarray, v: np.ndarray) -> list[ImuPacket]:
+    def push(self, t: np.ndarray, v: np.ndarray, final: bool = False) -> list[ImuPacket]:
+        """The packets the words ``(t, (component, raw value))`` complete.
+        Samples at the latest time wait for the next chunk (one may still
+        follow at that time: the contract keeps a time in one packet) until
+        ``final``."""
         t = np.concatenate([self.pending_t, t])
         v = np.concatenate([self.pending_v, v])
         # samples start at component 0 (accel x); drop partial groups at the front
@@ -174,7 +179,12 @@ class _ImuAssembler:
         n = t.shape[0] // 7
         full = v[: n * 7, 0].reshape(n, 7)
         ok = np.all(full == np.arange(7), axis=1)
-        self.pending_t, self.pending_v = t[n * 7:], v[n * 7:]
+        keep = n
+        if not final and ok.any():
+            group_t = t[: n * 7: 7]
+            keep = int(np.flatnonzero(ok & (group_t == group_t[ok][-1]))[0])
+            ok[keep:] = False
+        self.pending_t, self.pending_v = t[keep * 7:], v[keep * 7:]
         if not ok.any():
             return []
         val = v[: n * 7, 1].reshape(n, 7)[ok].astype(np.uint16).view(np.int16).astype(np.float64)
@@ -186,3 +196,7 @@ class _ImuAssembler:
         end = int(ts[-1]) + 1
         self.next_start = end
         return [ImuPacket(ts, accel=accel, gyro=gyro, temperature=temp, t_start=start, t_end=end)]
+
+    def finish(self) -> list[ImuPacket]:
+        """The samples held back for the next chunk, at the end of the file."""
+        return self.push(np.empty(0, np.int64), np.empty((0, 2), np.int64), final=True)
