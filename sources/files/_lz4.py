@@ -6,9 +6,10 @@ The ``lz4`` package (the ``aedat4`` extra) compiles liblz4 into its
 under :data:`SYMBOL` and :data:`SYMBOL_DICT`, and :func:`decompress_safe`
 and :func:`decompress_safe_dict` call them by those names, so kernels using
 them can be cached (the cached code names the symbols, not addresses).
-Without the package, or without the exports, :data:`AVAILABLE` is False and
-callers decompress from Python instead; a kernel calling these must then
-never run.
+Without the package, or without the exports, or with numba's JIT disabled
+(``NUMBA_DISABLE_JIT=1``: an intrinsic has no Python form), :data:`AVAILABLE`
+is False and callers decompress from Python instead; a kernel calling these
+must then never run.
 
 The functions never read or write outside the given ranges, whatever the
 input: they return the bytes written, or a negative number for a malformed
@@ -21,7 +22,7 @@ import ctypes
 
 import llvmlite.binding as llvm
 from llvmlite import ir
-from numba import types
+from numba import config, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
@@ -48,7 +49,7 @@ if _ADDRESSES and all(_ADDRESSES):
     llvm.add_symbol(SYMBOL_DICT, _ADDRESSES[1])
 
 #: True when :func:`decompress_safe` and :func:`decompress_safe_dict` may be called.
-AVAILABLE = bool(_ADDRESSES and all(_ADDRESSES))
+AVAILABLE = bool(_ADDRESSES and all(_ADDRESSES)) and not config.DISABLE_JIT
 
 
 def _call(context, builder, signature, args, symbol, extra):  # type: ignore[no-untyped-def]

@@ -22,14 +22,12 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from numba import config as numba_config
 
 from tectum import EventPacket, FramePacket, Packet
 from tectum.sinks.files.aedat4 import write_aedat4
 from tectum.sources.files.aedat4 import Aedat4Source
 
-#: LZ4 decodes through a numba intrinsic, which pure Python (NUMBA_DISABLE_JIT=1, the coverage run) cannot call
-COMPRESSIONS = ["none", "zstd"] if numba_config.DISABLE_JIT else ["none", "lz4", "none", "zstd"]
+COMPRESSIONS = ["none", "lz4", "none", "zstd"]
 
 
 @st.composite
