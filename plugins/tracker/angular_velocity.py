@@ -7,7 +7,8 @@ back to the window's middle by the right angular velocity ω, pile up on the
 edges that caused them: the image of warped events (IWE) is sharpest. Per
 window the operator maximises the IWE's focus (sum of squares of the
 B-spline-voted IWE, its variance up to a constant: see
-:mod:`tectum.plugins._cmax`, which ``flow.contrast_max`` shares) over ω with
+:mod:`tectum.plugins._cmax`; ``flow.contrast_max`` computes the same
+focus with its own translation-warp kernel) over ω with
 its analytic gradient and BFGS, warm-started from the previous window's ω.
 A window with no valid previous estimate starts from ω = 0 and climbs
 coarse to fine (IWE pixels 4, then 2, then 1 px: the coarse images widen
@@ -18,8 +19,11 @@ Event coordinates are undistorted with the calibration (``calib=`` or the
 (first-order rotation, see :mod:`tectum.plugins._cmax`).
 
 Windows: ``window_events`` events sliding by ``step_events`` (the result
-rate follows the event rate: at 1 Mev/s, 10,000 events sliding by 5,000
-give a result every 5 ms from 10 ms of events), or with ``window_us`` > 0,
+rate follows the event rate: at 1 Mev/s, the default 30,000 events sliding
+by 10,000 give a result every 10 ms from 30 ms of events). A window must
+hold enough motion to focus: with a textured 240x180 scene 10,000 events
+move the image by about a pixel, too little (``tectum bench tracker``:
+20-70 % error), 30,000 by a few, or with ``window_us`` > 0,
 windows of ``window_us`` µs sliding by ``step_us`` from the stream's start,
 emitted when the watermark passes their end. Either way the windows depend
 on the events and times only, never on how packets cut the stream.
@@ -120,7 +124,7 @@ class AngularVelocity(Operator):
     window_events:
         Events per window.
     step_events:
-        Events between window starts (0: half a window).
+        Events between window starts (0: a third of a window).
     window_us:
         > 0: windows of this many µs instead of event counts.
     step_us:
@@ -148,7 +152,7 @@ class AngularVelocity(Operator):
 
         return _rotating_points(duration_us=40_000, sensor=(48, 36), f=40.0)["events"]
 
-    def __init__(self, calib: str = "", window_events: int = 10_000, step_events: int = 0, window_us: int = 0,
+    def __init__(self, calib: str = "", window_events: int = 30_000, step_events: int = 0, window_us: int = 0,
                  step_us: int = 0, min_events: int = 500, max_iter: int = 20, tol_px: float = 0.01) -> None:
         if window_events < 1 or step_events < 0 or window_us < 0 or step_us < 0 or min_events < 1:
             raise ValueError("need window_events >= 1, step_events >= 0, window_us >= 0, step_us >= 0, "
@@ -157,7 +161,7 @@ class AngularVelocity(Operator):
             raise ValueError("need max_iter >= 1 and tol_px > 0")
         self.camera = _need_camera(calib)
         self.window_events = int(window_events)
-        self.step_events = int(step_events) or max(1, self.window_events // 2)
+        self.step_events = int(step_events) or max(1, self.window_events // 3)
         self.window_us = int(window_us)
         self.step_us = int(step_us) or max(1, self.window_us // 2)
         self.min_events, self.max_iter, self.tol_px = int(min_events), int(max_iter), float(tol_px)
