@@ -8,8 +8,9 @@ both) it is printed as "Exception ignored" and lost, and the command went
 on to write a complete file and exit 0. So the commands that write files
 take the signal as a request instead, acted on at a safe point:
 
-* ``tectum run``: :func:`run_until_signal` receives the signals in a trio
-  task and cancels the pipeline, whose sinks then abort (their temporary
+* ``tectum run``, ``simulate`` and ``demo``: :func:`run_until_signal`
+  receives the signals in a trio task (listening before any sink opens) and
+  cancels the pipeline, whose sinks then abort (their temporary
   files and folders are removed: the output is absent, never truncated);
 * ``tectum convert``: inside :func:`deferred` a signal sets a flag that the
   packet loop checks (a second signal raises at once, for a stuck source).
@@ -108,9 +109,10 @@ def run_until_signal(plan: Any) -> Any:
 
     stats: list[Any] = []
 
-    async def watch(cancel: trio.CancelScope) -> None:
+    async def watch(cancel: trio.CancelScope, task_status: Any = trio.TASK_STATUS_IGNORED) -> None:
         with trio.open_signal_receiver(*_SIGNALS) as signals:
             ours = signal.getsignal(signal.SIGINT)
+            task_status.started()
             async for signum in signals:
                 _received.append(signum)
                 if signum == signal.SIGTERM and signal.getsignal(signal.SIGINT) is not ours:
@@ -122,11 +124,17 @@ def run_until_signal(plan: Any) -> Any:
     async def main() -> None:
         async with trio.open_nursery() as nursery:
             if threading.current_thread() is threading.main_thread():
-                nursery.start_soon(watch, nursery.cancel_scope)
+                await nursery.start(watch, nursery.cancel_scope)  # listening before any sink opens
             stats.append(await arun(plan))
             nursery.cancel_scope.cancel()
 
-    trio.run(main)
+    try:
+        trio.run(main)
+    except BaseExceptionGroup as group:  # a signal in the instant before the receiver was up
+        rest = group.split(KeyboardInterrupt)[1]
+        if rest is not None:
+            raise
+        raise KeyboardInterrupt(_name(received() or signal.SIGINT)) from None
     if not stats:
         raise KeyboardInterrupt(_name(received() or signal.SIGINT))
     return stats[0]

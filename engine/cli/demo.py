@@ -79,6 +79,7 @@ def main(args: argparse.Namespace) -> int:
     from tectum.testing import ListSink
 
     from ._progress import attach
+    from ._signals import run_until_signal
 
     reg = tectum.get_registry()
     op = "filter.background_activity" if "filter.background_activity" in reg.operators else "filter.refractory"
@@ -93,7 +94,7 @@ def main(args: argparse.Namespace) -> int:
     kept = ListSink()
     p.sink(kept, den, id="kept")
     p.sink(str(out / "denoised.npz"), den, id="file")
-    stats = tectum.run(p)
+    stats = run_until_signal(p.validate())
     a, b = raw.events(), kept.events()
     na, nb = a["noise"] != 0, b["noise"] != 0  # simulator truth: shot, hot-pixel and leak noise
     report = {

@@ -48,11 +48,12 @@ def main(args: argparse.Namespace) -> int:
     if not args.scene:
         print("tectum simulate: give a SCENE (see --list)", file=sys.stderr)
         return 2
-    from tectum import Pipeline, get_registry, run
+    from tectum import Pipeline, get_registry
     from tectum.sinks.null import NullSink
     from tectum.sources.simulate import SimulateSource
 
     from ._progress import attach
+    from ._signals import run_until_signal
 
     model = {}
     for kv in args.set:
@@ -73,7 +74,7 @@ def main(args: argparse.Namespace) -> int:
         p.sink(args.out, node, id="out")
     else:
         p.sink(NullSink(), node, id="count")
-    stats = run(p)
+    stats = run_until_signal(p.validate())
     s = stats.nodes.get("simulate")
     n = s.events_out if s is not None else 0
     sim = src.sim
