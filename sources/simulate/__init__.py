@@ -79,7 +79,7 @@ whole scene (``path``, ``fps``, ``gamma``, ``start_frame``: :mod:`.video`).
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
-from typing import Any
+from typing import Any, ClassVar
 
 from tectum import EventPacket, Kind, Packet, Source, concat
 from tectum.hookspecs import hookimpl
@@ -151,7 +151,7 @@ class SimulateSource(Source):
 
     name = "simulate"
     schemes = ("simulate",)
-    produces = (Kind.EVENTS, Kind.POSES, Kind.FRAMES, Kind.IMU)  # all it can give; an instance says which
+    produces: ClassVar[tuple[Kind, ...]] = (Kind.EVENTS, Kind.POSES, Kind.FRAMES, Kind.IMU)  # an instance narrows it
 
     @classmethod
     def kinds_for(cls, arg: str, params: Mapping[str, Any]) -> tuple[Kind, ...]:
