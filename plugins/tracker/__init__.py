@@ -8,10 +8,17 @@ from __future__ import annotations
 from tectum.hookspecs import hookimpl
 
 from .angular_velocity import AngularVelocity
+from .ego_motion import EgoMotion, MotionModelPacket
 
-__all__: list[str] = ["AngularVelocity"]
+__all__: list[str] = ["AngularVelocity", "EgoMotion", "MotionModelPacket"]
 
 
 @hookimpl
 def tectum_register_operators(registry) -> None:  # type: ignore[no-untyped-def]
     registry.add_operator(AngularVelocity)
+    registry.add_operator(EgoMotion)
+
+
+@hookimpl
+def tectum_register_kinds(registry) -> None:  # type: ignore[no-untyped-def]
+    registry.add_kind(MotionModelPacket)
