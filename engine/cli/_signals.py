@@ -98,6 +98,14 @@ def deferred() -> Iterator[Callable[[], None]]:
             signal.signal(s, h)
 
 
+def _leaves(group: BaseExceptionGroup[BaseException]) -> Iterator[BaseException]:
+    for e in group.exceptions:
+        if isinstance(e, BaseExceptionGroup):
+            yield from _leaves(e)
+        else:
+            yield e
+
+
 def run_until_signal(plan: Any) -> Any:
     """``tectum.run(plan)``, cancelled by SIGINT or SIGTERM (then its sinks
     abort and :class:`KeyboardInterrupt` is raised here). A source that
@@ -130,11 +138,14 @@ def run_until_signal(plan: Any) -> Any:
 
     try:
         trio.run(main)
-    except BaseExceptionGroup as group:  # a signal in the instant before the receiver was up
+    except BaseExceptionGroup as group:  # the run's error, as tectum.run raises it (not in a group)
         rest = group.split(KeyboardInterrupt)[1]
-        if rest is not None:
-            raise
-        raise KeyboardInterrupt(_name(received() or signal.SIGINT)) from None
+        if rest is None:  # a signal in the instant before the receiver was up
+            raise KeyboardInterrupt(_name(received() or signal.SIGINT)) from None
+        leaves = list(_leaves(rest))
+        if len(leaves) == 1:
+            raise leaves[0] from None
+        raise
     if not stats:
         raise KeyboardInterrupt(_name(received() or signal.SIGINT))
     return stats[0]

@@ -44,6 +44,8 @@ BAD = {
     "a missing argument": ["convert", "{d}/ok.npz"],
     "a bad duration": ["simulate", "shapes", "--duration", "long"],
     "an unknown scene": ["simulate", "no_such_scene", "--duration", "10ms"],
+    "an operator that refuses its parameters": ["run", "{d}/ok.npz", "--op", "filter.refractory:period_us=-5"],
+    "an operator without the calibration it needs": ["run", "{d}/ok.npz", "--op", "tracker.angular_velocity"],
 }
 
 
