@@ -168,9 +168,10 @@ def warp(x, y, dt, A, A2, G, C, trG, grad, xw, yw, logdet, J, dlogdet):  # type:
         logdet[i] = t * trA - 3.0 * np.log(m2)
         if grad:
             for k in range(P):
-                d0 = t * (G[k, 0, 0] * a + G[k, 0, 1] * b + G[k, 0, 2]) + h * (C[k, 0, 0] * a + C[k, 0, 1] * b + C[k, 0, 2])
-                d1 = t * (G[k, 1, 0] * a + G[k, 1, 1] * b + G[k, 1, 2]) + h * (C[k, 1, 0] * a + C[k, 1, 1] * b + C[k, 1, 2])
-                d2 = t * (G[k, 2, 0] * a + G[k, 2, 1] * b + G[k, 2, 2]) + h * (C[k, 2, 0] * a + C[k, 2, 1] * b + C[k, 2, 2])
+                Gk, Ck = G[k], C[k]
+                d0 = t * (Gk[0, 0] * a + Gk[0, 1] * b + Gk[0, 2]) + h * (Ck[0, 0] * a + Ck[0, 1] * b + Ck[0, 2])
+                d1 = t * (Gk[1, 0] * a + Gk[1, 1] * b + Gk[1, 2]) + h * (Ck[1, 0] * a + Ck[1, 1] * b + Ck[1, 2])
+                d2 = t * (Gk[2, 0] * a + Gk[2, 1] * b + Gk[2, 2]) + h * (Ck[2, 0] * a + Ck[2, 1] * b + Ck[2, 2])
                 J[i, 0, k] = (d0 - u * d2) * inv
                 J[i, 1, k] = (d1 - v * d2) * inv
                 dlogdet[i, k] = t * trG[k] - 3.0 * d2 * inv
@@ -388,7 +389,8 @@ class _Objective:
         return f, self.g * self.pscale
 
 
-def maximise(obj: _Objective, z0: np.ndarray, bound: float, max_iter: int, xtol: float = 1e-3) -> tuple[np.ndarray, float]:
+def maximise(obj: _Objective, z0: np.ndarray, bound: float, max_iter: int,
+             xtol: float = 1e-3) -> tuple[np.ndarray, float]:
     """Quasi-Newton ascent (BFGS on the inverse Hessian, Armijo
     backtracking) of ``obj`` from ``z0`` inside the box ``|z_k| <= bound``
     (steps are clipped to it); stops after ``max_iter`` steps or a step

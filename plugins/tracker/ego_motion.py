@@ -57,6 +57,7 @@ Cost: five fits of a few dozen evaluations each (see ``_ladder``), about
 from __future__ import annotations
 
 from collections.abc import Sequence
+
 import numpy as np
 
 from tectum import EventPacket, Field, Kind, Operator, Packet, SamplePacket, register_kind
