@@ -28,7 +28,10 @@ where the finite-plane homography is singular.
 
 Votes are bilinear (the four pixels around the sub-pixel point share 1),
 loops run plane by plane so that the votes of a block of events land in
-one plane image at a time (a 240x180 plane is 173 kB: it stays in cache).
+one plane image at a time (a 240x180 plane is 173 kB: it stays in cache);
+per plane, a branch-free SIMD loop computes a chunk's cells and weights,
+then a scalar loop adds them (about 2 ns a vote, 3x the one-loop form,
+whose branches and index arithmetic cost more than the memory traffic).
 Traces are float32: 240 px at float32 resolution is 1.5e-5 px.
 Each DSI cell receives its votes in event order whatever the loop order or
 the packet split, so the float32 sums are bit-identical for any split.
@@ -78,6 +81,9 @@ def ray_traces(x, y, seg, rays, R, C, fx, fy, cx, cy, trace):  # type: ignore[no
 #: Events per block of :func:`vote`: the block's traces (16 bytes an event)
 #: stay in cache while the planes go by.
 BLOCK = 1 << 16
+#: Events per chunk of a plane pass: the chunk's votes (20 bytes an event)
+#: are computed into a buffer that stays in L1, then scattered.
+CHUNK = 1024
 
 
 @njit(cache=True, nogil=True, boundscheck=False)
@@ -88,34 +94,63 @@ def vote(trace, first, rho, dsi):  # type: ignore[no-untyped-def]  # pragma: no 
     dv`` (px, pixel centres at integers), for the planes ``k >= first[i]``
     (those in front of the event's camera). Votes whose 2x2 cell is not
     wholly inside the image are dropped. Blocks of :data:`BLOCK` events,
-    plane by plane within a block; returns the number of votes cast."""
+    plane by plane within a block; returns the number of votes cast.
+
+    Each plane pass goes in chunks of :data:`CHUNK` events, in two loops:
+    the first, branch-free (SIMD), computes every event's cell (flat index
+    of its top-left pixel) and four weights; the second adds them into the
+    plane. A dropped vote gets weight 0 at cell 0: adding +0.0 leaves a
+    non-negative float32 unchanged, so this is exactly the same as not
+    voting, and each cell still receives its votes in event order."""
     P, H, W = dsi.shape
     n = trace.shape[1]
     wmax = np.float32(W - 1)
     hmax = np.float32(H - 1)
     one = np.float32(1.0)
+    zero = np.float32(0.0)
+    right = np.uint32(1)  # flat offsets (unsigned: no negative-index wraparound) of the other 3 pixels
+    down = np.uint32(W)
+    diag = np.uint32(W + 1)
+    cell = np.empty(CHUNK, np.uint32)
+    w00 = np.empty(CHUNK, np.float32)
+    w01 = np.empty(CHUNK, np.float32)
+    w10 = np.empty(CHUNK, np.float32)
+    w11 = np.empty(CHUNK, np.float32)
     cast = 0
     for a in range(0, n, BLOCK):
         b = min(n, a + BLOCK)
         for k in range(P):
             r = np.float32(rho[k])
-            plane = dsi[k]
-            for i in range(a, b):
-                if k < first[i]:
-                    continue
-                u = trace[0, i] + r * trace[2, i]
-                v = trace[1, i] + r * trace[3, i]
-                if not (u >= 0 and v >= 0 and u < wmax and v < hmax):  # also rejects NaN
-                    continue
-                iu = int(u)
-                iv = int(v)
-                fu = u - np.float32(iu)
-                fv = v - np.float32(iv)
-                plane[iv, iu] += (one - fu) * (one - fv)
-                plane[iv, iu + 1] += fu * (one - fv)
-                plane[iv + 1, iu] += (one - fu) * fv
-                plane[iv + 1, iu + 1] += fu * fv
-                cast += 1
+            plane = dsi[k].reshape(H * W)
+            for c in range(a, b, CHUNK):
+                m = min(CHUNK, b - c)
+                u_inf, v_inf = trace[0, c:c + m], trace[1, c:c + m]
+                du, dv = trace[2, c:c + m], trace[3, c:c + m]
+                fc = first[c:c + m]
+                for j in range(m):
+                    u = u_inf[j] + r * du[j]
+                    v = v_inf[j] + r * dv[j]
+                    # also rejects NaN
+                    ok = (u >= zero) & (v >= zero) & (u < wmax) & (v < hmax) & (k >= fc[j])
+                    u = u if ok else zero
+                    v = v if ok else zero
+                    iu = np.int32(u)
+                    iv = np.int32(v)
+                    fu = u - np.float32(iu)
+                    fv = v - np.float32(iv)
+                    gu = (one if ok else zero) - fu  # 1 - fu, or 0 for a dropped vote (fu = fv = 0)
+                    w00[j] = gu * (one - fv)
+                    w01[j] = fu * (one - fv)
+                    w10[j] = gu * fv
+                    w11[j] = fu * fv
+                    cell[j] = np.uint32(iv * W + iu)
+                    cast += ok
+                for j in range(m):
+                    p = cell[j]
+                    plane[p] += w00[j]
+                    plane[p + right] += w01[j]
+                    plane[p + down] += w10[j]
+                    plane[p + diag] += w11[j]
     return cast
 
 
