@@ -57,7 +57,8 @@ cover none of the events is an error at the end.
 Cost: per event one 3x3 product and ``planes`` bilinear votes (numba, plane
 by plane); per map an argmax over the DSI, a Gaussian filter and a median.
 Memory: the DSI, ``planes x H x W x 4`` bytes (100 planes at 240x180:
-17.3 MB; at 346x260: 36 MB), plus the events waiting for their pose.
+17.3 MB; at 346x260: 36 MB), plus the events waiting for their pose and
+the traces of one block of 65,536 events (1 MB).
 """
 
 from __future__ import annotations
@@ -74,7 +75,7 @@ from tectum import EventPacket, Kind, MapPacket, Operator, Packet, PointPacket, 
 from tectum.camera import QUAT_TOL, Camera, interpolate_poses, quat_to_rot, rot_to_quat
 from tectum.plugins.repr.motion_compensated import _camera
 
-from ._dsi import argmax_depth, masked_median, ray_traces, vote
+from ._dsi import BLOCK, argmax_depth, masked_median, ray_traces, vote
 
 __all__ = ["Emvs", "depth_planes", "depth_map"]
 
@@ -220,6 +221,7 @@ class Emvs(Operator):
         self._ref: tuple[np.ndarray, np.ndarray, int] | None = None  # R_wr, t_wr (m), t_ref (µs)
         self._baseline = 0.0  # m, largest distance of a segment's camera from the reference
         self._voted = False   # the DSI has votes
+        self._trace = np.empty(4 * BLOCK, np.float32)  # the traces of a block of events (see _vote)
         self._last_t = 0      # µs, the last event voted into the DSI
         self._mark = 0        # µs, the events' watermark
         self._first_pose: int | None = None  # µs
@@ -390,12 +392,17 @@ class Emvs(Operator):
         # planes in front of each segment's camera: Z_k > C_z (near to far)
         first = np.searchsorted(self.depths, C[:, 2], side="right").astype(np.int64)
         seg = np.repeat(np.arange(len(segs), dtype=np.int64), [e - s for s, e in segs])
-        x, y = self._x[a:b], self._y[a:b]
-        trace = np.empty((4, b - a), np.float32)
-        ok = ray_traces(x, y, seg, self._rays, np.ascontiguousarray(R_re), np.ascontiguousarray(C),
-                        self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy, trace)
-        self.counts["outside_view"] += (b - a) - int(ok)
-        vote(trace, first[seg], self.rho, self._dsi)
+        R_re, C = np.ascontiguousarray(R_re), np.ascontiguousarray(C)
+        cam = self.camera
+        # blocks of BLOCK events: their traces stay in cache from ray_traces to vote (cells still get
+        # their votes in event order)
+        for i in range(0, b - a, BLOCK):
+            j = min(b - a, i + BLOCK)
+            trace = self._trace[:4 * (j - i)].reshape(4, j - i)
+            ok = ray_traces(self._x[a + i:a + j], self._y[a + i:a + j], seg[i:j], self._rays, R_re, C, cam.fx,
+                            cam.fy, cam.cx, cam.cy, trace)
+            self.counts["outside_view"] += (j - i) - int(ok)
+            vote(trace, first[seg[i:j]], self.rho, self._dsi)
         self._last_t, self._voted = int(self._t[b - 1]), True
 
     def _finalize(self) -> list[Packet]:
