@@ -204,6 +204,8 @@ class RawSource(FileSource):
         strict = not self.skip_bad
         no_where = np.empty(0, np.int64)
         trig = np.empty((0, 3), np.int64)
+        held = trig  # triggers at the latest time, waiting for the next chunk
+        pos = start
         cap = max(1 << 12, self.chunk_bytes // size)  # events decoded per call
         for pos, words in self._words(f, start):
             if trig.shape[0] < words.shape[0]:
@@ -221,15 +223,34 @@ class RawSource(FileSource):
                     self._note_skip(at, at + size - 1, nbad)
                 yield from asm.commit(ne, pos, self._where_of(words[i:i + used], before, pos + i * size))
                 if nt:
-                    tp = tiler.push(TriggerPacket, "triggers", trig[:nt, 0] + off, pos,
-                                    channel=trig[:nt, 1].astype(np.int16), value=trig[:nt, 2].astype(np.int8))
-                    if tp is not None:
-                        yield tp
+                    held = np.concatenate([held, trig[:nt]])
+                    held[-nt:, 0] += off
+                    k = self._last_run(held)
+                    yield from self._triggers(tiler, held[:k], pos)
+                    held = held[k:]
                 i += used
             if asm.past_end():
                 break
         self.untimed_events = int(state[4] if self.evt_format == "evt2" else state[7])
         yield from asm.finish()
+        yield from self._triggers(tiler, held, pos)
+
+    @staticmethod
+    def _last_run(rows: np.ndarray) -> int:
+        """Where the trailing run of ``rows`` sharing the last row's time
+        starts: those wait for the next chunk (a trigger may follow at that
+        time, and a time is never split across packets)."""
+        other = np.flatnonzero(rows[:, 0] != rows[-1, 0])
+        return int(other[-1]) + 1 if other.size else 0
+
+    @staticmethod
+    def _triggers(tiler: SampleTiler, rows: np.ndarray, pos: int) -> Iterator[Packet]:
+        """The trigger packet of ``rows`` (t µs, channel, value), if any."""
+        if rows.shape[0]:
+            tp = tiler.push(TriggerPacket, "triggers", rows[:, 0], pos,
+                            channel=rows[:, 1].astype(np.int16), value=rows[:, 2].astype(np.int8))
+            if tp is not None:
+                yield tp
 
     def _where_of(self, words: np.ndarray, state: np.ndarray, at: int) -> Any:
         """A function giving each event's byte offset, by decoding ``words``
