@@ -27,7 +27,7 @@ import numpy as np
 from ._camera import Camera, Model
 from .errors import FormatError
 
-__all__ = ["read_calibration", "read_uzh_calib", "Side"]
+__all__ = ["camera_from", "read_calibration", "read_uzh_calib", "Side"]
 
 Side = Literal["mono", "left", "right"]
 
@@ -60,6 +60,26 @@ def read_calibration(path: str | Path, side: Side = "mono") -> Camera:
         return read_uzh_calib(path)
     data = _read_json(path) if path.suffix.lower() == ".json" else _read_yaml(path)
     return _camera_from(data, side, path)
+
+
+def camera_from(calib: str) -> Camera:
+    """The camera an operator's ``calib=`` names: a calibration file (as
+    :func:`read_calibration` reads) or inline intrinsics
+    ``'fx;fy;cx;cy[;k1;k2;p1;p2[;k3]]'`` (px, radtan distortion; commas work
+    too). An empty value is a ValueError saying how to give one."""
+    if not calib:
+        raise ValueError("needs calib= (a calibration file, or 'fx;fy;cx;cy[;k1;k2;p1;p2;k3]'); a recording's "
+                         "calib.txt beside it is used when the pipeline's source is that recording")
+    parts = calib.replace(",", ";").split(";")
+    if len(parts) in (4, 8, 9):
+        try:
+            vals = [float(v) for v in parts]
+        except ValueError:
+            vals = []
+        if vals:
+            fx, fy, cx, cy, *d = vals
+            return Camera(np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]]), np.array(d or [0.0] * 4))
+    return read_calibration(calib)
 
 
 def _camera(path: Path, *args: Any) -> Camera:

@@ -72,8 +72,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 from tectum import EventPacket, Kind, MapPacket, Operator, Packet, PointPacket, Port, PosePacket
-from tectum.camera import QUAT_TOL, Camera, interpolate_poses, quat_to_rot, rot_to_quat
-from tectum.plugins.repr.motion_compensated import _camera
+from tectum.camera import QUAT_TOL, Camera, camera_from, interpolate_poses, quat_to_rot, rot_to_quat
 
 from ._dsi import BLOCK, argmax_depth, masked_median, ray_traces, vote
 
@@ -186,7 +185,7 @@ class Emvs(Operator):
                  segment_us: int = 10_000, keyframe_baseline: float = 0.15, min_baseline: float = 0.02,
                  refine: bool = True, threshold_sigma: float = 2.0, threshold_c: float = 0.05,
                  median_size: int = 5, points: bool = True) -> None:
-        self.camera: Camera = _camera(calib)
+        self.camera: Camera = camera_from(calib)
         self.depths = depth_planes(planes, min_depth, max_depth, spacing)
         self.rho = np.ascontiguousarray(1.0 / self.depths)
         if segment_events < 1 or segment_us < 1:

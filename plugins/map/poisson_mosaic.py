@@ -59,8 +59,7 @@ from collections.abc import Callable, Mapping
 import numpy as np
 
 from tectum import EventPacket, Kind, MapPacket, Operator, Packet, Port, PosePacket, concat
-from tectum.camera import QUAT_TOL, Camera, quat_conj, quat_mul, rot_to_quat, so3_exp
-from tectum.plugins.repr.motion_compensated import _camera
+from tectum.camera import QUAT_TOL, Camera, camera_from, quat_conj, quat_mul, rot_to_quat, so3_exp
 
 from ._panorama import map_events, pano_shape, solve_gradients
 from ._poisson import poisson_solve
@@ -138,7 +137,7 @@ class PoissonMosaic(Operator):
             raise ValueError("contrast, contrast_off, sigma_c, sigma_g and max_disp_px must be > 0")
         if min_measurements < 1:
             raise ValueError(f"min_measurements must be >= 1, got {min_measurements}")
-        self.camera: Camera = _camera(calib)
+        self.camera: Camera = camera_from(calib)
         self.emit_us = int(emit_us)
         self.contrast = np.array([contrast, c_off], np.float64)
         self.ridge = (sigma_c / sigma_g) ** 2

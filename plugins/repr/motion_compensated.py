@@ -45,7 +45,7 @@ import numpy as np
 from numba import njit
 
 from tectum import EventPacket, FramePacket, Kind, Operator, Packet, Port, concat
-from tectum.camera import Camera, quat_to_rot, read_calibration, so3_exp
+from tectum.camera import camera_from, quat_to_rot, so3_exp
 
 __all__ = ["MotionCompensated", "warp_vote", "gyro_rotations"]
 
@@ -128,22 +128,6 @@ def warp_vote(x, y, p, R, rays, fx, fy, cx, cy, signed, img):  # type: ignore[no
     return inside
 
 
-def _camera(calib: str) -> Camera:
-    if not calib:
-        raise ValueError("needs calib= (a calibration file, or 'fx;fy;cx;cy[;k1;k2;p1;p2;k3]'); a recording's "
-                         "calib.txt beside it is used when the pipeline's source is that recording")
-    parts = calib.replace(",", ";").split(";")
-    if len(parts) in (4, 8, 9):
-        try:
-            vals = [float(v) for v in parts]
-        except ValueError:
-            vals = []
-        if vals:
-            fx, fy, cx, cy, *d = vals
-            return Camera(np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]]), np.array(d or [0.0] * 4))
-    return read_calibration(calib)
-
-
 def _imu_rotation(values: tuple[float, ...]) -> np.ndarray:
     if not values:
         return np.eye(3)
@@ -193,7 +177,7 @@ class MotionCompensated(Operator):
                  imu_rotation: tuple[float, ...] = (), imu_time_offset_us: int = 0, partial: bool = True) -> None:
         if window_us < 1:
             raise ValueError("window_us must be >= 1")
-        self.camera = _camera(calib)
+        self.camera = camera_from(calib)
         self.window_us, self.signed, self.partial = int(window_us), mode == "polarity", bool(partial)
         self.R_ci = _imu_rotation(tuple(imu_rotation))
         self.imu_offset = int(imu_time_offset_us)

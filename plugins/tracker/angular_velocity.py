@@ -65,9 +65,9 @@ def _need_camera(calib: str) -> Camera:
             "tracker.angular_velocity needs the camera intrinsics: give calib= (a calibration file: UZH "
             "calib.txt, OpenCV YAML/JSON or a ROS camera_info YAML; or inline 'fx;fy;cx;cy[;k1;k2;p1;p2;k3]' px), "
             "or put a calib.txt beside the recording the pipeline reads")
-    from tectum.plugins.repr.motion_compensated import _camera
+    from tectum.camera import camera_from
 
-    return _camera(calib)
+    return camera_from(calib)
 
 
 class _Images:

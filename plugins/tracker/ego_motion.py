@@ -61,8 +61,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from tectum import EventPacket, Field, Kind, Operator, Packet, SamplePacket, register_kind
-from tectum.camera import Camera
-from tectum.plugins.repr.motion_compensated import _camera
+from tectum.camera import Camera, camera_from
 
 from ._ladder import MODELS, N_PARAMS, NEEDS_CALIBRATION, Frame, LadderResult, run_ladder
 
@@ -138,7 +137,7 @@ class EgoMotion(Operator):
         if max_disp_px <= 0 or tol < 0 or tol_rel < 0 or k_se < 0:
             raise ValueError("need max_disp_px > 0 and tol, tol_rel, k_se >= 0")
         asked = _models(models)
-        self.camera: Camera | None = _camera(calib) if calib else None
+        self.camera: Camera | None = camera_from(calib) if calib else None
         if self.camera is None and NEEDS_CALIBRATION & set(asked):
             raise ValueError(f"models {sorted(NEEDS_CALIBRATION & set(asked))} need the camera calibration: give "
                              "calib= (a calibration file: UZH calib.txt, OpenCV YAML/JSON or a ROS camera_info "

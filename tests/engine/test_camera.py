@@ -414,3 +414,16 @@ def test_imports_no_plugin_source_or_sink():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
     assert tectum.camera.Camera is Camera
+
+
+def test_camera_from_takes_inline_intrinsics_or_a_file(tmp_path):
+    from tectum.camera import camera_from
+
+    cam = camera_from("200;201;120.5;90;0.1;-0.02;0.001;0.002")
+    assert np.allclose(cam.K, [[200, 0, 120.5], [0, 201, 90], [0, 0, 1]])
+    assert np.allclose(cam.D[:4], [0.1, -0.02, 0.001, 0.002])
+    f = tmp_path / "calib.txt"
+    f.write_text("200 201 120.5 90 0.1 -0.02 0.001 0.002 0\n")
+    assert np.allclose(camera_from(str(f)).K, cam.K)
+    with pytest.raises(ValueError, match="calib="):
+        camera_from("")
