@@ -5,28 +5,34 @@ maximisation with a rotational warp (Gallego & Scaramuzza, RA-L 2017,
 Under a pure rotation (or a scene far away) the events of one window, warped
 back to the window's middle by the right angular velocity ω, pile up on the
 edges that caused them: the image of warped events (IWE) is sharpest. Per
-window the operator maximises the IWE's focus (sum of squares of the
-B-spline-voted IWE, its variance up to a constant: see
-:mod:`tectum.plugins._cmax`; ``flow.contrast_max`` computes the same
-focus with its own translation-warp kernel) over ω with
-its analytic gradient and BFGS, warm-started from the previous window's ω.
-A window with no valid previous estimate starts from ω = 0 and climbs
-coarse to fine (IWE pixels 4, then 2, then 1 px: the coarse images widen
-the basin of the true maximum at high speeds).
+window the operator maximises the IWE's focus over ω with its analytic
+gradient and BFGS, warm-started from the previous window's ω. The focus is
+the variance of the B-spline-voted IWE (pixels of ``iwe_px`` px) over the
+sensor less, on each side, the window's image motion (see
+:func:`estimate_rotation` and :mod:`tectum.plugins._cmax`): a fixed
+region whose pixels all see a whole window of events. The sum of squares
+over the whole IWE used before leant towards warps that keep the events
+inside a smaller area (underestimated rates: ``tectum bench tracker`` had
+up to 25 % of the peak error on the smallest axis at 100 °/s). A window
+with no valid previous estimate starts from ω = 0 and climbs coarse to fine
+(IWE pixels ``2 iwe_px``, then ``iwe_px``).
 
 Event coordinates are undistorted with the calibration (``calib=`` or the
 ``calib.txt`` beside the recording) and warped on normalised coordinates
 (first-order rotation, see :mod:`tectum.plugins._cmax`).
 
 Windows: ``window_events`` events sliding by ``step_events`` (the result
-rate follows the event rate: at 1 Mev/s, the default 30,000 events sliding
-by 10,000 give a result every 10 ms from 30 ms of events). A window must
-hold enough motion to focus: with a textured 240x180 scene 10,000 events
-move the image by about a pixel, too little (``tectum bench tracker``:
-20-70 % error), 30,000 by a few, or with ``window_us`` > 0,
-windows of ``window_us`` µs sliding by ``step_us`` from the stream's start,
-emitted when the watermark passes their end. Either way the windows depend
-on the events and times only, never on how packets cut the stream.
+rate follows the event rate: at 1 Mev/s, the default 60,000 events sliding
+by 10,000 give a result every 10 ms from 60 ms of events), or with
+``window_us`` > 0, windows of ``window_us`` µs sliding by ``step_us`` from
+the stream's start, emitted when the watermark passes their end. Either way
+the windows depend on the events and times only, never on how packets cut
+the stream. A window must hold enough motion to focus, and the precision
+grows with the motion it spans, not with its event count: a window longer
+than ``max_events`` is thinned evenly (every k-th event) to at most that
+many. Measured on the bench's 240x180 rotation scenes: 30,000 events
+(about 10 px of motion) gave 7-10 % of the peak error at 100 °/s, 60,000
+thinned to 30,000 give 1-2 %, at the same cost.
 
 Output (:class:`~tectum.AngularVelocityPacket`): per window ``t`` (its last
 event's time; with ``window_us``, its end - 1), ``wx, wy, wz`` rad/s in the
@@ -38,9 +44,9 @@ than ``min_events`` events landing in the image gives no sample and is
 counted (``skipped_few_events``); an optimiser result that is not finite is
 dropped and counted (``skipped_not_finite``): no NaN goes downstream.
 
-Cost: per window a few (typically 4-10) focus-and-gradient evaluations,
-each three passes over the window's events (warp and vote, gather, clear)
-and no pass over the image; memory: the events of one window.
+Cost: per window a few (typically 4-6) focus-and-gradient evaluations,
+each two passes over the (thinned) window's events (warp and vote, gather)
+and a clear of the votes' bounding box; memory: the events of one window.
 """
 
 from __future__ import annotations
@@ -49,12 +55,10 @@ import numpy as np
 
 from tectum import AngularVelocityPacket, EventPacket, Kind, Operator, Packet
 from tectum.camera import Camera
-from tectum.plugins._cmax import focus, maximise_rotation, rotation_warp
+from tectum.plugins._cmax import maximise_rotation, rotation_focus_grad
 
 __all__ = ["AngularVelocity", "estimate_rotation"]
 
-#: IWE pixel sizes (px) of a cold start, coarse to fine
-COARSE_TO_FINE = (4.0, 2.0, 1.0)
 #: IWE margin around the sensor, px (events warped just outside still vote)
 MARGIN_PX = 8
 
@@ -71,43 +75,59 @@ def _need_camera(calib: str) -> Camera:
 
 
 class _Images:
-    """Zeroed IWE buffers per pixel size, and the projection of each."""
+    """Zeroed IWE buffers per pixel size (``scales``, px, coarse to fine),
+    and the projection of each."""
 
-    def __init__(self, camera: Camera, sensor: tuple[int, int]) -> None:
+    def __init__(self, camera: Camera, sensor: tuple[int, int], scales: tuple[float, ...]) -> None:
         w, h = sensor
+        self.scales = scales
+        self.f = float(camera.fx)
         self.by_scale: dict[float, tuple[np.ndarray, np.ndarray]] = {}
-        for s in COARSE_TO_FINE:
+        for s in scales:
             inv = 1.0 / s
             img = np.zeros((int(np.ceil((h + 2 * MARGIN_PX) * inv)) + 2, int(np.ceil((w + 2 * MARGIN_PX) * inv)) + 2))
             cam = np.array([camera.fx * inv, camera.fy * inv, (camera.cx + MARGIN_PX) * inv,
                             (camera.cy + MARGIN_PX) * inv])
             self.by_scale[s] = (img, cam)
+        self.sensor = sensor
+
+    def rect(self, s: float, border: float) -> np.ndarray:
+        """The focus region at IWE pixel size ``s``: the sensor less ``border``
+        px on each side (at most a quarter of its height), as inclusive IWE
+        pixel indices ``(c0, c1, r0, r1)``."""
+        w, h = self.sensor
+        b = min(border, 0.25 * min(w, h))
+        return np.array([np.ceil((b + MARGIN_PX) / s), np.floor((w - 1 - b + MARGIN_PX) / s),
+                         np.ceil((b + MARGIN_PX) / s), np.floor((h - 1 - b + MARGIN_PX) / s)])
 
 
 def estimate_rotation(xn: np.ndarray, yn: np.ndarray, dt: np.ndarray, images: _Images, w0: np.ndarray | None,
                       H: np.ndarray, max_iter: int, tol_px: float) -> tuple[np.ndarray, float, float, int, int]:
     """ω (rad/s) maximising the focus of events at normalised coordinates
-    ``(xn, yn)`` seen ``dt`` s from the reference time; from ``w0`` at full
-    resolution, or from zero coarse to fine when ``w0`` is None. ``H`` is
-    the BFGS inverse-Hessian estimate (kept from window to window, see
-    :func:`~tectum.plugins._cmax.maximise_rotation`). Returns ``(ω, focus at
-    ω, focus at 0, events that voted, focus evaluations)``."""
+    ``(xn, yn)`` seen ``dt`` s from the reference time; from ``w0`` at the
+    finest IWE pixel size, or from zero coarse to fine when ``w0`` is None.
+    ``H`` is the BFGS inverse-Hessian estimate (kept from window to window,
+    see :func:`~tectum.plugins._cmax.maximise_rotation`). The focus region
+    is the sensor less, on each side, the image motion of the window's end
+    events at the centre under the starting ω (``|ω| span f`` px): scene
+    points inside it stay in view for the whole window, so every pixel of
+    it gathers a whole window of events (see the module). Returns ``(ω,
+    focus at ω, focus at 0, events that voted, focus evaluations)``."""
     n = xn.shape[0]
     u, v = np.empty(n), np.empty(n)
     span = max(float(np.abs(dt).max()) if n else 0.0, 1e-6)
-    scales = COARSE_TO_FINE if w0 is None else COARSE_TO_FINE[-1:]
+    scales = images.scales if w0 is None else images.scales[-1:]
     w = np.zeros(3) if w0 is None else w0.copy()
+    tol = tol_px / (images.f * span)  # rad/s moving an event at the window's end by tol_px px
     f, m, evals = 0.0, 0, 0
     for s in scales:
         img, cam = images.by_scale[s]
         if len(scales) > 1:
             H[0, 0] = 0.0  # curvature differs per pixel size: start afresh
-        tol = tol_px / (cam[0] * span)  # rad/s moving an event at the window's end by tol_px IWE pixels
-        w, f, m, e = maximise_rotation(xn, yn, dt, w, H, cam, img, u, v, max_iter, tol)
+        rect = images.rect(s, float(np.linalg.norm(w)) * span * images.f)
+        w, f, m, e = maximise_rotation(xn, yn, dt, w, H, cam, img, u, v, max_iter, tol, rect)
         evals += e
-    img, cam = images.by_scale[COARSE_TO_FINE[-1]]
-    rotation_warp(xn, yn, dt, np.zeros(3), cam, u, v)
-    f0 = focus(u, v, img)
+    f0, _ = rotation_focus_grad(xn, yn, dt, np.zeros(3), cam, img, u, v, np.empty(3), rect)
     return w, float(f), float(f0), int(m), evals + 1
 
 
@@ -124,13 +144,18 @@ class AngularVelocity(Operator):
     window_events:
         Events per window.
     step_events:
-        Events between window starts (0: a third of a window).
+        Events between window starts (0: a sixth of a window).
     window_us:
         > 0: windows of this many µs instead of event counts.
     step_us:
         µs between window starts with ``window_us`` (0: half a window).
+    max_events:
+        Events of a window the focus uses: a longer window is thinned evenly
+        (every k-th event) to at most this many.
     min_events:
-        Fewer events landing in the image: no estimate (a counted skip).
+        Fewer (used) events landing in the image: no estimate (a counted skip).
+    iwe_px:
+        IWE pixel size, px (a cold start climbs from twice this).
     max_iter:
         BFGS iterations per window (per pixel size on a cold start).
     tol_px:
@@ -152,16 +177,18 @@ class AngularVelocity(Operator):
 
         return _rotating_points(duration_us=40_000, sensor=(48, 36), f=40.0)["events"]
 
-    def __init__(self, calib: str = "", window_events: int = 30_000, step_events: int = 0, window_us: int = 0,
-                 step_us: int = 0, min_events: int = 500, max_iter: int = 20, tol_px: float = 0.01) -> None:
+    def __init__(self, calib: str = "", window_events: int = 60_000, step_events: int = 0, window_us: int = 0,
+                 step_us: int = 0, max_events: int = 30_000, min_events: int = 500, iwe_px: float = 2.0,
+                 max_iter: int = 20, tol_px: float = 0.2) -> None:
         if window_events < 1 or step_events < 0 or window_us < 0 or step_us < 0 or min_events < 1:
             raise ValueError("need window_events >= 1, step_events >= 0, window_us >= 0, step_us >= 0, "
                              "min_events >= 1")
-        if max_iter < 1 or not tol_px > 0:
-            raise ValueError("need max_iter >= 1 and tol_px > 0")
+        if max_events < min_events or not iwe_px >= 1 or max_iter < 1 or not tol_px > 0:
+            raise ValueError("need max_events >= min_events, iwe_px >= 1, max_iter >= 1 and tol_px > 0")
         self.camera = _need_camera(calib)
         self.window_events = int(window_events)
-        self.step_events = int(step_events) or max(1, self.window_events // 3)
+        self.step_events = int(step_events) or max(1, self.window_events // 6)
+        self.max_events, self.iwe_px = int(max_events), float(iwe_px)
         self.window_us = int(window_us)
         self.step_us = int(step_us) or max(1, self.window_us // 2)
         self.min_events, self.max_iter, self.tol_px = int(min_events), int(max_iter), float(tol_px)
@@ -191,7 +218,7 @@ class AngularVelocity(Operator):
             table = rays[:, :2] / rays[:, 2:3]
         table[~np.isfinite(table).all(axis=1)] = 1e6  # no inverse: far outside, never votes
         self._table = np.ascontiguousarray(table.reshape(h, w, 2))
-        self._images = _Images(self.camera, sensor)
+        self._images = _Images(self.camera, sensor, (2 * self.iwe_px, self.iwe_px))
         self._sensor = sensor
 
     # -- one window -------------------------------------------------------------------------
@@ -203,6 +230,10 @@ class AngularVelocity(Operator):
             self._w = None
             return None
         assert self._images is not None
+        n = len(t)
+        if n > self.max_events:  # thinned evenly: the window's time span (its motion) counts, not its events
+            k = -(-n // self.max_events)
+            t, x, y = t[::k], x[::k], y[::k]
         xy = self._table[y, x]
         t_ref = 0.5 * (int(t[0]) + int(t[-1]))
         dt = (t - t_ref) * 1e-6
@@ -218,7 +249,7 @@ class AngularVelocity(Operator):
             self._w = None
             return None
         self._w = w
-        return w, float(min(1.0, max(0.0, 1.0 - f0 / f))), len(t)
+        return w, float(min(1.0, max(0.0, 1.0 - f0 / f))), n
 
     # -- windows ----------------------------------------------------------------------------
     def process(self, packet: EventPacket) -> list[Packet]:

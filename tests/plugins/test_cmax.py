@@ -91,23 +91,35 @@ def test_rotation_warp_is_the_first_order_rotation():
     assert np.abs(u - ue).max() < 100 * 0.5 * (np.linalg.norm(w) * 0.004) ** 2 * 2
 
 
-def test_rotation_focus_and_gradient():
+def _region_variance(img, rect):
+    """The focus written out: Σ_R I^2 - (Σ_R I)^2 / |R| over the rectangle R."""
+    c0, c1, r0, r1 = (int(a) for a in rect)
+    part = img[r0:r1 + 1, c0:c1 + 1]
+    return float((part ** 2).sum() - part.sum() ** 2 / part.size)
+
+
+#: a focus region that cuts through the warped points (many straddle its edges)
+RECT = np.array([20.0, 105.0, 12.0, 80.0])
+
+
+@pytest.mark.parametrize("rect", [RECT, np.array([0.0, 129.0, 0.0, 99.0])])
+def test_rotation_focus_and_gradient(rect):
     x, y, dt = _rays()
     w = np.array([2.0, -1.0, 3.0])
     img = np.zeros((100, 130))
     u, v, g = np.empty(len(x)), np.empty(len(x)), np.empty(3)
-    f, m = rotation_focus_grad(x, y, dt, w, CAM, img, u, v, g)
+    f, m = rotation_focus_grad(x, y, dt, w, CAM, img, u, v, g, rect)
     assert not img.any()
     uu, vv = np.empty(len(x)), np.empty(len(x))
     rotation_warp(x, y, dt, w, CAM, uu, vv)
-    assert f == pytest.approx(float((_image(uu, vv, img.shape) ** 2).sum()), rel=1e-9)
+    assert f == pytest.approx(_region_variance(_image(uu, vv, img.shape), rect), rel=1e-9)
     assert m == len(x)
     h = 1e-5
     for j in range(3):
         e = np.zeros(3)
         e[j] = h
-        fp, _ = rotation_focus_grad(x, y, dt, w + e, CAM, img, u, v, np.empty(3))
-        fm, _ = rotation_focus_grad(x, y, dt, w - e, CAM, img, u, v, np.empty(3))
+        fp, _ = rotation_focus_grad(x, y, dt, w + e, CAM, img, u, v, np.empty(3), rect)
+        fm, _ = rotation_focus_grad(x, y, dt, w - e, CAM, img, u, v, np.empty(3), rect)
         assert g[j] == pytest.approx((fp - fm) / (2 * h), rel=1e-4)
 
 
@@ -123,6 +135,7 @@ def test_bfgs_finds_a_known_rotation():
     img = np.zeros((100, 130))
     u, v = np.empty(len(x)), np.empty(len(x))
     H = np.zeros((3, 3))
-    w, f, m, evals = maximise_rotation(x, y, dt, np.array([0.8, -1.6, 3.5]), H, CAM, img, u, v, 40, 1e-4)
+    w, f, m, evals = maximise_rotation(x, y, dt, np.array([0.8, -1.6, 3.5]), H, CAM, img, u, v, 40, 1e-4,
+                                       np.array([5.0, 124.0, 5.0, 94.0]))
     np.testing.assert_allclose(w, w_true, atol=0.03 * 4.0)
     assert H[0, 0] > 0 and evals < 60
