@@ -20,21 +20,27 @@ OMEGA = np.array([1.5, -2.5, 0.8])  # rad/s, camera frame
 SENSOR = (120, 90)
 
 
-@lru_cache(maxsize=1)
-def _scene() -> tuple[EventPacket, str]:
-    """150 ms of a camera turning at OMEGA before a textured panorama (ideal
-    sensor, thresholds 0.4); the first 40 ms left out (every pixel starts
-    referenced to the first image: a transient no real sensor has)."""
+def _simulated(omega: np.ndarray, duration_us: int) -> tuple[EventPacket, str]:
+    """A camera turning at ``omega`` before a textured panorama (ideal
+    sensor, thresholds 0.4) and its calibration; the first 40 ms left out
+    (every pixel starts referenced to the first image: a transient no real
+    sensor has)."""
     from tectum.sources.simulate import simulate
 
     scene = {"panorama": {"texture": {"kind": "noise", "size": 256, "blur": 1.5, "contrast": 0.6, "mean": 0.35},
                           "texel_deg": 360 / 1024},
-             "motion": {"angular_velocity": OMEGA.tolist()}}
-    ev, truth = simulate(scene, 150_000, sensor=SENSOR, preset="ideal", c_on=0.4, c_off=0.4)
+             "motion": {"angular_velocity": omega.tolist()}}
+    ev, truth = simulate(scene, duration_us, sensor=SENSOR, preset="ideal", c_on=0.4, c_off=0.4)
     ev = ev.slice_time(40_000, None)
     f, cx, cy = truth["camera"]
     plain = EventPacket.from_arrays(ev.t, ev.x, ev.y, ev.p, sensor=ev.sensor, t_start=ev.t_start, t_end=ev.t_end)
     return plain, f"{f};{f};{cx};{cy}"
+
+
+@lru_cache(maxsize=1)
+def _scene() -> tuple[EventPacket, str]:
+    """150 ms of a camera turning at OMEGA (see :func:`_simulated`)."""
+    return _simulated(OMEGA, 150_000)
 
 
 def _omega(out):
@@ -65,17 +71,9 @@ def test_slow_oblique_rotation_within_3_percent_of_peak_on_every_axis():
     variance over the whole sensor, 0.8 / 0.7 / 1.9 % with the variance over
     the sensor less the window's motion, the focus now; the operator before
     this change gave 3.8 / 1.1 / 3.9 %)."""
-    from tectum.sources.simulate import simulate
-
     omega = np.radians(100.0) * np.array([0.5, -0.8, 0.33]) / np.linalg.norm([0.5, -0.8, 0.33])
-    scene = {"panorama": {"texture": {"kind": "noise", "size": 256, "blur": 1.5, "contrast": 0.6, "mean": 0.35},
-                          "texel_deg": 360 / 1024},
-             "motion": {"angular_velocity": omega.tolist()}}
-    ev, truth = simulate(scene, 400_000, sensor=SENSOR, preset="ideal", c_on=0.4, c_off=0.4)
-    ev = ev.slice_time(40_000, None)
-    f, cx, cy = truth["camera"]
-    plain = EventPacket.from_arrays(ev.t, ev.x, ev.y, ev.p, sensor=ev.sensor, t_start=ev.t_start, t_end=ev.t_end)
-    out = concat(feed(AngularVelocity(calib=f"{f};{f};{cx};{cy}", window_events=15_000, step_events=4_000), [plain]))
+    ev, calib = _simulated(omega, 400_000)
+    out = concat(feed(AngularVelocity(calib=calib, window_events=15_000, step_events=4_000), [ev]))
     assert len(out) >= 15
     rms = np.sqrt(((_omega(out) - omega) ** 2).mean(axis=0))
     assert np.all(rms < 0.03 * np.abs(omega).max()), rms / np.abs(omega).max()
