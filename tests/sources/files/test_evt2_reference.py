@@ -21,15 +21,13 @@ raises a FormatError at its byte, or with ``skip_bad`` is dropped alone.
 
 from __future__ import annotations
 
-import struct
 from pathlib import Path
 
-import numpy as np
-import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from prophesee_raw import check_reserved_word, read_raw, write_raw
 
-from tectum import EventPacket, FormatError, TriggerPacket
+from tectum import EventPacket
 from tectum.sources.files.prophesee import Evt2Source
 
 HIGH_BITS = 28
@@ -113,21 +111,8 @@ def streams(draw: st.DrawFn) -> tuple[tuple[int, int], list[int], list, list]:
     return (w, h), words, events, triggers
 
 
-def write(path: Path, sensor: tuple[int, int], words: list[int]) -> int:
-    """Write a RAW file; returns the header's length (bytes)."""
-    head = f"% evt 2.0\n% geometry {sensor[0]}x{sensor[1]}\n% end\n".encode()
-    path.write_bytes(head + struct.pack(f"<{len(words)}I", *words))
-    return len(head)
-
-
-def read(path: Path, **kw) -> tuple[list, list]:
-    pkts = list(Evt2Source(str(path), **kw).packets())
-    ev = [q for q in pkts if isinstance(q, EventPacket) and len(q)]
-    tr = [q for q in pkts if isinstance(q, TriggerPacket) and len(q)]
-    cols = [np.concatenate([getattr(q, c) for q in ev]).tolist() if ev else [] for c in "txyp"]
-    tcols = [np.concatenate([q.t for q in tr]).tolist() if tr else []]
-    tcols += [np.concatenate([q.data[c] for q in tr]).tolist() if tr else [] for c in ("channel", "value")]
-    return list(zip(*cols)), list(zip(*tcols))
+def header(sensor: tuple[int, int]) -> str:
+    return f"% evt 2.0\n% geometry {sensor[0]}x{sensor[1]}\n% end\n"
 
 
 @settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -136,20 +121,12 @@ def test_evt2_equals_the_reference(tmp_path: Path, case: tuple, chunk: int, data
     sensor, words, events, triggers = case
     assert reference(words)[:2] == (events, triggers)  # the reference reads what was meant
     path = tmp_path / "r.raw"
-    write(path, sensor, words)
-    assert read(path, chunk_bytes=chunk) == (events, triggers)
+    write_raw(path, header(sensor), words, "I")
+    assert read_raw(Evt2Source, path, chunk_bytes=chunk) == (events, triggers)
     assert all(q.sensor == sensor for q in Evt2Source(str(path)).packets() if isinstance(q, EventPacket))
-    # one reserved word somewhere: named at its byte, or dropped alone with skip_bad
     at = data.draw(st.integers(0, len(words)))
     bad = (data.draw(st.sampled_from(RESERVED)) << 28) | data.draw(st.integers(0, (1 << 28) - 1))
-    spoiled = words[:at] + [bad] + words[at:]
-    head = write(path, sensor, spoiled)
-    with pytest.raises(FormatError, match="invalid EVT2 word") as e:
-        read(path, chunk_bytes=chunk)
-    assert e.value.offset == head + 4 * at
-    ref_events, ref_triggers, nbad = reference(spoiled)
-    assert nbad == 1 and (ref_events, ref_triggers) == (events, triggers)
-    assert read(path, chunk_bytes=chunk, skip_bad=True) == (events, triggers)
+    check_reserved_word(Evt2Source, path, header(sensor), "I", words, at, bad, reference, chunk)
 
 
 def test_time_high_wrap_fixed_case(tmp_path: Path) -> None:
@@ -158,7 +135,7 @@ def test_time_high_wrap_fixed_case(tmp_path: Path) -> None:
     words = [0x8 << 28 | top, 1 << 28 | 63 << 22 | 5 << 11 | 6, 0x8 << 28 | 0, 0 << 28 | 1 << 22 | 7 << 11 | 8,
              0xA << 28 | 2 << 22 | 3 << 8 | 1]
     path = tmp_path / "wrap.raw"
-    write(path, (640, 480), words)
-    events, triggers = read(path)
+    write_raw(path, header((640, 480)), words, "I")
+    events, triggers = read_raw(Evt2Source, path)
     assert events == [((top << 6) + 63, 5, 6, 1), ((1 << TIME_BITS) + 1, 7, 8, -1)]
     assert triggers == [((1 << TIME_BITS) + 2, 3, 1)]

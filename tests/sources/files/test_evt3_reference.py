@@ -25,15 +25,13 @@ is dropped alone.
 
 from __future__ import annotations
 
-import struct
 from pathlib import Path
 
-import numpy as np
-import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from prophesee_raw import check_reserved_word, read_raw, write_raw
 
-from tectum import EventPacket, FormatError, TriggerPacket
+from tectum import EventPacket
 from tectum.sources.files.prophesee import Evt3Source
 
 TIME_BITS = 24
@@ -136,21 +134,8 @@ def streams(draw: st.DrawFn) -> tuple[tuple[int, int], list[int], list, list]:
     return (w, h), words, events, triggers
 
 
-def write(path: Path, sensor: tuple[int, int], words: list[int]) -> int:
-    """Write a RAW file; returns the header's length (bytes)."""
-    head = f"% format EVT3;height={sensor[1]};width={sensor[0]}\n% geometry {sensor[0]}x{sensor[1]}\n% end\n"
-    path.write_bytes(head.encode() + struct.pack(f"<{len(words)}H", *words))
-    return len(head)
-
-
-def read(path: Path, **kw) -> tuple[list, list]:
-    pkts = list(Evt3Source(str(path), **kw).packets())
-    ev = [q for q in pkts if isinstance(q, EventPacket) and len(q)]
-    tr = [q for q in pkts if isinstance(q, TriggerPacket) and len(q)]
-    cols = [np.concatenate([getattr(q, c) for q in ev]).tolist() if ev else [] for c in "txyp"]
-    tcols = [np.concatenate([q.t for q in tr]).tolist() if tr else []]
-    tcols += [np.concatenate([q.data[c] for q in tr]).tolist() if tr else [] for c in ("channel", "value")]
-    return list(zip(*cols)), list(zip(*tcols))
+def header(sensor: tuple[int, int]) -> str:
+    return f"% format EVT3;height={sensor[1]};width={sensor[0]}\n% geometry {sensor[0]}x{sensor[1]}\n% end\n"
 
 
 @settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -159,18 +144,12 @@ def test_evt3_equals_the_reference(tmp_path: Path, case: tuple, chunk: int, data
     sensor, words, events, triggers = case
     assert reference(words)[:2] == (events, triggers)  # the reference reads what was meant
     path = tmp_path / "r.raw"
-    write(path, sensor, words)
-    assert read(path, chunk_bytes=chunk) == (events, triggers)
+    write_raw(path, header(sensor), words, "H")
+    assert read_raw(Evt3Source, path, chunk_bytes=chunk) == (events, triggers)
+    assert all(q.sensor == sensor for q in Evt3Source(str(path)).packets() if isinstance(q, EventPacket))
     at = data.draw(st.integers(0, len(words)))
     bad = (data.draw(st.sampled_from(RESERVED)) << 12) | data.draw(st.integers(0, 0xFFF))
-    spoiled = words[:at] + [bad] + words[at:]
-    head = write(path, sensor, spoiled)
-    with pytest.raises(FormatError, match="invalid EVT3 word") as e:
-        read(path, chunk_bytes=chunk)
-    assert e.value.offset == head + 2 * at
-    ref_events, ref_triggers, nbad = reference(spoiled)
-    assert nbad == 1 and (ref_events, ref_triggers) == (events, triggers)
-    assert read(path, chunk_bytes=chunk, skip_bad=True) == (events, triggers)
+    check_reserved_word(Evt3Source, path, header(sensor), "H", words, at, bad, reference, chunk)
 
 
 def test_registers_before_they_are_written(tmp_path: Path) -> None:
@@ -178,15 +157,15 @@ def test_registers_before_they_are_written(tmp_path: Path) -> None:
     vector before the time base moves the base without events."""
     words = [0x4000 | 0x001, 0x8000 | 3, 0x6000 | 7, 0x5000 | 0x03, 0x2800 | 9]
     path = tmp_path / "zero.raw"
-    write(path, (640, 480), words)
+    write_raw(path, header((640, 480)), words, "H")
     t = (3 << 12) + 7
-    assert read(path) == ([(t, 12, 0, -1), (t, 13, 0, -1), (t, 9, 0, 1)], [])
-    assert read(path)[0] == reference(words)[0]
+    assert read_raw(Evt3Source, path) == ([(t, 12, 0, -1), (t, 13, 0, -1), (t, 9, 0, 1)], [])
+    assert read_raw(Evt3Source, path)[0] == reference(words)[0]
 
 
 def test_time_high_wrap_fixed_case(tmp_path: Path) -> None:
     """The clock passes 2^24 µs: TIME_HIGH falls from 0xFFF to 0 and times keep counting."""
     words = [0x8FFF, 0x6FFE, 0x0000 | 4, 0x2000 | 1, 0x8000, 0x6002, 0x2800 | 2, 0xA301]
     path = tmp_path / "wrap.raw"
-    write(path, (640, 480), words)
-    assert read(path) == ([((1 << 24) - 2, 1, 4, -1), ((1 << 24) + 2, 2, 4, 1)], [((1 << 24) + 2, 3, 1)])
+    write_raw(path, header((640, 480)), words, "H")
+    assert read_raw(Evt3Source, path) == ([((1 << 24) - 2, 1, 4, -1), ((1 << 24) + 2, 2, 4, 1)], [((1 << 24) + 2, 3, 1)])

@@ -1,0 +1,50 @@
+"""Prophesee RAW files for the EVT 2.0 and 3.0 reference tests: write words
+behind a header, read every event and trigger back as tuples, and check a
+reserved word is named at its byte or dropped alone."""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from tectum import EventPacket, FormatError, TriggerPacket
+
+Decoded = tuple[list[tuple[int, ...]], list[tuple[int, ...]]]
+
+
+def write_raw(path: Path, header: str, words: list[int], word: str) -> int:
+    """``header`` then ``words`` (struct code ``word``: ``I`` or ``H``),
+    little-endian; returns the header's length (bytes)."""
+    path.write_bytes(header.encode() + struct.pack(f"<{len(words)}{word}", *words))
+    return len(header)
+
+
+def read_raw(source: type, path: Path, **kw: Any) -> Decoded:
+    """(events (t, x, y, p), triggers (t, channel, value)) of a RAW file."""
+    pkts = list(source(str(path), **kw).packets())
+    ev = [q for q in pkts if isinstance(q, EventPacket) and len(q)]
+    tr = [q for q in pkts if isinstance(q, TriggerPacket) and len(q)]
+    cols = [np.concatenate([getattr(q, c) for q in ev]).tolist() if ev else [] for c in "txyp"]
+    tcols = [np.concatenate([q.t for q in tr]).tolist() if tr else []]
+    tcols += [np.concatenate([q.data[c] for q in tr]).tolist() if tr else [] for c in ("channel", "value")]
+    return list(zip(*cols)), list(zip(*tcols))
+
+
+def check_reserved_word(source: type, path: Path, header: str, word: str, words: list[int], at: int, bad: int,
+                        reference: Callable[[list[int]], tuple[list, list, int]], chunk: int) -> None:
+    """``bad`` (a reserved word) inserted before ``words[at]``: a FormatError
+    at its byte, and with ``skip_bad`` the rest read as without it (which
+    the reference says too)."""
+    spoiled = words[:at] + [bad] + words[at:]
+    head = write_raw(path, header, spoiled, word)
+    with pytest.raises(FormatError, match="invalid EVT") as e:
+        read_raw(source, path, chunk_bytes=chunk)
+    assert e.value.offset == head + struct.calcsize(word) * at
+    events, triggers, nbad = reference(spoiled)
+    assert nbad == 1 and (events, triggers) == reference(words)[:2]
+    assert read_raw(source, path, chunk_bytes=chunk, skip_bad=True) == (events, triggers)
