@@ -1,6 +1,7 @@
 """Prophesee RAW files for the EVT 2.0 and 3.0 reference tests: write words
 behind a header, read every event and trigger back as tuples, and check a
-reserved word is named at its byte or dropped alone."""
+stream against its reference, a reserved word named at its byte or dropped
+alone."""
 
 from __future__ import annotations
 
@@ -35,16 +36,22 @@ def read_raw(source: type, path: Path, **kw: Any) -> Decoded:
     return list(zip(*cols)), list(zip(*tcols))
 
 
-def check_reserved_word(source: type, path: Path, header: str, word: str, words: list[int], at: int, bad: int,
-                        reference: Callable[[list[int]], tuple[list, list, int]], chunk: int) -> None:
-    """``bad`` (a reserved word) inserted before ``words[at]``: a FormatError
-    at its byte, and with ``skip_bad`` the rest read as without it (which
-    the reference says too)."""
+def check_stream(source: type, path: Path, header: str, word: str, case: tuple,
+                 reference: Callable[[list[int]], tuple[list, list, int]], chunk: int, at: int, bad: int) -> None:
+    """``case`` (sensor, words, events meant, triggers meant): the reference
+    reads what was meant and the reader (``chunk_bytes=chunk``) the same,
+    on that sensor; then ``bad`` (a reserved word) inserted before
+    ``words[at]`` raises a FormatError at its byte and, with ``skip_bad``,
+    leaves the rest as without it (which the reference says too)."""
+    sensor, words, events, triggers = case
+    assert reference(words)[:2] == (events, triggers)
+    write_raw(path, header, words, word)
+    assert read_raw(source, path, chunk_bytes=chunk) == (events, triggers)
+    assert all(q.sensor == sensor for q in source(str(path)).packets() if isinstance(q, EventPacket))
     spoiled = words[:at] + [bad] + words[at:]
     head = write_raw(path, header, spoiled, word)
     with pytest.raises(FormatError, match="invalid EVT") as e:
         read_raw(source, path, chunk_bytes=chunk)
     assert e.value.offset == head + struct.calcsize(word) * at
-    events, triggers, nbad = reference(spoiled)
-    assert nbad == 1 and (events, triggers) == reference(words)[:2]
+    assert reference(spoiled) == (events, triggers, 1)
     assert read_raw(source, path, chunk_bytes=chunk, skip_bad=True) == (events, triggers)
