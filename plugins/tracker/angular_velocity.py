@@ -38,8 +38,10 @@ Output (:class:`~tectum.AngularVelocityPacket`): per window ``t`` (its last
 event's time; with ``window_us``, its end - 1), ``wx, wy, wz`` rad/s in the
 camera frame (OpenCV axes: x right, y down, z forward), ``confidence`` =
 ``1 - F(0)/F(ω)`` (how much sharper the warped image is than the unwarped
-one: 0 when the events show no motion the warp explains; a static camera
-also gives 0, with ω near 0), ``events`` in the window. A window with fewer
+one: near 0 when the events show no motion the warp explains, as with a
+static camera; ω is then whatever the flat focus peaks at, up to about
+1 rad/s on time-shuffled events: trust ω by its confidence), ``events`` in
+the window. A window with fewer
 than ``min_events`` events landing in the image gives no sample and is
 counted (``skipped_few_events``); an optimiser result that is not finite is
 dropped and counted (``skipped_not_finite``): no NaN goes downstream.
