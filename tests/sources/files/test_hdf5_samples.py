@@ -76,9 +76,25 @@ def test_sample_streams_equal_what_was_written(tmp_path: Path, window: tuple[int
         assert all(a.t_end <= b.t_start for a, b in zip(have, have[1:]))
 
 
+def test_times_relative_to_the_file_offset(tmp_path: Path) -> None:
+    """``apply_t0=False``: events and samples alike count from the file's ``t_offset``."""
+    path = tmp_path / "o.h5"
+    pkts = written(t0=5_000_000)
+    write_all(Hdf5Sink(str(path)), pkts)
+    with h5py.File(path, "r") as h:
+        off = int(h["t_offset"][()])
+    assert off > 0
+    got = read(path, apply_t0=False)
+    for cls in (EventPacket, ImuPacket, PosePacket):
+        want = columns([q for q in pkts if isinstance(q, cls)], "t") if cls is not EventPacket else \
+            np.concatenate([q.t for q in pkts if isinstance(q, EventPacket)])
+        have = np.concatenate([q.t for q in got[cls]])
+        assert have.tolist() == (want - off).tolist(), cls
+
+
 @pytest.mark.parametrize("damage,message", [
     (lambda h: (h["imu"].__delitem__("gyro"), h["imu"].create_dataset("gyro", data=np.zeros((5, 3)))),
-     "has shape"),
+     r"/imu/gyro has shape \(5, 3\), /imu/t has 6 rows"),
     (lambda h: h["poses"].attrs.__setitem__("kind", "no_such_kind"), "no_such_kind"),
     (lambda h: (h["imu"].__delitem__("accel"), h["imu"].create_dataset("accel", data=np.zeros((6, 2)))),
      "imu"),
