@@ -12,8 +12,8 @@ map and of speed against accuracy (``mosaic_failure.png``,
 
 Translation. The ``rotation`` scene's panorama is at infinity, where
 translation changes nothing, so the translation rows use a room instead: six
-textured walls (5 x 3 x 5 m, the camera starting at its centre, 2.4-3.8 m
-from the walls it sees), the ``rotation`` scene's rotation plus a lateral
+textured walls (5 x 3 x 5 m, the camera starting at its centre; median
+range of the swept pixels 2.8 m), the ``rotation`` scene's rotation plus a lateral
 (x) translation at constant speed reaching ``T`` m at the end. The truth is
 the room ray-cast from the first camera centre
 (:func:`tectum.evaluation.panorama.cast_panorama`): the mosaic's convention
@@ -125,7 +125,8 @@ def room_scene(sensor: tuple[int, int], translation_m: float, duration_us: int) 
 
 
 def _translation(sensor: tuple[int, int], dur: int, values: tuple[float, ...]) -> list[dict[str, Any]]:
-    """Failure-map rows for added translation (see the module docstring)."""
+    """Failure-map rows for added translation ``values`` (m; the first, 0,
+    is the still run the others are compared with; see the module docstring)."""
     rows: list[dict[str, Any]] = []
     still: np.ndarray | None = None
     swept = np.zeros(0, bool)
