@@ -95,3 +95,24 @@ def test_other_types_and_sizes_are_refused(tmp_path: Path, kind: int, size: int)
     with pytest.raises(FormatError, match="event (type|size)") as e:
         read(path)
     assert e.value.offset in (len(head), len(head) + 1)
+
+
+def test_geometry_truncation_and_end_time(tmp_path: Path) -> None:
+    """No Width/Height lines: the sensor is the extent of the coordinates; a
+    file cut inside a record is named at the cut (``skip_bad`` drops the
+    partial record); ``t_end_us`` stops before the first later event; a
+    RAW header is refused."""
+    events = [(10, 3, 4, 1), (20, 7, 2, -1), (30, 1, 9, 1)]
+    body = b"".join(struct.pack("<II", t, x | y << 14 | (p > 0) << 28) for t, x, y, p in events)
+    head = b"% Data file containing CD events\n% Version 2\n"
+    path = tmp_path / "g.dat"
+    path.write_bytes(head + bytes([12, 8]) + body + b"\x01\x02\x03")
+    with pytest.raises(FormatError, match="inside an 8-byte record") as e:
+        read(path)
+    assert e.value.offset == len(head) + 2 + len(body)
+    assert read(path, skip_bad=True) == events
+    assert [q.sensor for q in DatSource(str(path), skip_bad=True).packets() if isinstance(q, EventPacket)][0] == (8, 10)
+    assert read(path, skip_bad=True, t_end_us=25) == events[:2]
+    path.write_bytes(b"% evt 3.0\n" + bytes([12, 8]) + body)
+    with pytest.raises(FormatError, match="RAW"):
+        read(path)
