@@ -1,0 +1,81 @@
+"""What file headers and source options say, and how each mistake is named:
+sensor sizes, Prophesee geometry (``geometry``, ``width``/``height``, a known
+plugin or system id, unreadable values ignored), ``t0`` offsets, header
+limits, and the options every file source checks."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import pytest
+
+from tectum import FormatError
+from tectum.sources.files._common import (
+    header_dict,
+    parse_size,
+    read_prefixed_header,
+    sensor_from_header,
+    t0_from_header,
+    thread_count,
+)
+from tectum.sources.files.prophesee import DatSource, check_raw_header
+
+
+@pytest.mark.parametrize("text,size", [("640x480", (640, 480)), (" 346 X 260 ", (346, 260)), ("304,240", (304, 240)),
+                                       ((128, 96), (128, 96)), (None, None), ("", None)])
+def test_sizes(text, size) -> None:
+    assert parse_size(text) == size
+
+
+def test_a_size_that_is_no_size_is_named() -> None:
+    with pytest.raises(ValueError, match="'640 by 480' is not WIDTHxHEIGHT"):
+        parse_size("640 by 480")
+
+
+@pytest.mark.parametrize("lines,size", [
+    (["geometry 1280x720"], (1280, 720)), (["geometry wide"], None), (["Width 640", "Height 480"], (640, 480)),
+    (["width 640", "height tall"], None), (["plugin_name hal_plugin_imx636_evk4"], (1280, 720)),
+    (["plugin_name hal_plugin_gen31_fx3"], (640, 480)), (["system_ID 40"], (320, 320)), (["system_ID 999"], None),
+])
+def test_prophesee_geometry(lines: list[str], size) -> None:
+    assert sensor_from_header(header_dict(lines)) == size
+
+
+def test_t0_offsets() -> None:
+    assert t0_from_header(header_dict(["t0 12345 us"]), "f") == 12345
+    assert t0_from_header(header_dict(["time_offset 7"]), "f") == 7
+    assert t0_from_header({}, "f") == 0
+    with pytest.raises(FormatError, match="header 't0' is not an integer µs: 'soon'"):
+        t0_from_header(header_dict(["t0 soon"]), "f")
+
+
+def test_header_limits() -> None:
+    with pytest.raises(FormatError, match="not terminated") as e:
+        read_prefixed_header(io.BytesIO(b"% evt 3.0\n% geometry"), b"%", "f")
+    assert e.value.offset == 10
+    with pytest.raises(FormatError, match="longer than 64 bytes"):
+        read_prefixed_header(io.BytesIO(b"% a\n" * 40), b"%", "f", limit=64)
+    lines, end = read_prefixed_header(io.BytesIO(b"% evt 2.0\n% end\n% not header\n"), b"%", "f")
+    assert lines == ["evt 2.0", "end"] and end == 16
+
+
+def test_options_every_file_source_checks(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="chunk_bytes must be >= 64"):
+        DatSource("x.dat", chunk_bytes=8)
+    with pytest.raises(ValueError, match="t_end_us is before t_start_us"):
+        DatSource("x.dat", t_start_us=10, t_end_us=5)
+    with pytest.raises(FormatError, match="cannot open"):
+        list(DatSource(str(tmp_path / "absent.dat")).packets())
+    with pytest.raises(ValueError, match="threads must be >= 0"):
+        thread_count(-1)
+    assert thread_count(2) == 2 and 1 <= thread_count(0) <= 4
+
+
+def test_raw_header_check(tmp_path: Path) -> None:
+    path = tmp_path / "r.raw"
+    path.write_bytes(b"% format EVT3;height=720;width=1280\n% end\n")
+    assert check_raw_header(str(path)) == "evt3"
+    path.write_bytes(b"% camera_integrator_name Prophesee\n% end\n")
+    with pytest.raises(FormatError, match="names no event format"):
+        check_raw_header(str(path))
