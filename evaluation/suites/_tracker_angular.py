@@ -230,7 +230,7 @@ def ecd(quick: bool) -> list[dict[str, Any]]:
         finally:
             src.close()
         vals = (folder / "calib.txt").read_text().split()
-        out, _lat, total = _estimate(ev, ";".join(vals), 10_000, 5_000)  # type: ignore[arg-type]
+        out, _lat, total = _estimate(ev, ";".join(vals), 10_000, 5_000)
         w = np.stack([out["wx"], out["wy"], out["wz"]], axis=1)
         rows.append({"case": f"ecd/{name} (no imu.txt in the excerpt: no truth)", "windows": len(out),
                      "mean_w": np.round(w.mean(axis=0), 2).tolist(), "confidence": float(np.mean(out["confidence"])),

@@ -209,7 +209,9 @@ class AngularVelocity(Operator):
 
     def warmup(self) -> None:
         twin = AngularVelocity(calib="40;40;24;18", window_events=600, step_events=600, min_events=10)
-        twin.process(self.conformance_stream())
+        stream = self.conformance_stream()
+        assert isinstance(stream, EventPacket)
+        twin.process(stream)
 
     # -- geometry -------------------------------------------------------------------------
     def _setup(self, sensor: tuple[int, int]) -> None:
