@@ -94,6 +94,22 @@ def targets_table(records: Sequence[dict[str, Any]]) -> str:
     return table([target_row(r) for r in records], TARGET_COLUMNS)
 
 
+def run_parts(suite: str, parts: Sequence[str], out: Path, quick: bool) -> dict[str, Any]:
+    """A suite made of parts, one module each
+    (``tectum.evaluation.suites._SUITE_PART`` with ``run(out, quick)``): runs
+    them in order, then prints every part's targets in one table. Returns
+    ``{"parts": {part: result}, "targets": [...]}``."""
+    results: dict[str, Any] = {}
+    targets: list[dict[str, Any]] = []
+    for part in parts:
+        print(f"\n== {suite}: {part}")
+        r: dict[str, Any] = importlib.import_module(f"tectum.evaluation.suites._{suite}_{part}").run(out, quick)
+        results[part] = r
+        targets += r.get("targets", [])
+    print("\n" + targets_table(targets))
+    return {"parts": results, "targets": targets}
+
+
 def write_results(out: Path, suite: str, results: dict[str, Any]) -> Path:
     """Write ``results`` with the machine's description to ``out/bench-SUITE.json``."""
     out.mkdir(parents=True, exist_ok=True)

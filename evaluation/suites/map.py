@@ -7,22 +7,13 @@ present), one part per method: ``reconstruction`` (``map.high_pass``,
 
 from __future__ import annotations
 
-import importlib
 from pathlib import Path
 from typing import Any
 
-from tectum.evaluation.harness import targets_table
+from tectum.evaluation.harness import run_parts
 
 PARTS = ("reconstruction", "mosaic", "emvs")
 
 
 def run(out: Path, quick: bool) -> dict[str, Any]:
-    results: dict[str, Any] = {}
-    targets: list[dict[str, Any]] = []
-    for part in PARTS:
-        print(f"\n== map: {part}")
-        r: dict[str, Any] = importlib.import_module(f"tectum.evaluation.suites._map_{part}").run(out, quick)
-        results[part] = r
-        targets += r.get("targets", [])
-    print("\n" + targets_table(targets))
-    return {"parts": results, "targets": targets}
+    return run_parts("map", PARTS, out, quick)
