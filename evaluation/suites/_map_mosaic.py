@@ -179,9 +179,10 @@ def _charts(out: Path, base: dict[str, float], fail: list[dict[str, Any]], trade
     fig, axes = plt.subplots(1, len(factors), figsize=(3.2 * len(factors), 3.2), squeeze=False)
     for ax, f in zip(axes[0], factors):
         rows = [r for r in fail if r["factor"] == f]
-        if f in clean:
-            rows = sorted([{"value": clean[f], **base}, *rows], key=lambda r: str(r["value"]) if isinstance(
-                r["value"], str) else f"{r['value']:012.5f}")
+        if f in clean:  # the clean run in its place (first among the presets)
+            rows = [{"value": clean[f], **base}, *rows]
+            if not isinstance(clean[f], str):
+                rows.sort(key=lambda r: float(r["value"]))
         if f.startswith("translation"):
             x = [100 * r["t_over_depth"] for r in rows]
             ax.set_xlabel("translation / median depth (%), room")
