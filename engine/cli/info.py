@@ -31,7 +31,7 @@ def main(args: argparse.Namespace) -> int:
              ("sensor", f"{s[0]}x{s[1]}" if s else "unknown"), ("events", f"{info['events']:,}"),
              ("duration", f"{info['duration_us'] / 1e6:.6f} s"),
              ("first / last", f"{info['t_first_us']} / {info['t_last_us']} µs"),
-             ("rate", f"{info['rate_mev_s']:.4f} Mev/s"),
+             ("rate", f"{info['rate_mev_s']:.4f} Mev/s" if info["events"] else "no events"),
              ("streams", ", ".join(f"{k} {v:,}" for k, v in info["streams"].items()) or "none"),
              ("t0 offset", f"{info['t0_offset_us']} µs")]
     for key in ("time_unit", "columns"):  # text files: what was assumed, and why

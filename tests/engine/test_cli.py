@@ -8,6 +8,8 @@ import sys
 
 import numpy as np
 
+import tectum
+
 TECTUM = [sys.executable, "-m", "tectum"]
 
 
@@ -60,3 +62,15 @@ def test_help_lists_verbs():
     out = cli("--help").stdout
     for verb in ("demo", "run", "plugins", "bench"):
         assert verb in out
+
+
+def test_info_of_a_file_without_events_says_so_instead_of_a_rate(tmp_path):
+    out = tmp_path / "maps.npz"
+    p = tectum.Pipeline()
+    cam = p.source("simulate:rotation", duration_us=30_000, sensor="32x24")
+    p.sink(str(out), p.op("map.high_pass", cam))
+    tectum.run(p)
+    r = subprocess.run([sys.executable, "-m", "tectum", "info", str(out)], capture_output=True, text=True, check=True)
+    lines = {k.strip(): v.strip() for k, v in (line.split(":", 1) for line in r.stdout.splitlines())}
+    assert lines["rate"] == "no events"
+    assert lines["streams"] == "maps 3"
