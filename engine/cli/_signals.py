@@ -98,14 +98,6 @@ def deferred() -> Iterator[Callable[[], None]]:
             signal.signal(s, h)
 
 
-def _leaves(group: BaseExceptionGroup[BaseException]) -> Iterator[BaseException]:
-    for e in group.exceptions:
-        if isinstance(e, BaseExceptionGroup):
-            yield from _leaves(e)
-        else:
-            yield e
-
-
 def run_until_signal(plan: Any) -> Any:
     """``tectum.run(plan)``, cancelled by SIGINT or SIGTERM (then its sinks
     abort and :class:`KeyboardInterrupt` is raised here). A source that
@@ -113,7 +105,7 @@ def run_until_signal(plan: Any) -> Any:
     received) also gets SIGTERM as SIGINT. Returns the run's stats."""
     import trio
 
-    from tectum._scheduler import arun
+    from tectum._scheduler import _unwrap, arun
 
     stats: list[Any] = []
 
@@ -142,10 +134,11 @@ def run_until_signal(plan: Any) -> Any:
         rest = group.split(KeyboardInterrupt)[1]
         if rest is None:  # a signal in the instant before the receiver was up
             raise KeyboardInterrupt(_name(received() or signal.SIGINT)) from None
-        leaves = list(_leaves(rest))
-        if len(leaves) == 1:
-            raise leaves[0] from None
-        raise
+        err = _unwrap(rest)  # the failing node's error, as tectum.run raises it
+        if err is rest:
+            raise
+        err.__suppress_context__ = True
+        raise err from err.__cause__
     if not stats:
         raise KeyboardInterrupt(_name(received() or signal.SIGINT))
     return stats[0]
