@@ -320,6 +320,8 @@ class ClusterPacket(SamplePacket):
         vy=Field("f8", (), "px/s", optional=True, doc="velocity, y"),
         radius=Field("f8", (), "px", optional=True, doc="size"),
         mass=Field("f8", (), "events", optional=True, doc="decaying event count"),
+        width=Field("f8", (), "px", optional=True, doc="extent along x"),
+        height=Field("f8", (), "px", optional=True, doc="extent along y"),
     )
 
 
