@@ -19,6 +19,8 @@ The life cycle: :meth:`Operator.warmup` once before the first packet
 (compile kernels), then :meth:`Operator.process` (or ``process_ports``) per
 packet, :meth:`Operator.on_tick` after each with the input watermark (for
 time-driven output), and :meth:`Operator.finish` at end of stream.
+:meth:`Operator.memory_us` states how far back its state reaches (for time
+sharding).
 """
 
 from __future__ import annotations
@@ -88,6 +90,23 @@ class Operator:
     def finish(self) -> Sequence[Packet]:
         """End of stream: return whatever is still buffered (default none)."""
         return ()
+
+    def memory_us(self) -> int | None:
+        """How far back in event time this operator's state reaches, in µs:
+        what it emits once its input has passed any time ``a`` depends only
+        on its input from ``a - memory_us()`` on (a filter's ``dt_us``, a
+        window's length). Time sharding (:mod:`tectum.scale`) starts each
+        shard that much earlier and drops what the warm-up emits. None (the
+        default) states no finite memory (state learned from the whole
+        stream, chains of kept events, counts, trackers): such an operator
+        refuses to shard, with that reason."""
+        return None
+
+    def window_grid_us(self) -> int:
+        """Operators that cut their output on a grid of windows counted from
+        their first packet's start: the grid's period in µs, so a shard's
+        warm-up starts on the grid; 0 (the default) for none."""
+        return 0
 
     @classmethod
     def check_ports(cls, connected: frozenset[str]) -> str | None:

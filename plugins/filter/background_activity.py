@@ -64,6 +64,10 @@ class BackgroundActivity(Operator):
         self.dt_us = int(dt_us)
         self.support: np.ndarray | None = None
 
+    def memory_us(self) -> int:
+        """Only neighbours' times within ``dt_us`` count (time sharding)."""
+        return self.dt_us
+
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self.support is None:
             self.support = padded_timestamps(packet.sensor)

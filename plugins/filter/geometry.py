@@ -66,6 +66,10 @@ class Roi(Operator):
             raise ValueError(f"region of interest is empty on a {w}x{h} sensor")
         return self.x0, self.y0, x1, y1
 
+    def memory_us(self) -> int:
+        """Each event on its own: no memory (time sharding needs no warm-up)."""
+        return 0
+
     def process(self, packet: EventPacket) -> list[EventPacket]:
         x0, y0, x1, y1 = self.region(packet.sensor)
         keep = (packet.x >= x0) & (packet.x < x1) & (packet.y >= y0) & (packet.y < y1)
@@ -82,6 +86,10 @@ class Flip(Operator):
 
     def __init__(self, horizontal: bool = True, vertical: bool = False) -> None:
         self.horizontal, self.vertical = bool(horizontal), bool(vertical)
+
+    def memory_us(self) -> int:
+        """Each event on its own: no memory (time sharding needs no warm-up)."""
+        return 0
 
     def process(self, packet: EventPacket) -> list[EventPacket]:
         w, h = packet.sensor
@@ -108,6 +116,10 @@ class Rotate(Operator):
 
     def __init__(self, degrees: float = 90.0) -> None:
         self.degrees = float(degrees) % 360.0
+
+    def memory_us(self) -> int:
+        """Each event on its own: no memory (time sharding needs no warm-up)."""
+        return 0
 
     def process(self, packet: EventPacket) -> list[EventPacket]:
         w, h = packet.sensor
@@ -151,6 +163,10 @@ class Downsample(Operator):
         if factor < 1:
             raise ValueError("factor must be >= 1")
         self.factor = int(factor)
+
+    def memory_us(self) -> int:
+        """Each event on its own: no memory (time sharding needs no warm-up)."""
+        return 0
 
     def process(self, packet: EventPacket) -> list[EventPacket]:
         f = self.factor

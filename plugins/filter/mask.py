@@ -82,6 +82,10 @@ class Mask(Operator):
             m[y, x] = True
         return ~m if self.keep else m
 
+    def memory_us(self) -> int:
+        """Each event on its own: no memory (time sharding needs no warm-up)."""
+        return 0
+
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self.masked is None:
             self.masked = self._build(packet.sensor)

@@ -22,5 +22,9 @@ class Polarity(Operator):
             raise ValueError("keep must be 'on' or 'off'")
         self.keep = keep
 
+    def memory_us(self) -> int:
+        """Each event on its own: no memory (time sharding needs no warm-up)."""
+        return 0
+
     def process(self, packet: EventPacket) -> list[EventPacket]:
         return [select(packet, packet.p > 0 if self.keep == "on" else packet.p < 0)]

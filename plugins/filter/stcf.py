@@ -66,6 +66,10 @@ class SpatioTemporalCorrelation(Operator):
         self.dt_us, self.k, self.polarity = int(dt_us), int(k), bool(polarity)
         self.last: np.ndarray | None = None
 
+    def memory_us(self) -> int:
+        """Only neighbours' times within ``dt_us`` count (time sharding)."""
+        return self.dt_us
+
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self.last is None:
             self.last = padded_timestamps(packet.sensor, 2 if self.polarity else 1)

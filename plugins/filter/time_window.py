@@ -21,6 +21,11 @@ class TimeWindow(Operator):
         self.start_us, self.stop_us, self.relative = int(start_us), stop_us, bool(relative)
         self._origin: int | None = None
 
+    def memory_us(self) -> int | None:
+        """Absolute times: no memory; ``relative`` counts from the stream's
+        first packet, which a time shard does not see (None: no sharding)."""
+        return None if self.relative else 0
+
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self._origin is None:
             self._origin = packet.t_start if self.relative else 0

@@ -116,6 +116,10 @@ class Undistort(Operator):
         self.camera = camera
         self.lut: np.ndarray | None = None  # packed, see packed_lut
 
+    def memory_us(self) -> int:
+        """Each event on its own: no memory (time sharding needs no warm-up)."""
+        return 0
+
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self.lut is None:
             size = self.camera.size

@@ -89,6 +89,10 @@ class EdgeSpeed(FlowOperator):
         self._set_outputs(out_vx, out_vy, out_valid)
         self.sae: np.ndarray | None = None
 
+    def memory_us(self) -> int:
+        """Neighbours older than ``window_us`` count as silent (time sharding)."""
+        return self.window_us
+
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self.sae is None:
             self.sae = new_sae(packet.sensor)

@@ -156,6 +156,10 @@ class LucasKanade(FlowOperator):
         self._set_outputs(out_vx, out_vy, out_valid)
         self.ring_t: np.ndarray | None = None
 
+    def memory_us(self) -> int:
+        """Only events of the last ``dt_us`` enter the fit (time sharding)."""
+        return self.dt_us
+
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self.ring_t is None:
             w, h = packet.sensor

@@ -89,6 +89,12 @@ class PlaneFit(FlowOperator):
         self._set_outputs(out_vx, out_vy, out_valid)
         self.sae: np.ndarray | None = None
 
+    def memory_us(self) -> int | None:
+        """Points older than ``window_us`` are left out of the fit (time
+        sharding); with ``burst_us`` a crossing's first event is kept for as
+        long as its pixel keeps firing, so the memory has no bound (None)."""
+        return None if self.burst_us else self.window_us
+
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self.sae is None:
             self.sae = new_surface(packet.sensor, self.radius)

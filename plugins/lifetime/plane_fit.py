@@ -131,6 +131,14 @@ class PlaneFitLifetime(Operator):
             return 0
         return int((upto - self.frame_t[0]) // self.frame_us) + 1
 
+    def memory_us(self) -> int | None:
+        """Points older than ``window_us`` are left out of the fit (time
+        sharding). ``regularise`` blends in a neighbour's last lifetime,
+        however old, and ``burst_us`` keeps a crossing's first event while
+        its pixel fires, and ``frame_us`` frames count from the first packet:
+        with any of them the memory has no bound (None)."""
+        return None if (self.regularise or self.burst_us or self.frame_us) else self.window_us
+
     def process(self, packet: EventPacket) -> list[EventPacket | FramePacket]:
         w, h = packet.sensor
         if self.sae is None:

@@ -54,6 +54,16 @@ class Windowed(Operator):
         self._last = 0         # time of the latest event seen
         self._out = 0          # watermark of the frame stream
 
+    def memory_us(self) -> int | None:
+        """Time windows: a frame holds its window's events only, so the
+        memory is one window (time sharding), on the grid of windows from
+        the first packet; count windows depend on every event before them
+        (None). Subclasses whose state outlives a window say None."""
+        return self.window_us if self.count is None else None
+
+    def window_grid_us(self) -> int:
+        return self.window_us if self.count is None and self.window_us else 0
+
     # -- subclass hooks ---------------------------------------------------------
     def _start(self, sensor: tuple[int, int]) -> None:
         raise NotImplementedError

@@ -91,6 +91,10 @@ class Sae(Windowed):
 
     name = "repr.sae"
 
+    def memory_us(self) -> None:
+        """The surface keeps each pixel's latest time however old: no bound."""
+        return None
+
     def _start(self, sensor: tuple[int, int]) -> None:
         self.sae = np.full((sensor[1], sensor[0], 2), K.NEVER, np.int64)
 
@@ -116,6 +120,11 @@ class TimeSurface(Windowed):
             raise ValueError("tau_us must be > 0")
         self._init_window(window_us, count, partial)
         self.tau_us = float(tau_us)
+
+    def memory_us(self) -> None:
+        """The factored state rounds differently from another starting time,
+        so a shard's frames would differ in the last bits: no sharding."""
+        return None
 
     def _start(self, sensor: tuple[int, int]) -> None:
         self.v = np.zeros((sensor[1], sensor[0], 2), np.float64)

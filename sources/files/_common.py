@@ -588,6 +588,13 @@ class FileSource(Source):
     def _packets(self) -> Iterator[Packet]:
         raise NotImplementedError
 
+    def time_span(self) -> tuple[int, int] | None:
+        """Times of the first and last event (µs, offsets applied as read),
+        from the format's index or the file's ends, without decoding what
+        lies between; None where the format has neither (time sharding then
+        makes one pass over the file)."""
+        return None
+
     def info(self) -> dict[str, Any]:
         """Format, sensor, duration, event count, streams and offsets: a full
         pass over the file (streaming), unless the format keeps an index."""

@@ -327,6 +327,24 @@ class DatSource(FileSource):
             pos = self._bisect(f, start, end, self.t_start_us - (self.t0_offset if self.apply_t0 else 0))
         yield from self._events(f, pos, end, sensor)
 
+    def time_span(self) -> tuple[int, int] | None:
+        """The first and last records' times (None for a file of no
+        records, or whose 32-bit time wrapped: the last is below the first)."""
+        f = self._open()
+        try:
+            start, _ = self._header(f)
+            n = (f.seek(0, 2) - start) // 8
+            if n == 0:
+                return None
+            f.seek(start)
+            first = int.from_bytes(f.read(4), "little")
+            f.seek(start + (n - 1) * 8)
+            last = int.from_bytes(f.read(4), "little")
+        finally:
+            self.close()
+        off = self.t0_offset if self.apply_t0 else 0
+        return (first + off, last + off) if last >= first else None
+
     def _bisect(self, f: Any, start: int, end: int, t: int) -> int:
         """First record at or after time ``t`` (raw µs), assuming no wrap."""
         lo, hi = 0, (end - start) // 8
