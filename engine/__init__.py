@@ -77,7 +77,6 @@ from ._samples import (
 from ._scheduler import RunningPipeline as RunningPipeline
 from ._scheduler import arun as arun
 from ._scheduler import open_pipeline as open_pipeline
-from ._scheduler import run as run
 from ._stats import Stats as Stats
 from ._stream import concat as concat
 from ._stream import empty_like as empty_like
@@ -105,6 +104,7 @@ from .errors import (
     TectumError as TectumError,
 )
 from .hookspecs import hookimpl as hookimpl
+from .scale import run as run
 
 __version__ = "0.1.0"
 
