@@ -27,8 +27,10 @@ def stcf_kernel(t, x, y, p, last, dt_us, k, by_polarity, keep):  # type: ignore[
         yy = np.intp(y[i]) + 1
         c = 1 if (by_polarity and p[i] > 0) else 0
         m = last[c]
+        # the sum starts from an int: numpy adds two bools as a logical or (as
+        # Python, with NUMBA_DISABLE_JIT=1, it would count at most 1)
         s = (
-            (m[yy - 1, xx - 1] >= lim) + (m[yy - 1, xx] >= lim) + (m[yy - 1, xx + 1] >= lim)
+            0 + (m[yy - 1, xx - 1] >= lim) + (m[yy - 1, xx] >= lim) + (m[yy - 1, xx + 1] >= lim)
             + (m[yy, xx - 1] >= lim) + (m[yy, xx + 1] >= lim)
             + (m[yy + 1, xx - 1] >= lim) + (m[yy + 1, xx] >= lim) + (m[yy + 1, xx + 1] >= lim)
         )
