@@ -82,6 +82,7 @@ from ._stream import concat as concat
 from ._stream import empty_like as empty_like
 from ._stream import interleave as interleave
 from ._stream import merge as merge
+from .calibration import calibrate as calibrate
 from .errors import (
     DuplicateNameError as DuplicateNameError,
 )

@@ -21,7 +21,7 @@ from typing import NoReturn
 __all__ = ["main"]
 
 #: Verbs in the order ``tectum --help`` lists them (module name = verb).
-VERBS = ("demo", "run", "info", "convert", "simulate", "devices", "plugins", "bench")
+VERBS = ("demo", "run", "info", "convert", "simulate", "calibrate", "devices", "plugins", "bench")
 
 
 class _Parser(argparse.ArgumentParser):

@@ -1,0 +1,32 @@
+"""Checkerboard corners in an image of any range (APS frames, log-intensity
+maps, transition maps of a blinking checkerboard): scaled to 8 bits between
+its 1st and 99th percentiles (NaN, unobserved, as the median), searched
+with ``cv2.findChessboardCornersSB``, whose corners are sub-pixel already."""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["chessboard_corners"]
+
+
+def _to_u8(img: np.ndarray) -> np.ndarray:
+    a = np.asarray(img, np.float64)
+    if a.ndim == 3:
+        a = a.mean(axis=2)
+    ok = np.isfinite(a)
+    if not ok.any():
+        return np.zeros(a.shape, np.uint8)
+    lo, hi = np.percentile(a[ok], [1, 99])
+    a = np.where(ok, a, np.median(a[ok]))
+    return np.clip((a - lo) / max(hi - lo, 1e-9) * 255, 0, 255).astype(np.uint8)
+
+
+def chessboard_corners(image: np.ndarray, inner: tuple[int, int]) -> np.ndarray | None:
+    """Inner corners (cols*rows, 2) px of a checkerboard with ``inner``
+    (cols, rows) inner corners in ``image``, row by row as OpenCV orders
+    them, or None when the whole board is not found."""
+    import cv2
+
+    found, corners = cv2.findChessboardCornersSB(_to_u8(image), inner, cv2.CALIB_CB_NORMALIZE_IMAGE)
+    return corners.reshape(-1, 2).astype(np.float64) if found else None
