@@ -9,12 +9,13 @@ import sys
 from tectum import BatchPolicy, Pipeline
 from tectum._stats import amounts
 
+from . import _scale
 from ._args import split_op, split_query
 from ._progress import attach
 from ._signals import exit_status, run_until_signal
 from ._unwritten import unwritten_lines
 
-HELP = "run SOURCE through operators into sinks, or run PIPELINE.toml"
+HELP = "run SOURCE (or each file of a pattern) through operators into sinks, or run PIPELINE.toml"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -31,6 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pace", type=float, help="replay speed (1 = real time); default as fast as possible")
     p.add_argument("--repair", type=int, metavar="US",
                    help="repair the source stream (re-sort within US µs, drop bad events) instead of failing")
+    _scale.add_arguments(p)
 
 
 def build(args: argparse.Namespace) -> Pipeline:
@@ -78,6 +80,8 @@ def _span(p: Pipeline) -> int | None:
 
 
 def main(args: argparse.Namespace) -> int:
+    if args.shards is not None or args.executor is not None or _scale.is_glob(args.source):
+        return _scale.main_scaled(args, build)
     p = build(args)
     if p.nodes and not any(n.role == "sink" for n in p.nodes):
         from tectum.sinks.null import NullSink

@@ -69,6 +69,7 @@ def _reason(op: Operator) -> str:
     own = type(op).memory_us is not Operator.memory_us
     doc = inspect.getdoc(type(op).memory_us) if own else None
     if doc:
-        return "its memory has no bound: " + " ".join(doc.split())
+        text = " ".join(doc.replace("``", "").split())
+        return f"its memory has no bound ({text[:1].lower()}{text[1:].rstrip('.')})"
     return ("it states no finite memory (Operator.memory_us), so its output after a shard's start may depend "
             "on the whole stream before it")

@@ -82,6 +82,11 @@ class HotPixel(Operator):
         ys, xs = np.nonzero(self.hot)
         return [(int(a), int(b)) for a, b in zip(xs, ys)]
 
+    def memory_us(self) -> None:
+        """It learns the hot pixels from the stream's first ``learn_us``
+        and masks them for good: every later event depends on that start."""
+        return None
+
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self.counts is None:
             w, h = packet.sensor

@@ -65,6 +65,11 @@ class RateLimit(Operator):
         self.state = np.array([float(burst), 0.0, 0.0])
         self.dropped = 0
 
+    def memory_us(self) -> None:
+        """The bucket's level depends on every event since the stream began
+        (a steady input keeps it from ever refilling)."""
+        return None
+
     def process(self, packet: EventPacket) -> list[EventPacket]:
         keep = np.empty(len(packet), np.bool_)
         n = token_bucket_kernel(packet.t, self.state, self.rate_hz / 1e6, float(self.burst), keep)

@@ -44,6 +44,12 @@ class Refractory(Operator):
         self.period_us = int(period_us)
         self.last: np.ndarray | None = None
 
+    def memory_us(self) -> None:
+        """Whether an event is kept depends on the last kept one, which
+        depends on the one kept before it: a chain of events closer than
+        ``period_us`` reaches back without bound."""
+        return None
+
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self.last is None:
             w, h = packet.sensor

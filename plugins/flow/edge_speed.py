@@ -90,8 +90,10 @@ class EdgeSpeed(FlowOperator):
         self.sae: np.ndarray | None = None
 
     def memory_us(self) -> int:
-        """Neighbours older than ``window_us`` count as silent (time sharding)."""
-        return self.window_us
+        """Neighbours older than ``window_us`` count as silent, and the pixel
+        two steps back is checked for an age of about twice the time of
+        flight: at most ``2.25 window_us + tolerance_us`` (time sharding)."""
+        return (9 * self.window_us) // 4 + self.tolerance_us + 1
 
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self.sae is None:

@@ -157,8 +157,9 @@ class LucasKanade(FlowOperator):
         self.ring_t: np.ndarray | None = None
 
     def memory_us(self) -> int:
-        """Only events of the last ``dt_us`` enter the fit (time sharding)."""
-        return self.dt_us
+        """Only events of the last two windows, ``2 dt_us``, are counted
+        (time sharding)."""
+        return 2 * self.dt_us
 
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self.ring_t is None:
