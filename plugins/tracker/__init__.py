@@ -9,14 +9,16 @@ from tectum.hookspecs import hookimpl
 
 from .angular_velocity import AngularVelocity
 from .ego_motion import EgoMotion, MotionModelPacket
+from .features import FeatureTracker
 
-__all__: list[str] = ["AngularVelocity", "EgoMotion", "MotionModelPacket"]
+__all__: list[str] = ["AngularVelocity", "EgoMotion", "MotionModelPacket", "FeatureTracker"]
 
 
 @hookimpl
 def tectum_register_operators(registry) -> None:  # type: ignore[no-untyped-def]
     registry.add_operator(AngularVelocity)
     registry.add_operator(EgoMotion)
+    registry.add_operator(FeatureTracker)
 
 
 @hookimpl

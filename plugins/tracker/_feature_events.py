@@ -9,7 +9,11 @@ the events it fires while moving about 1 px, :func:`._eklt.event_target`,
 clipped to ``[min_events, capacity]``). Once the ring holds ``n_e`` events
 and ``update_fraction * n_e`` of them are new since the last alignment, the
 feature is aligned on its latest ``n_e`` events and one track row is
-written, stamped at the event that completed the window. The state depends
+written, stamped at the event that completed the window. An alignment
+places the feature where it was in the *middle* of its window (the events
+are spread over the ~1 px it moved): the row extrapolates that position to
+the row's time with the feature's velocity (the motion between the middles
+of successive windows, smoothed; ``x, y`` in the state stay the middle's). The state depends
 only on the events in order (never on how they were cut into packets).
 """
 
@@ -26,8 +30,8 @@ from ._icp import icp_align
 __all__ = ["COLUMNS", "PARAMS", "track_events"]
 
 #: Columns of the per-feature float state ``trk`` (T, len(COLUMNS)).
-COLUMNS = ("x", "y", "theta", "phi", "quality", "xref", "yref", "alive", "n_e", "ox", "oy")
-X, Y, TH, PHI, Q, XR, YR, ALIVE, NE, OX, OY = range(len(COLUMNS))
+COLUMNS = ("x", "y", "theta", "phi", "quality", "xref", "yref", "alive", "n_e", "ox", "oy", "t_mid", "vx", "vy")
+X, Y, TH, PHI, Q, XR, YR, ALIVE, NE, OX, OY, TM, VX, VY = range(len(COLUMNS))
 #: Entries of the parameter vector ``prm``.
 PARAMS = ("half", "contrast", "min_events", "update_fraction", "min_quality", "width", "height", "rotation",
           "max_iter", "method", "max_dist", "border")
@@ -39,9 +43,10 @@ STATS = ("updates", "lost_residual", "lost_border")
 
 
 @njit(cache=True)
-def _window(ring: np.ndarray, cnt: np.ndarray, k: int, n: int, ex: np.ndarray, ey: np.ndarray,
-            ep: np.ndarray) -> None:
-    """The latest ``n`` events of feature ``k``'s ring, oldest first."""
+def _window(ring: np.ndarray, ring_t: np.ndarray, cnt: np.ndarray, k: int, n: int, ex: np.ndarray,
+            ey: np.ndarray, ep: np.ndarray) -> float:
+    """The latest ``n`` events of feature ``k``'s ring, oldest first; returns
+    the time of the middle one (µs)."""
     cap = ring.shape[1]
     head = cnt[k, 1]
     for a in range(n):
@@ -49,17 +54,19 @@ def _window(ring: np.ndarray, cnt: np.ndarray, k: int, n: int, ex: np.ndarray, e
         ex[a] = ring[k, s, 0]
         ey[a] = ring[k, s, 1]
         ep[a] = ring[k, s, 2]
+    return float(ring_t[k, (head - n + n // 2) % cap])
 
 
 @njit(cache=True)
-def _align(k: int, trk: np.ndarray, ring: np.ndarray, cnt: np.ndarray, tg: np.ndarray, mdl: np.ndarray,
+def _align(k: int, trk: np.ndarray, ring: np.ndarray, ring_t: np.ndarray, cnt: np.ndarray, tg: np.ndarray, mdl: np.ndarray,
            nmdl: np.ndarray, prm: np.ndarray, ex: np.ndarray, ey: np.ndarray, ep: np.ndarray,
            obs: np.ndarray) -> float:
     """Align feature ``k`` on its latest ``n_e`` events; returns the moved
-    distance (px). Updates x, y, θ, φ, quality and n_e."""
+    distance (px). Updates x, y, θ, φ, quality, n_e, the window's middle
+    time and the velocity."""
     half = int(prm[P_HALF])
     n = int(trk[k, NE])
-    _window(ring, cnt, k, n, ex, ey, ep)
+    t_mid = _window(ring, ring_t, cnt, k, n, ex, ey, ep)
     x0 = trk[k, X]
     y0 = trk[k, Y]
     S = tg.shape[2]
@@ -96,12 +103,18 @@ def _align(k: int, trk: np.ndarray, ring: np.ndarray, cnt: np.ndarray, tg: np.nd
         trk[k, Y] = xy[1]
         target = trk[k, NE]
     trk[k, NE] = min(max(target, prm[P_MIN]), ring.shape[1])
+    dt = t_mid - trk[k, TM]
+    if dt > 0:
+        a = 0.5  # smoothing of the velocity over successive windows
+        trk[k, VX] = (1 - a) * trk[k, VX] + a * (trk[k, X] - x0) / dt
+        trk[k, VY] = (1 - a) * trk[k, VY] + a * (trk[k, Y] - y0) / dt
+        trk[k, TM] = t_mid
     return math.sqrt((trk[k, X] - x0) ** 2 + (trk[k, Y] - y0) ** 2)
 
 
 @njit(cache=True)
 def track_events(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, start: int, trk: np.ndarray,
-                 ids: np.ndarray, ring: np.ndarray, cnt: np.ndarray, tg: np.ndarray, mdl: np.ndarray,
+                 ids: np.ndarray, ring: np.ndarray, ring_t: np.ndarray, cnt: np.ndarray, tg: np.ndarray, mdl: np.ndarray,
                  nmdl: np.ndarray, prm: np.ndarray, stats: np.ndarray, out_t: np.ndarray, out_id: np.ndarray,
                  out_v: np.ndarray) -> tuple[int, int]:
     """Feed events ``start:`` (``t`` µs, ``x``, ``y`` px, ``p`` ±1) to the
@@ -137,6 +150,7 @@ def track_events(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, sta
             ring[k, s, 0] = x[e]
             ring[k, s, 1] = y[e]
             ring[k, s, 2] = p[e]
+            ring_t[k, s] = t[e]
             cnt[k, 1] = (s + 1) % cap
             cnt[k, 0] = min(cnt[k, 0] + 1, cap)
             cnt[k, 2] += 1
@@ -144,7 +158,7 @@ def track_events(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, sta
             if cnt[k, 0] < n_e or cnt[k, 2] < max(1.0, prm[P_UPD] * n_e):
                 continue
             cnt[k, 2] = 0
-            moved = _align(k, trk, ring, cnt, tg, mdl, nmdl, prm, ex, ey, ep, obs)
+            moved = _align(k, trk, ring, ring_t, cnt, tg, mdl, nmdl, prm, ex, ey, ep, obs)
             stats[0] += 1
             if trk[k, Q] < prm[P_QMIN] or moved > half:
                 trk[k, ALIVE] = 0.0
@@ -156,8 +170,9 @@ def track_events(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, sta
                 continue
             out_t[rows] = t[e]
             out_id[rows] = ids[k]
-            out_v[rows, 0] = trk[k, X]
-            out_v[rows, 1] = trk[k, Y]
+            ahead = t[e] - trk[k, TM]
+            out_v[rows, 0] = trk[k, X] + trk[k, VX] * ahead
+            out_v[rows, 1] = trk[k, Y] + trk[k, VY] * ahead
             out_v[rows, 2] = trk[k, Q]
             rows += 1
         e += 1

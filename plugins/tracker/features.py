@@ -60,12 +60,12 @@ from tectum import EventPacket, FramePacket, Kind, MapPacket, Operator, Packet, 
 from tectum.plugins.map._integrate import log_frame
 
 from ._eklt import event_target
-from ._feature_events import (ALIVE, COLUMNS, EKLT, ICP, NE, OX, OY, PARAMS, PHI, STATS, TH, XR, YR, Q, X, Y,
-                              track_events)
+from ._feature_events import ALIVE, COLUMNS, EKLT, ICP, NE, OX, OY, PARAMS, PHI, STATS, TM, XR, YR, X, Y, track_events
 
-__all__ = ["Features", "image_derivatives", "edge_image", "edge_model"]
+__all__ = ["FeatureTracker", "image_derivatives", "edge_image", "edge_model"]
 
 _ROWS = 65_536  # output rows per kernel call
+ICP_EVENTS_PER_POINT = 0.5  # ICP window: events per model point (measured best of 0.25-2 on the rotation scene)
 
 
 def image_derivatives(log_image: np.ndarray, sigma: float = 1.0) -> np.ndarray:
@@ -101,7 +101,7 @@ def edge_model(edges: np.ndarray, x: float, y: float, half: int) -> np.ndarray:
     return off[(np.abs(off[:, 0]) <= half) & (np.abs(off[:, 1]) <= half)]
 
 
-class Features(Operator):
+class FeatureTracker(Operator):
     """Corners detected on frames (or reconstructed maps), tracked by events (EKLT or ICP).
 
     Parameters
@@ -136,7 +136,8 @@ class Features(Operator):
         windows; smaller: more rows, more work).
     min_quality:
         Drop a feature whose quality falls below this (EKLT: correlation of
-        the patches; ICP: discounted inlier fraction).
+        the patches, default 0.3; ICP: discounted inlier fraction, default
+        0.15).
     max_iterations:
         Iterations per alignment (LM for EKLT, ICP rounds).
     icp_max_dist_px:
@@ -157,7 +158,7 @@ class Features(Operator):
                  detector: Literal["shi_tomasi", "harris"] = "shi_tomasi", quality_level: float = 0.01,
                  min_distance_px: float = 10.0, patch_px: int = 25, redetect: bool = True, rotation: bool = False,
                  contrast: float = 0.2, min_events: int = 40, max_events: int = 600, update_fraction: float = 0.5,
-                 min_quality: float = 0.3, max_iterations: int = 10, icp_max_dist_px: float = 2.0,
+                 min_quality: float | None = None, max_iterations: int = 10, icp_max_dist_px: float = 2.0,
                  frame_offset: float = 1.0 / 255) -> None:
         where = "tracker.features"
         if method not in ("eklt", "icp"):
@@ -186,12 +187,15 @@ class Features(Operator):
         self.size = patch_px + 2 * self.margin  # template side, px
         self.frame_offset = float(frame_offset)
         self.prm = np.zeros(len(PARAMS))
+        if min_quality is None:
+            min_quality = 0.3 if method == "eklt" else 0.15
         self.prm[:] = [self.half, contrast, min_events, update_fraction, min_quality, 0, 0, float(rotation),
                        max_iterations, EKLT if method == "eklt" else ICP, icp_max_dist_px, self.half]
         T, S = self.max_tracks, self.size
         self.trk = np.zeros((T, len(COLUMNS)))
         self.ids = np.full(T, -1, np.int64)
-        self.ring = np.zeros((T, int(max_events), 3), np.int32)
+        self.ring = np.zeros((T, int(max_events), 3), np.int32)  # x, y, p of each feature's latest events
+        self.ring_t = np.zeros((T, int(max_events)), np.int64)    # their times, µs
         self.cnt = np.zeros((T, 3), np.int64)
         self.tg = np.zeros((T, 5, S, S))
         self.mdl = np.zeros((T, patch_px * patch_px, 2))
@@ -225,15 +229,16 @@ class Features(Operator):
         return None
 
     def warmup(self) -> None:
-        twin = Features(method=self.method, max_tracks=1, patch_px=7, min_events=2, max_events=4)  # type: ignore[arg-type]
-        twin.prm[[5, 6]] = 20, 20
-        twin.trk[0, [X, Y, XR, YR, ALIVE, NE, OX, OY]] = 10, 10, 10, 10, 1, 2, 10 - twin.size // 2, 10 - twin.size // 2
-        twin.trk[0, PHI] = math.nan
-        twin.tg[0, 0] = 1.0
-        xy = np.full(8, 10, np.uint16)
-        twin._track(np.arange(8, dtype=np.int64), xy, xy, np.ones(8, np.int8))
-        twin.prm[9] = EKLT if self.method == "icp" else ICP
-        twin._track(np.arange(8, dtype=np.int64), xy, xy, np.ones(8, np.int8))
+        """Compile the kernels on a twin fed a frame with one corner and events around it."""
+        twin = FeatureTracker(method=self.method, max_tracks=2, patch_px=7, min_distance_px=3.0, min_events=4,  # type: ignore[arg-type]
+                        max_events=8, rotation=bool(self.prm[7]))
+        img = np.zeros((1, 32, 32), np.uint8)
+        img[0, 12:, 12:] = 200
+        n = 64
+        t = np.arange(1, n + 1, dtype=np.int64)
+        xy = (10 + np.arange(n) % 5).astype(np.uint16)
+        ev = EventPacket(t, xy, xy[::-1].copy(), np.ones(n, np.int8), sensor=(32, 32), t_start=0, t_end=n + 1)
+        twin.process_ports({"events": ev, "frames": FramePacket([0], images=img, t_start=0, t_end=n + 1)})
 
     # -- input ------------------------------------------------------------------
     def process_ports(self, ports: Mapping[str, Packet]) -> list[Packet]:
@@ -298,7 +303,7 @@ class Features(Operator):
             out_t = np.empty(_ROWS, np.int64)
             out_i = np.empty(_ROWS, np.int64)
             out_v = np.empty((_ROWS, 3))
-            n, start = track_events(t, x, y, p, start, self.trk, self.ids, self.ring, self.cnt, self.tg, self.mdl,
+            n, start = track_events(t, x, y, p, start, self.trk, self.ids, self.ring, self.ring_t, self.cnt, self.tg, self.mdl,
                                     self.nmdl, self.prm, self.stats, out_t, out_i, out_v)
             parts_t.append(out_t[:n])
             parts_i.append(out_i[:n])
@@ -326,8 +331,8 @@ class Features(Operator):
         mask = np.zeros((h, w), np.uint8)
         mask[b:h - b, b:w - b] = 255
         for k in np.flatnonzero(self.trk[:, ALIVE] > 0):
-            cv2.circle(mask, (int(round(self.trk[k, X])), int(round(self.trk[k, Y]))), int(math.ceil(self.min_distance)),
-                       0, -1)
+            centre = (int(round(self.trk[k, X])), int(round(self.trk[k, Y])))
+            cv2.circle(mask, centre, int(math.ceil(self.min_distance)), 0, -1)
         found = cv2.goodFeaturesToTrack(np.ascontiguousarray(log_img, np.float32), maxCorners=int(free.size),
                                         qualityLevel=self.quality_level, minDistance=self.min_distance, mask=mask,
                                         blockSize=5, useHarrisDetector=self.detector == "harris", k=0.04)
@@ -344,11 +349,12 @@ class Features(Operator):
             self.trk[k, [X, Y, XR, YR, OX, OY]] = cx, cy, cx, cy, ox, oy
             self.tg[k] = der[:, oy:oy + S, ox:ox + S]
             n_e = event_target(self.tg[k, 0, a:S - a, a:S - a], self.tg[k, 1, a:S - a, a:S - a], math.nan, c)
-            self.trk[k, [TH, PHI, Q, ALIVE]] = 0.0, math.nan, 1.0, 1.0
+            self.trk[k, [PHI, TM, ALIVE]] = math.nan, t, 1.0
             self.trk[k, NE] = min(max(n_e, self.prm[2]), self.ring.shape[1])
             if edges is not None:
                 m = edge_model(edges, cx, cy, self.half)[: self.mdl.shape[1]]
                 self.mdl[k, :len(m)], self.nmdl[k] = m, len(m)
+                self.trk[k, NE] = min(max(len(m) * ICP_EVENTS_PER_POINT, self.prm[2]), self.ring.shape[1])
             self.cnt[k] = 0
             self.ids[k] = self.next_id
             self.next_id += 1
