@@ -43,8 +43,8 @@ STATS = ("updates", "lost_residual", "lost_border")
 
 
 @njit(cache=True)
-def _window(ring: np.ndarray, ring_t: np.ndarray, cnt: np.ndarray, k: int, n: int, ex: np.ndarray,
-            ey: np.ndarray, ep: np.ndarray) -> float:
+def _window(ring: np.ndarray, cnt: np.ndarray, k: int, n: int, ex: np.ndarray, ey: np.ndarray,
+            ep: np.ndarray) -> float:
     """The latest ``n`` events of feature ``k``'s ring, oldest first; returns
     the time of the middle one (µs)."""
     cap = ring.shape[1]
@@ -54,11 +54,11 @@ def _window(ring: np.ndarray, ring_t: np.ndarray, cnt: np.ndarray, k: int, n: in
         ex[a] = ring[k, s, 0]
         ey[a] = ring[k, s, 1]
         ep[a] = ring[k, s, 2]
-    return float(ring_t[k, (head - n + n // 2) % cap])
+    return float(ring[k, (head - n + n // 2) % cap, 3])
 
 
 @njit(cache=True)
-def _align(k: int, trk: np.ndarray, ring: np.ndarray, ring_t: np.ndarray, cnt: np.ndarray, tg: np.ndarray, mdl: np.ndarray,
+def _align(k: int, trk: np.ndarray, ring: np.ndarray, cnt: np.ndarray, tg: np.ndarray, mdl: np.ndarray,
            nmdl: np.ndarray, prm: np.ndarray, ex: np.ndarray, ey: np.ndarray, ep: np.ndarray,
            obs: np.ndarray) -> float:
     """Align feature ``k`` on its latest ``n_e`` events; returns the moved
@@ -66,7 +66,7 @@ def _align(k: int, trk: np.ndarray, ring: np.ndarray, ring_t: np.ndarray, cnt: n
     time and the velocity."""
     half = int(prm[P_HALF])
     n = int(trk[k, NE])
-    t_mid = _window(ring, ring_t, cnt, k, n, ex, ey, ep)
+    t_mid = _window(ring, cnt, k, n, ex, ey, ep)
     x0 = trk[k, X]
     y0 = trk[k, Y]
     S = tg.shape[2]
@@ -114,12 +114,14 @@ def _align(k: int, trk: np.ndarray, ring: np.ndarray, ring_t: np.ndarray, cnt: n
 
 @njit(cache=True)
 def track_events(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, start: int, trk: np.ndarray,
-                 ids: np.ndarray, ring: np.ndarray, ring_t: np.ndarray, cnt: np.ndarray, tg: np.ndarray, mdl: np.ndarray,
-                 nmdl: np.ndarray, prm: np.ndarray, stats: np.ndarray, out_t: np.ndarray, out_id: np.ndarray,
+                 ids: np.ndarray, ring: np.ndarray, cnt: np.ndarray, tg: np.ndarray, mdl: np.ndarray,
+                 nmdl: np.ndarray, prm: np.ndarray, stats: np.ndarray, out_i: np.ndarray,
                  out_v: np.ndarray) -> tuple[int, int]:
     """Feed events ``start:`` (``t`` µs, ``x``, ``y`` px, ``p`` ±1) to the
-    features; write one row per alignment into ``out_t`` (µs), ``out_id``
-    and ``out_v`` (rows of x, y px, quality). Stops before an event when
+    features; write one row per alignment into ``out_i`` (rows of t µs,
+    id) and ``out_v`` (rows of x, y px, quality). ``ring`` (T, capacity,
+    4) holds each feature's latest events (x, y, p, t), ``cnt`` (T, 3)
+    their number, the ring's head and the events since the last alignment. Stops before an event when
     fewer than T rows are left; returns (rows written, next event)."""
     T = trk.shape[0]
     cap = ring.shape[1]
@@ -137,7 +139,7 @@ def track_events(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, sta
     n_ev = t.shape[0]
     e = start
     while e < n_ev:
-        if out_t.shape[0] - rows < T:
+        if out_i.shape[0] - rows < T:
             break
         xe = float(x[e])
         ye = float(y[e])
@@ -150,7 +152,7 @@ def track_events(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, sta
             ring[k, s, 0] = x[e]
             ring[k, s, 1] = y[e]
             ring[k, s, 2] = p[e]
-            ring_t[k, s] = t[e]
+            ring[k, s, 3] = t[e]
             cnt[k, 1] = (s + 1) % cap
             cnt[k, 0] = min(cnt[k, 0] + 1, cap)
             cnt[k, 2] += 1
@@ -158,7 +160,7 @@ def track_events(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, sta
             if cnt[k, 0] < n_e or cnt[k, 2] < max(1.0, prm[P_UPD] * n_e):
                 continue
             cnt[k, 2] = 0
-            moved = _align(k, trk, ring, ring_t, cnt, tg, mdl, nmdl, prm, ex, ey, ep, obs)
+            moved = _align(k, trk, ring, cnt, tg, mdl, nmdl, prm, ex, ey, ep, obs)
             stats[0] += 1
             if trk[k, Q] < prm[P_QMIN] or moved > half:
                 trk[k, ALIVE] = 0.0
@@ -168,8 +170,8 @@ def track_events(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, sta
                 trk[k, ALIVE] = 0.0
                 stats[2] += 1
                 continue
-            out_t[rows] = t[e]
-            out_id[rows] = ids[k]
+            out_i[rows, 0] = t[e]
+            out_i[rows, 1] = ids[k]
             ahead = t[e] - trk[k, TM]
             out_v[rows, 0] = trk[k, X] + trk[k, VX] * ahead
             out_v[rows, 1] = trk[k, Y] + trk[k, VY] * ahead

@@ -194,8 +194,7 @@ class FeatureTracker(Operator):
         T, S = self.max_tracks, self.size
         self.trk = np.zeros((T, len(COLUMNS)))
         self.ids = np.full(T, -1, np.int64)
-        self.ring = np.zeros((T, int(max_events), 3), np.int32)  # x, y, p of each feature's latest events
-        self.ring_t = np.zeros((T, int(max_events)), np.int64)    # their times, µs
+        self.ring = np.zeros((T, int(max_events), 4), np.int64)  # x, y, p, t (µs) of each feature's latest events
         self.cnt = np.zeros((T, 3), np.int64)
         self.tg = np.zeros((T, 5, S, S))
         self.mdl = np.zeros((T, patch_px * patch_px, 2))
@@ -224,8 +223,8 @@ class FeatureTracker(Operator):
     def check_ports(cls, connected: frozenset[str]) -> str | None:
         if "frames" not in connected and "maps" not in connected:
             return ("no image to find corners on: connect the port 'frames' (APS frames: a DAVIS recording, "
-                    "an ECD folder with images.txt, simulate:...?davis=true) or 'maps' (a reconstruction such "
-                    "as map.high_pass) besides 'events'")
+                    "an ECD folder with images.txt, simulate:SCENE?davis=true for a scene whose davis section "
+                    "has aps_rate_hz) or 'maps' (a reconstruction such as map.high_pass) besides 'events'")
         return None
 
     def warmup(self) -> None:
@@ -296,23 +295,22 @@ class FeatureTracker(Operator):
 
     def _track(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, ...]:
         """Feed events to the features: their rows (t, id, (x, y, quality))."""
-        parts_t, parts_i, parts_v = [], [], []
+        parts_i, parts_v = [], []
         start = 0
         before = self.stats.copy()
         while True:
-            out_t = np.empty(_ROWS, np.int64)
-            out_i = np.empty(_ROWS, np.int64)
+            out_i = np.empty((_ROWS, 2), np.int64)
             out_v = np.empty((_ROWS, 3))
-            n, start = track_events(t, x, y, p, start, self.trk, self.ids, self.ring, self.ring_t, self.cnt, self.tg, self.mdl,
-                                    self.nmdl, self.prm, self.stats, out_t, out_i, out_v)
-            parts_t.append(out_t[:n])
+            n, start = track_events(t, x, y, p, start, self.trk, self.ids, self.ring, self.cnt, self.tg, self.mdl,
+                                    self.nmdl, self.prm, self.stats, out_i, out_v)
             parts_i.append(out_i[:n])
             parts_v.append(out_v[:n])
             if start >= len(t):
                 break
         for k, name in enumerate(STATS):
             self.counts[name] += int(self.stats[k] - before[k])
-        return np.concatenate(parts_t), np.concatenate(parts_i), np.concatenate(parts_v)
+        ti = np.concatenate(parts_i)
+        return ti[:, 0].copy(), ti[:, 1].copy(), np.concatenate(parts_v)
 
     # -- detection ------------------------------------------------------------------
     def _detect(self, t: int, log_img: np.ndarray) -> tuple[np.ndarray, ...]:
