@@ -391,6 +391,8 @@ def _validate(p: Pipeline, reg: Registry) -> Plan:
                     f"{', '.join(repr(i) for i in inputs)} provide only {_kinds(upstream)}"
                 )
             provides = (upstream - consumes) | frozenset(decl.produces) if s.role == "operator" else frozenset()
+            if s.role == "sink" and s.component is None and hasattr(cls, "planned_params"):
+                params = cls.planned_params(params, upstream)  # e.g. which stream a file holds
         offload = s.role == "operator" and (bool(getattr(decl, "heavy", False)) if s.offload is None else s.offload)
         nodes[nid] = PlanNode(s, cls, MappingProxyType(params), tuple(children[nid]), provides, inputs,
                               MappingProxyType(wired), offload)

@@ -199,8 +199,11 @@ class AngularVelocity(Operator):
         self._x = np.empty(0, np.uint16)
         self._y = np.empty(0, np.uint16)
         self._next = 0              # event mode: buffer index of the next window's first event
+        self._covered = 0           # event mode: buffer index up to which windows have run
         self._win: int | None = None  # time mode: start of the next window, µs
+        self._covered_us: int | None = None  # time mode: end of the last window run, µs
         self._mark: int | None = None  # start of the next output packet's interval, µs
+        self._end = 0  # t_end of the last input packet, µs
         self._w: np.ndarray | None = None  # the last valid estimate (warm start)
         self._H = np.zeros((3, 3))  # BFGS inverse Hessian carried between windows
         self._sensor: tuple[int, int] | None = None
@@ -262,6 +265,7 @@ class AngularVelocity(Operator):
             self._win = packet.t_start
         if self._sensor != packet.sensor:
             self._setup(packet.sensor)
+        self._end = packet.t_end
         if len(packet):
             self._t = np.concatenate([self._t, packet.t])
             self._x = np.concatenate([self._x, packet.x])
@@ -277,9 +281,11 @@ class AngularVelocity(Operator):
             if r is not None:
                 rows.append((int(self._t[b - 1]), *r))
             self._next += self.step_events
+            self._covered = b
         k = min(self._next, len(self._t))
         self._drop(k)
         self._next -= k
+        self._covered = max(0, self._covered - k)
         return rows
 
     def _by_time(self, watermark: int) -> list[tuple[int, np.ndarray, float, int]]:
@@ -292,8 +298,32 @@ class AngularVelocity(Operator):
             if r is not None:
                 rows.append((end - 1, *r))
             self._win += self.step_us
+            self._covered_us = end
         self._drop(int(np.searchsorted(self._t, self._win)))
         return rows
+
+    def finish(self) -> list[Packet]:
+        """End of stream: the events no window has covered yet (a stream
+        shorter than a window, or the tail after the last one) make one last,
+        shorter window, reported at the stream's end (``t_end`` of the last
+        input packet, µs); with fewer than
+        ``min_events`` events it is a counted skip like any other window."""
+        if self._mark is None or not len(self._t):
+            return []
+        last = int(self._t[-1])
+        if self.window_us:
+            if self._covered_us is not None and self._covered_us > last:
+                return []
+            assert self._win is not None
+            a = int(np.searchsorted(self._t, self._win))
+        else:
+            if self._covered >= len(self._t):
+                return []
+            a = self._next
+        r = self._window(self._t[a:], self._x[a:], self._y[a:])
+        self._drop(len(self._t))
+        at = self._end  # the stream's end: after every earlier output, however the input was split
+        return self._emit([(at, *r)] if r is not None else [], at + 1)
 
     def _drop(self, k: int) -> None:
         """Forget the first ``k`` buffered events."""

@@ -13,7 +13,9 @@ fields; one row per sample, floats with the fewest digits that read back
 to the same float64, so a round trip is exact.
 
 Which stream: the one named by ``kind`` (``out.csv?kind=imu``), else the
-first kind with flat fields that reaches the sink (frames and maps have
+only kind with flat fields the pipeline can bring to the sink (known when
+it is validated: a run that yields none still writes that header), else
+the first such kind that reaches the sink (frames and maps have
 images: write them to ``.npz``). Events are written only when nothing else
 comes (the RPG CSV layout of :class:`tectum.sinks.files.text.TextSink`,
 ``t,x,y,p`` in seconds) or when ``kind=events``: until a sample packet
@@ -23,7 +25,7 @@ naming the kind spares that work on a recording with both.
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -89,6 +91,17 @@ class CsvSink(Sink):
             self.samples = SampleCsvWriter(path, self.kind)
         #: What came and was not stored (the other streams), by kind.
         self.not_written: dict[str, int] = {}
+
+    @classmethod
+    def planned_params(cls, params: dict[str, Any], upstream: frozenset[Kind]) -> dict[str, Any]:
+        """At validation, with the kinds of stream that reach the sink: when
+        no ``kind`` is given and exactly one flat sample kind comes (say a
+        tracker's output), the file holds that one, so a run that yields no
+        sample still writes its header (not an events CSV)."""
+        flat = [k for k in upstream if k in flat_kinds()]
+        if params.get("kind") is None and len(flat) == 1:
+            return {**params, "kind": str(flat[0])}
+        return params
 
     def open(self) -> None:
         for s in (self.events, self.samples):

@@ -14,7 +14,7 @@ import pytest
 import tectum
 from tectum import EventPacket, concat
 from tectum.plugins.tracker import AngularVelocity
-from tectum.testing import feed
+from tectum.testing import feed, split_stream
 
 OMEGA = np.array([1.5, -2.5, 0.8])  # rad/s, camera frame
 SENSOR = (120, 90)
@@ -51,15 +51,17 @@ def test_recovers_a_constant_rotation_within_a_few_percent():
     ev, calib = _scene()
     op = AngularVelocity(calib=calib, window_events=15_000, step_events=5_000)
     out = concat(feed(op, [ev]))
-    assert len(out) == (len(ev) - 15_000) // 5_000 + 1
+    whole = (len(ev) - 15_000) // 5_000 + 1
+    assert len(out) == whole + 1  # and at the end of stream one over the events after the last window
     w = _omega(out)
     peak = np.abs(OMEGA).max()
     assert np.all(np.abs(w.mean(axis=0) - OMEGA) < 0.06 * peak), w.mean(axis=0)
     assert np.all(np.abs(w - OMEGA) < 0.12 * peak)
-    assert np.all(out["events"] == 15_000)
+    assert np.all(out["events"][:whole] == 15_000) and out["events"][-1] == len(ev) - whole * 5_000
     assert np.all((out["confidence"] > 0.1) & (out["confidence"] <= 1))
-    # each sample is stamped with its window's last event
-    assert list(out.t) == [int(ev.t[k * 5_000 + 14_999]) for k in range(len(out))]
+    # each sample is stamped with its window's last event; the tail's with the stream's end
+    assert list(out.t[:whole]) == [int(ev.t[k * 5_000 + 14_999]) for k in range(whole)]
+    assert out.t[-1] == ev.t_end
 
 
 def test_slow_oblique_rotation_within_3_percent_of_peak_on_every_axis():
@@ -103,7 +105,9 @@ def test_time_windows_and_too_few_events_are_counted_skips_never_nan():
     op = AngularVelocity(calib=calib, window_us=20_000, step_us=20_000, min_events=2_000)
     out = concat(feed(op, [gap]))
     assert op.counts["skipped_few_events"] == 2
-    assert op.counts["windows"] == (gap.t_end - t0) // 20_000
+    # whole windows, and at the end of stream one shorter window over the events after the last
+    tail = gap.t[-1] >= t0 + (gap.t_end - t0) // 20_000 * 20_000
+    assert op.counts["windows"] == (gap.t_end - t0) // 20_000 + tail
     assert len(out) == op.counts["windows"] - 2
     assert np.isfinite(_omega(out)).all()
     assert not np.any((out.t >= t0 + 40_000) & (out.t < t0 + 80_000))
@@ -152,9 +156,40 @@ def test_from_the_command_line_on_an_ecd_folder(tmp_path):
         back = concat([q for q in src.packets() if len(q)])
     finally:
         src.close()
-    assert len(back) == (len(ev) - 15_000) // 5_000 + 1
+    # sliding windows, and one over the tail after the last (end of stream)
+    assert len(back) == (len(ev) - 15_000) // 5_000 + 1 + ((len(ev) - 15_000) % 5_000 > 0)
     w = _omega(back)
     assert np.all(np.abs(w.mean(axis=0) - OMEGA) < 0.08 * np.abs(OMEGA).max()), w.mean(axis=0)
+
+
+def test_a_stream_shorter_than_a_window_gives_one_estimate_at_its_end():
+    ev, calib = _scene()
+    short = ev.slice_time(None, ev.t_start + 30_000)
+    assert 5_000 < len(short) < 60_000  # the default window is 60k events
+    for packets in ([short], split_stream(short, [1_000, 9_000, 9_001, 20_000])):
+        op = AngularVelocity(calib=calib)
+        out = concat([q for q in feed(op, packets) if len(q)])
+        assert len(out) == 1 and out.t[0] == short.t_end and out["events"][0] == len(short)
+        assert np.all(np.abs(_omega(out)[0] - OMEGA) < 0.1 * np.abs(OMEGA).max())
+        assert op.counts["windows"] == 1
+    # too short for an estimate: a counted skip, and nothing else
+    op = AngularVelocity(calib=calib, min_events=500)
+    assert not any(len(q) for q in feed(op, [short.slice_time(None, int(short.t[299]) + 1)]))
+    assert op.counts["skipped_few_events"] == 1 and op.counts["windows"] == 1
+
+
+def test_no_estimate_still_writes_the_angular_velocity_csv_header(tmp_path):
+    ev, calib = _scene()
+    _ecd_folder(tmp_path, ev.slice_time(None, ev.t_start + 300), calib)
+    csv = tmp_path / "omega.csv"
+    run = subprocess.run([sys.executable, "-m", "tectum", "run", str(tmp_path / "events.txt"), "--op",
+                          "tracker.angular_velocity", "--sink", str(csv), "--stats"],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    lines = csv.read_text().splitlines()
+    assert lines[0].startswith("# tectum angular_velocity") and lines[1].startswith("t,wx,wy,wz")
+    assert len(lines) == 2
+    assert "skipped_few_events" in run.stderr + run.stdout
 
 
 def test_without_calib_txt_the_command_line_fails_before_running(tmp_path):
@@ -183,6 +218,7 @@ def test_rotdisk_estimates_follow_its_gyro_with_the_stated_axes():
     ev, imu = read_events_and_imu(str(path))
     ev = ev.slice_time(int(ev.t[0]), int(ev.t[0]) + 800_000)
     out = concat(feed(AngularVelocity(calib="200;200;119.5;89.5", window_events=15_000, step_events=5_000), [ev]))
+    out = out.take(np.flatnonzero(out["events"] == 15_000))  # whole windows (not the end-of-stream tail)
     gyro = imu.gyro @ ROTDISK_CAMERA_FROM_IMU.T
     at = np.array([gyro[(imu.t <= t) & (imu.t > t - 20_000)].mean(axis=0) for t in out.t])
     w = _omega(out)
