@@ -42,10 +42,13 @@ class Shard:
         return self.end_us is None
 
     def describe(self) -> str:
-        """``[a, b) µs`` with ``start``/``end`` for open bounds."""
+        """``[a, b) µs`` (``start``/``end`` for open bounds), and where its
+        reading starts when a warm-up comes before ``a``."""
         a = "start" if self.start_us is None else f"{self.start_us}"
         b = "end" if self.end_us is None else f"{self.end_us}"
-        return f"[{a}, {b}) µs"
+        if self.start_us is None:
+            return f"[{a}, {b}) µs"
+        return f"[{a}, {b}) µs (read from {'the start' if self.read_us is None else self.read_us})"
 
 
 def plan_shards(n: int, span: tuple[int, int], warmup: Warmup) -> list[Shard]:
