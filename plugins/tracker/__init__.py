@@ -1,17 +1,21 @@
 """Family ``tracker``: the camera's motion from events: angular velocity by
 contrast maximisation (``tracker.angular_velocity``) and ego-motion with a
 model ladder that picks the simplest adequate motion model
-(``tracker.ego_motion``)."""
+(``tracker.ego_motion``); moving objects as event clusters
+(``tracker.clusters``) and blinking LED markers with the pose of their body
+(``tracker.led_markers``)."""
 
 from __future__ import annotations
 
 from tectum.hookspecs import hookimpl
 
 from .angular_velocity import AngularVelocity
+from .clusters import Clusters
 from .ego_motion import EgoMotion, MotionModelPacket
 from .features import FeatureTracker
+from .led_markers import LedMarkers
 
-__all__: list[str] = ["AngularVelocity", "EgoMotion", "MotionModelPacket", "FeatureTracker"]
+__all__: list[str] = ["AngularVelocity", "EgoMotion", "MotionModelPacket", "FeatureTracker", "Clusters", "LedMarkers"]
 
 
 @hookimpl
@@ -19,6 +23,8 @@ def tectum_register_operators(registry) -> None:  # type: ignore[no-untyped-def]
     registry.add_operator(AngularVelocity)
     registry.add_operator(EgoMotion)
     registry.add_operator(FeatureTracker)
+    registry.add_operator(Clusters)
+    registry.add_operator(LedMarkers)
 
 
 @hookimpl
