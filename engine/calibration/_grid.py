@@ -6,9 +6,14 @@ neighbouring dots are about 24 px apart) and handed to
 ``CALIB_CB_CLUSTERING`` variant as a fallback for strongly distorted
 views); each point it returns is then replaced by the exact centroid it was
 drawn from. An order is accepted only when every grid point came from a
-distinct centroid and the grid is smooth: along each row and each column,
-the second difference of the points is under ``smooth`` of the step
-(a mis-ordered point breaks this by a whole step). A board partly out of
+distinct centroid, the grid is smooth (along each row and each column,
+the second difference of the points is under ``smooth`` of the step: a
+mis-ordered point breaks this by a whole step) and no other dot sits where
+the grid would go on beyond its border (a board larger than ``--grid``).
+
+A symmetric grid looks the same turned by 180°: of its two orders the one
+that starts nearer the image's top left (smaller ``u + v``) is returned, so
+two cameras side by side order a board alike (stereo pairs). A board partly out of
 view has fewer dots than the grid and is never ordered.
 """
 
@@ -110,6 +115,33 @@ def order_grid(xy: np.ndarray, grid: Grid, smooth: float = 0.35) -> np.ndarray |
         if len(np.unique(pick)) != grid.size or np.any(d[np.arange(len(pick)), pick] > 0.5):
             continue
         ordered = xy[pick]
-        if _smooth(ordered.reshape(grid.rows, grid.cols, 2), smooth, grid.asymmetric):
+        if not grid.asymmetric and ordered[0].sum() > ordered[-1].sum():
+            ordered = ordered[::-1].copy()  # one of the two orders of a symmetric grid: first dot top left
+        if _smooth(ordered.reshape(grid.rows, grid.cols, 2), smooth, grid.asymmetric) and not _extends(
+                ordered, xy, grid):
             return ordered
     return None
+
+
+def _extends(ordered: np.ndarray, xy: np.ndarray, grid: Grid) -> bool:
+    """True when a dot of ``xy`` sits where the grid would go on, one row or
+    column beyond its border (the board is larger than ``grid``: a sub-grid
+    of it is no view of the board), by the grid's homography."""
+    import cv2
+
+    if len(xy) == len(ordered):
+        return False
+    obj = grid.object_points()[:, :2].astype(np.float64)
+    Hm, _ = cv2.findHomography(obj, ordered, 0)
+    if Hm is None:
+        return True
+    s = grid.spacing
+    i, j = np.meshgrid(np.arange(-1, grid.rows + 1), np.arange(-1, grid.cols + 1), indexing="ij")
+    border = (i < 0) | (i >= grid.rows) | (j < 0) | (j >= grid.cols)
+    i, j = i[border], j[border]
+    xs = (2 * j + i % 2) * s if grid.asymmetric else j * s
+    cand = cv2.perspectiveTransform(np.column_stack([xs, i * s])[None].astype(np.float64), Hm)[0]
+    d = np.linalg.norm(ordered[:, None] - ordered[None], axis=2)
+    np.fill_diagonal(d, np.inf)
+    step = float(np.median(d.min(axis=1)))
+    return bool(np.any(np.linalg.norm(cand[:, None] - xy[None], axis=2) < 0.3 * step))

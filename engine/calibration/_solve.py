@@ -50,16 +50,24 @@ def reprojection(camera: Camera, obj: np.ndarray, rvec: np.ndarray, tvec: np.nda
     return px.reshape(-1, 2)
 
 
+def _fisheye_flag(name: str) -> int:
+    """A ``cv2.fisheye`` flag: in ``cv2.fisheye`` up to OpenCV 4, in ``cv2`` from 5."""
+    import cv2
+
+    return int(getattr(cv2.fisheye, name, None) or getattr(cv2, name))
+
+
 def _calibrate(obj: list[np.ndarray], img: list[np.ndarray], size: tuple[int, int], model: Model,
                k3: bool) -> tuple[Camera, list[np.ndarray], list[np.ndarray]]:
     import cv2
 
     if model == "equidistant":
-        flags = cv2.fisheye.CALIB_RECOMPUTE_EXTRINSIC | cv2.fisheye.CALIB_FIX_SKEW
+        flags = _fisheye_flag("CALIB_RECOMPUTE_EXTRINSIC") | _fisheye_flag("CALIB_FIX_SKEW")
         crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
-        _, K, D, rv, tv = cv2.fisheye.calibrate([o.reshape(-1, 1, 3).astype(np.float64) for o in obj],
-                                                [p.reshape(-1, 1, 2).astype(np.float64) for p in img],
-                                                size, None, None, flags=flags, criteria=crit)
+        # (1, N, 3) / (1, N, 2): the layout OpenCV 5's fisheye module takes (and 4's)
+        _, K, D, rv, tv = cv2.fisheye.calibrate([o.reshape(1, -1, 3).astype(np.float64) for o in obj],
+                                                [p.reshape(1, -1, 2).astype(np.float64) for p in img],
+                                                size, np.eye(3), np.zeros((4, 1)), flags=flags, criteria=crit)
         D = D.ravel()
     else:
         flags = 0 if k3 else cv2.CALIB_FIX_K3
@@ -135,11 +143,11 @@ def solve_stereo(obj: np.ndarray, left: list[np.ndarray], right: list[np.ndarray
         raise ValueError("stereo: both cameras need an image size")
     crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
     if cam_l.model == "equidistant":
-        o = [obj.reshape(-1, 1, 3).astype(np.float64)] * len(left)
+        o = [obj.reshape(1, -1, 3).astype(np.float64)] * len(left)
         rms, _, _, _, _, R, T = cv2.fisheye.stereoCalibrate(
-            o, [p.reshape(-1, 1, 2).astype(np.float64) for p in left],
-            [p.reshape(-1, 1, 2).astype(np.float64) for p in right], cam_l.K, cam_l.D, cam_r.K, cam_r.D,
-            cam_l.size, flags=cv2.fisheye.CALIB_FIX_INTRINSIC, criteria=crit)[:7]
+            o, [p.reshape(1, -1, 2).astype(np.float64) for p in left],
+            [p.reshape(1, -1, 2).astype(np.float64) for p in right], cam_l.K, cam_l.D, cam_r.K, cam_r.D,
+            cam_l.size, flags=_fisheye_flag("CALIB_FIX_INTRINSIC"), criteria=crit)[:7]
         R1, R2, P1, P2, _ = cv2.fisheye.stereoRectify(cam_l.K, cam_l.D, cam_r.K, cam_r.D, cam_l.size, R, T,
                                                       cv2.CALIB_ZERO_DISPARITY)
     else:

@@ -48,26 +48,34 @@ class Board:
     between neighbouring dots of a row (symmetric) or, for an ``asymmetric``
     grid, half the distance between neighbours of a row (OpenCV's
     ``squareSize``: dot ``(i, j)`` at ``((2 j + i % 2) s, i s)``); dots of
-    ``radius`` m."""
+    ``radius`` m. A ``checker`` board is a checkerboard of squares of
+    ``spacing`` m whose white squares blink: ``cols x rows`` inner corners
+    at ``(j s, i s)``, the square at the origin's lower right white."""
 
     cols: int = 7
     rows: int = 5
     spacing: float = 0.03
     radius: float = 0.0075
     asymmetric: bool = False
+    checker: bool = False
+
+    @property
+    def kind(self) -> int:
+        """0 symmetric dots, 1 asymmetric dots, 2 checkerboard (for the kernels)."""
+        return 2 if self.checker else int(self.asymmetric)
 
     def object_points(self) -> np.ndarray:
-        """Dot centres (rows*cols, 3) m in the board frame, row by row, as
-        OpenCV's circle grid orders them."""
+        """Dot centres (or inner corners) (rows*cols, 3) m in the board
+        frame, row by row, as OpenCV's circle grid orders them."""
         i, j = np.divmod(np.arange(self.rows * self.cols), self.cols)
         xs = (2 * j + i % 2) * self.spacing if self.asymmetric else j * self.spacing
         return np.column_stack([xs, i * self.spacing, np.zeros(len(i))]).astype(np.float64)
 
     def extent(self) -> tuple[float, float, float, float]:
         """The board's rectangle ``(x0, y0, x1, y1)`` m: the dots and one
-        spacing of margin."""
+        spacing of margin (a checkerboard: its squares and one more)."""
         pts = self.object_points()
-        m = self.spacing
+        m = 2 * self.spacing if self.checker else self.spacing
         return (float(pts[:, 0].min() - m), float(pts[:, 1].min() - m),
                 float(pts[:, 0].max() + m), float(pts[:, 1].max() + m))
 
@@ -122,13 +130,14 @@ def board_poses(camera: Camera, board: Board, n: int, *, distance: float = 0.0, 
 
 
 @njit(cache=True)
-def coverage_kernel(rays, R, t, cols, rows, spacing, radius, asym, box, cov_board, cov_dot):  # type: ignore[no-untyped-def]
-    """Fraction of each pixel's samples on the board and on a dot.
+def coverage_kernel(rays, R, t, cols, rows, spacing, radius, kind, box, cov_board, cov_dot):  # type: ignore[no-untyped-def]
+    """Fraction of each pixel's samples on the board and on a dot (or a
+    white square).
 
     ``rays`` (H, W, S, 2) normalised undistorted coordinates of each
     pixel's samples (NaN: no ray); ``R``, ``t`` camera-from-board; grid
-    ``cols``, ``rows``, ``spacing`` m, ``radius`` m, ``asym`` 1 for an
-    asymmetric grid; ``box`` the board rectangle (x0, y0, x1, y1) m.
+    ``cols``, ``rows``, ``spacing`` m, ``radius`` m, ``kind`` (see
+    :attr:`Board.kind`); ``box`` the board rectangle (x0, y0, x1, y1) m.
     Writes ``cov_board`` and ``cov_dot`` (H, W)."""
     H, W, S = rays.shape[0], rays.shape[1], rays.shape[2]
     n0, n1, n2 = R[0, 2], R[1, 2], R[2, 2]
@@ -151,11 +160,17 @@ def coverage_kernel(rays, R, t, cols, rows, spacing, radius, asym, box, cov_boar
                 if bx < box[0] or bx > box[2] or by < box[1] or by > box[3]:
                     continue
                 cb += 1.0
+                if kind == 2:
+                    a = int(math.floor(bx / spacing)) + 1
+                    b = int(math.floor(by / spacing)) + 1
+                    if 0 <= a <= cols and 0 <= b <= rows and (a + b) % 2 == 0:
+                        cd += 1.0
+                    continue
                 i = int(math.floor(by / spacing + 0.5))
                 if i < 0 or i >= rows:
                     continue
-                off = i % 2 if asym else 0
-                step = 2.0 if asym else 1.0
+                off = i % 2 if kind == 1 else 0
+                step = 2.0 if kind == 1 else 1.0
                 j = int(math.floor((bx / spacing - off) / step + 0.5))
                 if j < 0 or j >= cols:
                     continue
@@ -178,8 +193,20 @@ def levels_kernel(cov_board, cov_dot, lamp, dark, board, led, flicker, emit, eps
         out[i] = math.log(lin + eps)
 
 
+_RAYS: dict[bytes, np.ndarray] = {}
+
+
 def _sample_rays(camera: Camera, supersample: int) -> np.ndarray:
-    """Normalised undistorted coordinates (H, W, S*S, 2) of each pixel's samples."""
+    """Normalised undistorted coordinates (H, W, S*S, 2) of each pixel's
+    samples (the last camera's kept: benchmarks simulate one camera often)."""
+    key = camera.params.tobytes() + np.array([*camera._size(), supersample]).tobytes()
+    if key not in _RAYS:
+        _RAYS.clear()
+        _RAYS[key] = _render_rays(camera, supersample)
+    return _RAYS[key]
+
+
+def _render_rays(camera: Camera, supersample: int) -> np.ndarray:
     w, h = camera._size()
     s = supersample
     off = (np.arange(s) + 0.5) / s - 0.5
@@ -200,7 +227,7 @@ def _wave(t: np.ndarray, period: float, on_us: float, rise_us: float) -> np.ndar
 
 def simulate_board(camera: Camera, board: Board, R: np.ndarray, t: np.ndarray, *, blink_hz: float = 250.0,
                    duty: float = 0.5, rise_us: float = 20.0, still_us: int = 150_000, move_us: int = 60_000,
-                   move_step_us: float = 2000.0, c: float = 0.25, sigma_c: float = 0.03, noise_hz: float = 0.0,
+                   move_step_us: float = 5000.0, c: float = 0.25, sigma_c: float = 0.03, noise_hz: float = 0.0,
                    flicker_hz: float = 0.0, flicker_depth: float = 0.3, flicker_width: float = 0.25,
                    flicker_samples: int = 16, jitter_us: float = 0.0, dark: float = 0.03, board_level: float = 0.1,
                    led: float = 0.25,
@@ -247,7 +274,8 @@ def simulate_board(camera: Camera, board: Board, R: np.ndarray, t: np.ndarray, *
     rng = np.random.default_rng(seed)
     c_on = np.maximum(c + sigma_c * rng.standard_normal(w * h), 0.01)
     c_off = np.maximum(c + sigma_c * rng.standard_normal(w * h), 0.01)
-    L0, L1 = np.empty(w * h), np.empty(w * h)
+    L0 = np.empty(w * h)
+    cached: dict[tuple[float, float], np.ndarray] = {}  # log levels of the pose, LED off / on, without flicker
     pose_key = None
     out_t, out_i, out_p = np.empty(1 << 16), np.empty(1 << 16, np.int64), np.empty(1 << 16, np.int8)
     parts_t, parts_i, parts_p = [], [], []
@@ -267,9 +295,16 @@ def simulate_board(camera: Camera, board: Board, R: np.ndarray, t: np.ndarray, *
                 Rj = quat_to_rot(quat_slerp(quats[v], quats[v + 1], min(f, 1.0)))
                 tvec = (1 - f) * t[v] + f * t[v + 1]
             coverage_kernel(rays, np.ascontiguousarray(Rj), np.ascontiguousarray(tvec), board.cols, board.rows,
-                            board.spacing, board.radius, int(board.asymmetric), box, cov_b, cov_d)
+                            board.spacing, board.radius, board.kind, box, cov_b, cov_d)
             fb, fd = cov_b.ravel(), cov_d.ravel()
-        levels_kernel(fb, fd, lamp, dark, board_level, led, float(ambient[j]), float(emit[j]), 1e-3, L1)
+            cached.clear()
+        lk = (float(ambient[j]), float(emit[j]))
+        L1 = cached.get(lk) if lk[1] in (0.0, 1.0) else None  # type: ignore[assignment]
+        if L1 is None:
+            L1 = np.empty(w * h)
+            levels_kernel(fb, fd, lamp, dark, board_level, led, lk[0], lk[1], 1e-3, L1)
+            if lk[1] in (0.0, 1.0) and flicker_hz <= 0:
+                cached[lk] = L1
         if j == 0:
             l_ref = L1.copy()
         else:
@@ -283,7 +318,7 @@ def simulate_board(camera: Camera, board: Board, R: np.ndarray, t: np.ndarray, *
                 if start < w * h and m == 0:
                     out_t, out_i = np.empty(2 * len(out_t)), np.empty(2 * len(out_i), np.int64)
                     out_p = np.empty(2 * len(out_p), np.int8)
-        L0, L1 = L1, L0
+        L0 = L1
     et = np.concatenate(parts_t) if parts_t else np.empty(0)
     ei = np.concatenate(parts_i) if parts_i else np.empty(0, np.int64)
     ep = np.concatenate(parts_p) if parts_p else np.empty(0, np.int8)
