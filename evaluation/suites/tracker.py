@@ -1,7 +1,8 @@
 """The ``tracker`` suite: speed, latency and accuracy of the tracker family,
 one part per method: ``angular`` (``tracker.angular_velocity`` against the
 simulator's truth and the IMU of real recordings) and ``ladder`` (``tracker.ego_motion``:
-the model ladder's confusion matrix). Each part is a module
+the model ladder's confusion matrix), ``features`` (``tracker.features``:
+EKLT and ICP against the rotation truth and KLT). Each part is a module
 ``_tracker_PART`` with ``run(out, quick) -> {"rows": ..., "targets": ...}``;
 pictures go to ``out``."""
 
@@ -12,7 +13,7 @@ from typing import Any
 
 from tectum.evaluation.harness import run_parts
 
-PARTS = ("angular", "ladder")
+PARTS = ("angular", "ladder", "features")
 
 
 def run(out: Path, quick: bool) -> dict[str, Any]:

@@ -30,8 +30,9 @@ from ._icp import icp_align
 __all__ = ["COLUMNS", "PARAMS", "track_events"]
 
 #: Columns of the per-feature float state ``trk`` (T, len(COLUMNS)).
-COLUMNS = ("x", "y", "theta", "phi", "quality", "xref", "yref", "alive", "n_e", "ox", "oy", "t_mid", "vx", "vy")
-X, Y, TH, PHI, Q, XR, YR, ALIVE, NE, OX, OY, TM, VX, VY = range(len(COLUMNS))
+COLUMNS = ("x", "y", "theta", "phi", "quality", "xref", "yref", "alive", "n_e", "ox", "oy", "t_mid", "vx", "vy",
+           "alignments")
+X, Y, TH, PHI, Q, XR, YR, ALIVE, NE, OX, OY, TM, VX, VY, NA = range(len(COLUMNS))
 #: Entries of the parameter vector ``prm``.
 PARAMS = ("half", "contrast", "min_events", "update_fraction", "min_quality", "width", "height", "rotation",
           "max_iter", "method", "max_dist", "border")
@@ -104,8 +105,9 @@ def _align(k: int, trk: np.ndarray, ring: np.ndarray, cnt: np.ndarray, tg: np.nd
         target = trk[k, NE]
     trk[k, NE] = min(max(target, prm[P_MIN]), ring.shape[1])
     dt = t_mid - trk[k, TM]
+    trk[k, NA] += 1
     if dt > 0:
-        a = 0.5  # smoothing of the velocity over successive windows
+        a = 1.0 if trk[k, NA] == 1 else 0.5  # smoothing of the velocity over successive windows
         trk[k, VX] = (1 - a) * trk[k, VX] + a * (trk[k, X] - x0) / dt
         trk[k, VY] = (1 - a) * trk[k, VY] + a * (trk[k, Y] - y0) / dt
         trk[k, TM] = t_mid
