@@ -29,6 +29,8 @@ SUITES = {
                "the model ladder's confusion matrix",
     "simulate": "simulator generation speed (Mev/s at 346x260)",
     "net": "TCP rate and UDP loss and latency on loopback",
+    "scale": "time shards and many recordings on Dask and a process pool: speed-up against one run, warm-up "
+             "overlap, seek cost per format",
 }
 
 

@@ -79,7 +79,7 @@ class ShardedStats(Stats):
     def shard_rows(self) -> list[dict[str, Any]]:
         return [{"file": job.label, "shard": r.index, "range": job.shards[r.index].describe(),
                  "events_in": r.events_in, "warmup_events": r.warmup_events, "events_out": r.events_out,
-                 "wall_s": round(r.wall_s, 3), "host": r.host,
+                 "wall_s": round(r.wall_s, 3), "cpu_s": round(r.cpu_s, 3), "host": r.host,
                  "runs": self.attempts.get((job.index, r.index), 1)}
                 for job in self.jobs for _, r in sorted(job.results.items())]
 

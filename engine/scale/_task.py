@@ -58,8 +58,9 @@ class ShardTask:
 @dataclass
 class ShardResult:
     """What a worker returns: the part file per output node, events read
-    (warm-up included) and kept, the warm-up's events, wall time, where it
-    ran, and ``error`` (one line) when the input was bad."""
+    (warm-up included) and kept, the warm-up's events, wall and CPU time
+    (of the worker process), where it ran, and ``error`` (one line) when
+    the input was bad."""
 
     job: int
     index: int
@@ -68,6 +69,7 @@ class ShardResult:
     warmup_events: int = 0
     events_out: int = 0
     wall_s: float = 0.0
+    cpu_s: float = 0.0
     host: str = ""
     error: str | None = None
 
@@ -107,7 +109,7 @@ def run_shard(task: ShardTask) -> ShardResult:
     """Run one shard (in a worker); see the module docstring."""
     from tectum.errors import TectumError
 
-    began = time.perf_counter()
+    began, cpu = time.perf_counter(), time.process_time()
     res = ShardResult(task.job, task.shard.index, host=f"{socket.gethostname()}:{os.getpid()}")
     marker = os.path.join(task.part_dir, f"attempt-{task.job:05d}-{task.shard.index:05d}-{uuid.uuid4().hex[:8]}")
     with open(marker, "w"):
@@ -116,7 +118,7 @@ def run_shard(task: ShardTask) -> ShardResult:
         _run(task, res)
     except (TectumError, ValueError, OSError) as e:  # bad input: reported, not retried
         res.error = f"{task.label} {task.shard.describe()}: {_one_line(e)}"
-    res.wall_s = time.perf_counter() - began
+    res.wall_s, res.cpu_s = time.perf_counter() - began, time.process_time() - cpu
     return res
 
 
