@@ -1,7 +1,7 @@
 """Calibration files that :func:`tectum.camera.read_calibration` (and so
 ``filter.undistort``) reads back.
 
-* ``opencv``: OpenCV ``FileStorage`` YAML: ``image_width``, ``image_height``,
+* ``opencv``: OpenCV ``FileStorage`` YAML (JSON for a ``.json`` name): ``image_width``, ``image_height``,
   ``camera_matrix``, ``distortion_coefficients``, ``distortion_model``,
   ``reprojection_error`` (px) and ``per_view_errors`` (px).
 * ``ecd``: the event-camera dataset's ``calib.txt``, one line
@@ -48,10 +48,12 @@ def _atomic(path: Path, text: str) -> None:
         raise
 
 
-def _opencv_yaml(entries: Sequence[tuple[str, object]]) -> str:
+def _opencv_yaml(entries: Sequence[tuple[str, object]], suffix: str = ".yaml") -> str:
+    """OpenCV ``FileStorage`` text (YAML, or JSON for ``suffix`` ``.json``)."""
     import cv2
 
-    fs = cv2.FileStorage(".yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
+    fs = cv2.FileStorage(".json" if suffix.lower() == ".json" else ".yaml",
+                         cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
     for key, value in entries:
         if isinstance(value, np.ndarray):
             fs.write(key, np.asarray(value, np.float64))
@@ -106,7 +108,7 @@ def write_calibration(path: str | Path, camera: Camera, *, rms: float = float("n
                                              ("reprojection_error", float(rms))]
         if len(per_view):
             entries.append(("per_view_errors", np.asarray(per_view, np.float64)[None]))
-        text = _opencv_yaml(entries)
+        text = _opencv_yaml(entries, path.suffix)
     else:
         raise ValueError(f"unknown calibration format {fmt!r}: opencv, ecd or ros")
     _atomic(path, text)
@@ -123,6 +125,6 @@ def write_stereo(path: str | Path, left: Camera, right: Camera, R: np.ndarray, T
     text = _opencv_yaml([("image_width", w), ("image_height", h), ("distortion_model", _model_name(left, False)),
                          ("M1", left.K), ("D1", left.D[None]), ("M2", right.K), ("D2", right.D[None]),
                          ("R", np.asarray(R)), ("T", np.asarray(T).reshape(3, 1)), ("R1", R1), ("R2", R2),
-                         ("P1", P1), ("P2", P2), ("reprojection_error", float(rms))])
+                         ("P1", P1), ("P2", P2), ("reprojection_error", float(rms))], path.suffix)
     _atomic(path, text)
     return path
