@@ -153,6 +153,8 @@ class Clusters(Operator):
         if not parts:
             return []
         ot, oid, out = (np.concatenate([p[j] for p in parts]) for j in range(3))
+        order = np.lexsort((oid, ot))  # by time, then id (stable: a time's rows all come in one packet)
+        ot, oid, out = ot[order], oid[order], out[order]
         pkt = ClusterPacket(ot, id=oid, x=out[:, 0], y=out[:, 1], vx=out[:, 2], vy=out[:, 3], width=out[:, 4],
                             height=out[:, 5], mass=out[:, 6], t_start=self._mark, t_end=packet.t_end)
         self._mark = packet.t_end

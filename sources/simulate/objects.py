@@ -149,7 +149,7 @@ class LedBody:
     def calib(self) -> str:
         """The intrinsics inline, ``fx;fy;cx;cy`` (an operator's ``calib=``)."""
         K = self.K
-        return f"{K[0, 0]!r};{K[1, 1]!r};{K[0, 2]!r};{K[1, 2]!r}"
+        return ";".join(repr(float(v)) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
 
     def _axis(self, k: int, t_s: np.ndarray) -> np.ndarray:
         b = self.bounce[k]
