@@ -73,7 +73,7 @@ def _pipeline(path: Path) -> tuple[tectum.Pipeline, ListSink]:
 
 def _same(a: ListSink, b: ListSink) -> bool:
     """The same frames: times and images."""
-    fa, fb = ([p for p in s.packets if len(p)] for s in (a, b))
+    fa, fb = ([p for p in s.packets if isinstance(p, tectum.FramePacket) and len(p)] for s in (a, b))
     return sum(len(p) for p in fa) == sum(len(p) for p in fb) and all(
         np.array_equal(x.t, y.t) and np.array_equal(x.images, y.images)
         for x, y in zip(tectum.concat(fa).batches(1), tectum.concat(fb).batches(1)))
@@ -117,8 +117,9 @@ def _shard_rows(path: Path, n: int, client: Any) -> tuple[list[dict[str, Any]], 
     for executor in ("dask", "local"):
         for shards in (1, 2):
             p, sink = _pipeline(path)
-            wall, cpu, stats = _measured(lambda: tectum.run(p, shards=shards, workers=2,
-                                                            executor=client if executor == "dask" else "local"))
+            ex = client if executor == "dask" else "local"
+            wall, cpu, stats = _measured(lambda p=p, shards=shards, ex=ex: tectum.run(p, shards=shards, workers=2,
+                                                                                      executor=ex))
             rows.append({**_row("time shards", executor, n, wall, seq_s, seq_cpu, cpu, stats),
                          "identical": _same(ref, sink)})
     return rows, {"sequential_s": seq_s, "sequential_cpu_s": seq_cpu}
@@ -140,8 +141,9 @@ def _glob_rows(folder: Path, n: int, client: Any) -> list[dict[str, Any]]:
     from tectum.scale import run_many
 
     for executor in ("dask", "local"):
-        wall, cpu, stats = _measured(lambda: run_many([_pipeline(f)[0] for f in files], shards=1, workers=2,
-                                                      executor=client if executor == "dask" else "local"))
+        ex = client if executor == "dask" else "local"
+        wall, cpu, stats = _measured(lambda ex=ex: run_many([_pipeline(f)[0] for f in files], shards=1, workers=2,
+                                                            executor=ex))
         rows.append(_row("4 files, a pipeline each", executor, n, wall, seq_s, seq_cpu, cpu, stats))
     return rows
 
@@ -152,7 +154,7 @@ def _seek_rows(folder: Path) -> list[dict[str, Any]]:
     n = 2_000_000
     dat = write_dat(folder / "seek.dat", n)
     span = int(n * 1e6 / RATE_HZ)
-    rows = []
+    rows: list[dict[str, Any]] = []
     for ext in (".dat", ".aedat4", ".h5", ".raw"):
         path = dat if ext == ".dat" else folder / f"seek{ext}"
         if ext != ".dat":
@@ -164,8 +166,9 @@ def _seek_rows(folder: Path) -> list[dict[str, Any]]:
                 rows.append({"format": ext, "note": f"not measured: {e}"})
                 continue
 
-        def first(**kw: Any) -> None:
-            src: Any = tectum.get_registry().source_for(str(path))(str(path), **kw)
+        def first(path: Path = path, **kw: Any) -> None:
+            cls: Any = tectum.get_registry().source_for(str(path))
+            src = cls(str(path), **kw)
             try:
                 next(iter(src.packets()))
             finally:

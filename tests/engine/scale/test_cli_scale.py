@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from shards import recording
 
 TECTUM = [sys.executable, "-m", "tectum"]

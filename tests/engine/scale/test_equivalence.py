@@ -9,13 +9,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from shards import Inline, assert_same_output, chain, recording
 
 import tectum
 from tectum.scale import NotShardable, Warmup, warmup_of
 from tectum.testing import ListSink, ListSource
 
 from helpers import bars, builtin_operators, conformance_case
-from shards import Inline, assert_same_output, chain, recording
 
 BUILTIN = builtin_operators()
 

@@ -15,12 +15,12 @@ from typing import Any
 
 import numpy as np
 import pytest
+from shards import assert_same_output, chain, write_dat
 
 import tectum
 from tectum.scale import ShardFailed
 
 from helpers import bars
-from shards import assert_same_output, chain, write_dat
 
 OPS = [("flow.plane_fit", {"robust": True, "radius": 3})]
 
