@@ -1,8 +1,7 @@
 """The contrast-maximisation (CMax) core: warps, the image of warped events
 (IWE), its focus and the focus's analytic gradient, as numba kernels, for
-``tracker.angular_velocity`` and any CMax method. (``flow.contrast_max``
-computes the same B-spline focus in its own hand-unrolled translation
-kernel: written on :func:`vote_sq` it ran 1.5x slower, measured A/B.)
+``tracker.angular_velocity``, ``flow.contrast_max`` (its translation search
+votes and scores each event with :func:`add_sq`) and any CMax method.
 
 Contrast maximisation (Gallego, Rebecq & Scaramuzza, CVPR 2018; for
 rotation Gallego & Scaramuzza, RA-L 2017, "Accurate angular velocity
@@ -67,7 +66,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["bspline", "vote_sq", "iwe", "focus", "focus_grad", "rotation_warp", "rotation_focus_grad",
+__all__ = ["bspline", "vote_sq", "add_sq", "iwe", "focus", "focus_grad", "rotation_warp", "rotation_focus_grad",
            "maximise_rotation"]
 
 
@@ -86,17 +85,26 @@ def bspline(w):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
 @njit(cache=True, nogil=True, inline="always")
 def vote_sq(img, u, v):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     """Vote the point (u, v) (px) into ``img``; returns ``(e, ix, iy)``: the
-    increase ``e`` of the image's sum of squares (adding ``w`` to a pixel
-    holding ``a`` adds ``2 a w + w^2``; the ``w^2`` of the 3 x 3 votes is
-    separable), or -1.0 when the point is too near the border to vote
-    (nothing changed), and its nearest pixel."""
+    increase ``e`` of the image's sum of squares (:func:`add_sq`), or -1.0
+    when the point is too near the border to vote (nothing changed), and
+    its nearest pixel."""
     ih, iw = img.shape
     fx = np.floor(u + 0.5)
     fy = np.floor(v + 0.5)
     ix, iy = int(fx), int(fy)
     if not (1 <= ix < iw - 1 and 1 <= iy < ih - 1):
         return -1.0, ix, iy
-    dx, dy = u - fx, v - fy
+    return add_sq(img, ix, iy, u - fx, v - fy), ix, iy
+
+
+@njit(cache=True, nogil=True, inline="always")
+def add_sq(img, ix, iy, dx, dy):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+    """Add the 3 x 3 votes of the point ``(ix + dx, iy + dy)`` (px, ``|dx|,
+    |dy| <= 0.5``; the caller checks the bounds) to ``img`` and return the
+    increase of the image's sum of squares: adding ``w`` to a pixel holding
+    ``a`` adds ``2 a w + w^2``, and the ``w^2`` of the 3 x 3 votes is
+    separable. (One float out and no early exit: the translation search of
+    ``flow.contrast_max`` calls it in its innermost loop.)"""
     a, b = 0.5 - dx, 0.5 + dx
     ax0, ax1, ax2 = 0.5 * a * a, 0.75 - dx * dx, 0.5 * b * b
     a, b = 0.5 - dy, 0.5 + dy
@@ -113,8 +121,7 @@ def vote_sq(img, u, v):  # type: ignore[no-untyped-def]  # pragma: no cover - nu
     u0, u1, u2 = row[ix - 1], row[ix], row[ix + 1]
     row[ix - 1], row[ix], row[ix + 1] = u0 + ay2 * ax0, u1 + ay2 * ax1, u2 + ay2 * ax2
     e += ay2 * (ax0 * u0 + ax1 * u1 + ax2 * u2)
-    q = (ax0 * ax0 + ax1 * ax1 + ax2 * ax2) * (ay0 * ay0 + ay1 * ay1 + ay2 * ay2)
-    return 2.0 * e + q, ix, iy
+    return 2.0 * e + (ax0 * ax0 + ax1 * ax1 + ax2 * ax2) * (ay0 * ay0 + ay1 * ay1 + ay2 * ay2)
 
 
 @njit(cache=True, nogil=True, inline="always")

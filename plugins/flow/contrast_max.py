@@ -9,7 +9,9 @@ variance up to a constant). Each event votes with a separable quadratic
 B-spline of 3 x 3 pixels (a Gaussian-like blob, sigma 0.5 px: the image of
 warped events smoothed, as Gallego et al. do, so the objective is smooth in
 ``v`` and does not favour whole-pixel displacements, which plain bilinear
-voting does for sub-pixel motion). The search is a coarse-to-fine pattern
+voting does for sub-pixel motion): the votes and the sum of squares of the
+CMax core (:mod:`tectum.plugins._cmax`) that ``tracker.angular_velocity``
+uses too. The search is a coarse-to-fine pattern
 search from zero with a step of ``max_speed / 2`` down to about 0.1 px of
 displacement, on coarser pixels while the step is large, ending at the
 vertex of the parabolas through the best point and its 4 neighbours (within
@@ -60,20 +62,10 @@ from numba import njit
 
 from tectum import EventPacket, concat
 
+from .._cmax import add_sq
 from ._common import FlowOperator
 
 __all__ = ["ContrastMax", "contrast_max_window", "contrast_max_grow"]
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _spline(wx):  # type: ignore[no-untyped-def]
-    """Nearest pixel and the quadratic B-spline weights of pixels n-1, n, n+1
-    for a point at ``wx`` (px)."""
-    n = int(np.floor(wx + 0.5))
-    d = wx - n
-    a = 0.5 - d
-    b = 0.5 + d
-    return n, 0.5 * a * a, 0.75 - d * d, 0.5 * b * b
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -85,14 +77,14 @@ def _vote(xs, ys, ts, lo, hi, vx, vy, img, margin, scale):  # type: ignore[no-un
     ih, iw = img.shape
     r0, r1, c0, c1 = ih, -1, iw, -1
     for j in range(lo, hi):
-        ix, ax0, ax1, ax2 = _spline((xs[j] - vx * ts[j] + margin) / scale)
-        iy, ay0, ay1, ay2 = _spline((ys[j] - vy * ts[j] + margin) / scale)
+        wx = (xs[j] - vx * ts[j] + margin) / scale
+        wy = (ys[j] - vy * ts[j] + margin) / scale
+        fx = np.floor(wx + 0.5)
+        fy = np.floor(wy + 0.5)
+        ix, iy = int(fx), int(fy)
         if 1 <= ix < iw - 1 and 1 <= iy < ih - 1:
             r0, r1, c0, c1 = min(r0, iy - 1), max(r1, iy + 1), min(c0, ix - 1), max(c1, ix + 1)
-            for r, ay in ((iy - 1, ay0), (iy, ay1), (iy + 1, ay2)):
-                img[r, ix - 1] += ay * ax0
-                img[r, ix] += ay * ax1
-                img[r, ix + 1] += ay * ax2
+            add_sq(img, ix, iy, wx - fx, wy - fy)
     return r0, r1, c0, c1
 
 
@@ -100,14 +92,12 @@ def _vote(xs, ys, ts, lo, hi, vx, vy, img, margin, scale):  # type: ignore[no-un
 def _sharpness(xs, ys, ts, lo, hi, vx, vy, img, margin, scale=1.0):  # type: ignore[no-untyped-def]
     """Sum of squares of the smoothed image of warped events lo..hi (``img``
     is left cleared), on pixels ``scale`` times the sensor's (coarse-to-fine
-    search). Summed while voting, without a sweep of the image: adding ``w``
-    to a pixel holding ``u`` adds ``2 u w + w^2`` to the sum of squares, and
-    the ``w^2`` of one event's 3 x 3 votes is separable."""
+    search). Summed while voting (the CMax core's :func:`add_sq`), without
+    a sweep of the image."""
     ih, iw = img.shape
     inv = 1.0 / scale
     r0, r1, c0, c1 = ih, -1, iw, -1
     s = 0.0
-    q = 0.0
     for j in range(lo, hi):
         wx = (xs[j] - vx * ts[j] + margin) * inv
         wy = (ys[j] - vy * ts[j] + margin) * inv
@@ -115,29 +105,11 @@ def _sharpness(xs, ys, ts, lo, hi, vx, vy, img, margin, scale=1.0):  # type: ign
         fy = np.floor(wy + 0.5)
         ix, iy = int(fx), int(fy)
         if 1 <= ix < iw - 1 and 1 <= iy < ih - 1:
-            dx, dy = wx - fx, wy - fy
-            a, b = 0.5 - dx, 0.5 + dx
-            ax0, ax1, ax2 = 0.5 * a * a, 0.75 - dx * dx, 0.5 * b * b
-            a, b = 0.5 - dy, 0.5 + dy
-            ay0, ay1, ay2 = 0.5 * a * a, 0.75 - dy * dy, 0.5 * b * b
             r0, r1, c0, c1 = min(r0, iy), max(r1, iy), min(c0, ix), max(c1, ix)
-            q += (ax0 * ax0 + ax1 * ax1 + ax2 * ax2) * (ay0 * ay0 + ay1 * ay1 + ay2 * ay2)
-            row = img[iy - 1]
-            u0, u1, u2 = row[ix - 1], row[ix], row[ix + 1]
-            row[ix - 1], row[ix], row[ix + 1] = u0 + ay0 * ax0, u1 + ay0 * ax1, u2 + ay0 * ax2
-            e = ay0 * (ax0 * u0 + ax1 * u1 + ax2 * u2)
-            row = img[iy]
-            u0, u1, u2 = row[ix - 1], row[ix], row[ix + 1]
-            row[ix - 1], row[ix], row[ix + 1] = u0 + ay1 * ax0, u1 + ay1 * ax1, u2 + ay1 * ax2
-            e += ay1 * (ax0 * u0 + ax1 * u1 + ax2 * u2)
-            row = img[iy + 1]
-            u0, u1, u2 = row[ix - 1], row[ix], row[ix + 1]
-            row[ix - 1], row[ix], row[ix + 1] = u0 + ay2 * ax0, u1 + ay2 * ax1, u2 + ay2 * ax2
-            e += ay2 * (ax0 * u0 + ax1 * u1 + ax2 * u2)
-            s += e
+            s += add_sq(img, ix, iy, wx - fx, wy - fy)
     for r in range(r0 - 1, r1 + 2):
         img[r, c0 - 1:c1 + 2] = 0.0
-    return 2.0 * s + q
+    return s
 
 
 @njit(cache=True, nogil=True)
@@ -252,7 +224,10 @@ def _first_span(f, fx, fy, ok, k, half_s, min_focus, min_disp):  # type: ignore[
         return 0
     d = np.hypot(fx, fy) * 2.0 * half_s
     j = k
-    while j > 0 and 0.5 + (f - 0.5) * 0.5 ** (k - j + 1) >= 1.2 * min_focus and d * 0.5 ** (k - j + 1) >= 1.2 * min_disp:
+    while j > 0:
+        r = 0.5 ** (k - j + 1)  # span 2^(j-1) over 2^k
+        if 0.5 + (f - 0.5) * r < 1.2 * min_focus or d * r < 1.2 * min_disp:
+            break
         j -= 1
     return j
 
