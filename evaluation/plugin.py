@@ -27,6 +27,8 @@ SUITES = {
            "(Pearson/SSIM, AbsRel), failure maps",
     "tracker": "angular velocity and ego-motion: speed, latency, RMS error against simulator truth and IMU, "
                "the model ladder's confusion matrix",
+    "calibrate": "tectum calibrate against a simulated blinking board: focal, principal point, k1 and RMS errors "
+                 "with noise and flicker; failure map (noise, views, tilt, blink frequency vs jitter)",
     "simulate": "simulator generation speed (Mev/s at 346x260)",
     "net": "TCP rate and UDP loss and latency on loopback",
     "scale": "time shards and many recordings on Dask and a process pool: speed-up against one run, warm-up "

@@ -46,8 +46,10 @@ class View:
     """One still view: its span ``[t_start, t_end)`` µs, every blinking dot
     found ``dots`` (M, 2) px, the ``points`` (N, 2) px in grid order (None
     unless the whole grid was found), what became of it (``status``) and
-    its reprojection ``rms`` px (NaN unless ordered). ``transitions`` is the
-    view's (H, W) map of ON→OFF transitions (for pictures)."""
+    its reprojection ``rms`` px (NaN unless ordered) and ``residuals`` (N, 2)
+    px, detected minus reprojected points (None unless ordered; an outlier's
+    against its own best pose). ``transitions`` is the view's (H, W) map of
+    ON→OFF transitions (for pictures)."""
 
     t_start: int
     t_end: int
@@ -56,6 +58,7 @@ class View:
     status: Status
     rms: float = float("nan")
     transitions: np.ndarray | None = field(default=None, repr=False)
+    residuals: np.ndarray | None = field(default=None, repr=False)
 
 
 @dataclass(frozen=True)
@@ -201,7 +204,8 @@ def _solve(views: list[View], grid: Grid, size: tuple[int, int], model: Model, k
     for k, i in enumerate(whole):
         status: Status = "used" if k in sol.used else "outlier"
         v = views[i]
-        out[i] = View(v.t_start, v.t_end, v.dots, v.points, status, float(sol.view_rms[k]), v.transitions)
+        out[i] = View(v.t_start, v.t_end, v.dots, v.points, status, float(sol.view_rms[k]), v.transitions,
+                      sol.residuals[k])
     return sol, out
 
 
