@@ -16,7 +16,9 @@ simulator's rotation truth, or KLT on frames for real recordings). Then:
   visible scores 1.
 
 Summaries: the median error over the valid rows of all tracks, and the
-median age ratio over the tracks.
+median age ratio over the tracks. A track with one row (its start, never
+updated: no events reached it, e.g. a static part of the scene) says
+nothing about accuracy: it is counted as ``unmoved``, not scored.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ class TrackScore:
     """Scores of a set of tracks (see the module doc)."""
 
     tracks: int                #: tracks scored
+    unmoved: int               #: tracks with one row, not scored
     median_error_px: float     #: over the valid rows of all tracks
     mean_error_px: float
     median_age_ratio: float    #: over the tracks
@@ -74,10 +77,14 @@ def score_tracks(t: np.ndarray, ids: np.ndarray, xy: np.ndarray, truth: TruthFn,
     ids = np.asarray(ids)
     xy = np.asarray(xy, np.float64)
     errors, ratios, ages = [], [], []
+    unmoved = 0
     order = np.argsort(ids, kind="stable")
     bounds = np.flatnonzero(np.diff(ids[order])) + 1
     for rows in np.split(order, bounds) if len(order) else []:
         tt, pp = t[rows], xy[rows]
+        if len(tt) < 2:
+            unmoved += 1
+            continue
         length = truth_length(truth, float(tt[0]), pp[0], t_end, sensor, margin)
         if length < min_truth_us:
             continue
@@ -91,6 +98,6 @@ def score_tracks(t: np.ndarray, ids: np.ndarray, xy: np.ndarray, truth: TruthFn,
         ratios.append(min(age / length, 1.0))
     e = np.concatenate(errors) if errors else np.empty(0)
     r = np.asarray(ratios)
-    return TrackScore(len(r), float(np.median(e)) if e.size else float("nan"),
+    return TrackScore(len(r), unmoved, float(np.median(e)) if e.size else float("nan"),
                       float(e.mean()) if e.size else float("nan"), float(np.median(r)) if r.size else float("nan"),
                       float(np.mean(ages)) if ages else float("nan"), e, r)

@@ -1,7 +1,9 @@
 """Rendered events to a video file (``.mp4``, ``.avi`` through OpenCV) or
 to PNG snapshots, and to a Python callback. Maps (:class:`tectum.MapPacket`,
 ``map.*`` operators) are drawn as pictures, one per sample (see
-:mod:`.maps`): ``out.png`` keeps the last map of a map stream."""
+:mod:`.maps`): ``out.png`` keeps the last map of a map stream. Feature
+tracks (:class:`tectum.TrackPacket`) are drawn over the events, or alone
+(see :mod:`.tracks`)."""
 
 from __future__ import annotations
 
@@ -11,17 +13,18 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
-from tectum import EventPacket, Kind, MapPacket, Packet, ResultPacket, Sink
+from tectum import EventPacket, Kind, MapPacket, Packet, ResultPacket, Sink, TrackPacket
 from tectum.sinks.files._common import temp_beside
 
 from .maps import map_picture
 from .render import MODES, Mode, Renderer
+from .tracks import TrackFrames
 
 __all__ = ["VideoSink", "PngSink", "FrameCallbackSink"]
 
 
 class _Rendering(Sink):
-    consumes = (Kind.EVENTS, Kind.RESULTS, Kind.MAPS)  # results: tracks drawn over the events; maps: pictures
+    consumes = (Kind.EVENTS, Kind.RESULTS, Kind.MAPS, Kind.TRACKS)  # results, tracks: over the events; maps: pictures
 
     def __init__(self, fps: float, mode: Mode, tau_us: float, flow_max_px_s: float = 500.0) -> None:
         if mode not in MODES:
@@ -31,6 +34,7 @@ class _Rendering(Sink):
         self.frames = 0
         self._tracks: list[ResultPacket] = []
         self.last_map: MapPacket | None = None
+        self.track_frames = TrackFrames(fps)  # TrackPackets: over the events, or alone (see .tracks)
 
     def _frames(self, packet: Packet) -> list[tuple[int, np.ndarray]]:
         if isinstance(packet, MapPacket):
@@ -39,6 +43,13 @@ class _Rendering(Sink):
                 self.last_map = packet
             self.frames += len(maps)
             return maps
+        if isinstance(packet, TrackPacket):
+            if self.renderer is None:
+                alone = self.track_frames.add(packet)
+                self.frames += len(alone)
+                return alone
+            self.track_frames.overlay.add(packet)
+            return []
         if isinstance(packet, ResultPacket):
             if self.renderer is None:
                 self._tracks.append(packet)
@@ -51,7 +62,7 @@ class _Rendering(Sink):
             for r in self._tracks:
                 self.renderer.add_tracks(r)
             self._tracks = []
-        got = self.renderer.add(packet)
+        got = [(t, self.track_frames.overlay.draw(img, t)) for t, img in self.renderer.add(packet)]
         self.frames += len(got)
         return got
 
