@@ -60,7 +60,7 @@ def blob_estimate(ring_t, ring_xy, n_written, T, window, blob_px, work):  # type
     """A marker's position at ``T`` µs from its observations in ``(T -
     window, T]``: the per-axis median, then the mean of the observations
     within ``blob_px`` (L-inf) of it. Returns ``(x, y, kept)`` (NaN, NaN, 0
-    with none). ``work`` (C, 2) is scratch space."""
+    when none is kept). ``work`` (C, 2) is scratch space."""
     C = ring_t.shape[0]
     m = min(n_written, C)
     k = 0
@@ -82,6 +82,8 @@ def blob_estimate(ring_t, ring_xy, n_written, T, window, blob_px, work):  # type
             sx += work[j, 0]
             sy += work[j, 1]
             kept += 1
+    if kept == 0:  # the per-axis median can fall between two groups of observations
+        return np.nan, np.nan, 0
     return sx / kept, sy / kept, kept
 
 
