@@ -166,9 +166,11 @@ def klt_truth(frames: FramePacket) -> Callable[[np.ndarray, np.ndarray, np.ndarr
                 p = np.array([[[x, y]]], np.float32)
                 pts[k] = x, y
                 for j in range(k + 1, len(ft)):
-                    p, st, _ = cv2.calcOpticalFlowPyrLK(imgs[j - 1], imgs[j], p, None, winSize=(21, 21), maxLevel=3)
+                    nxt, st, _ = cv2.calcOpticalFlowPyrLK(imgs[j - 1], imgs[j], p, p.copy(), winSize=(21, 21),
+                                                          maxLevel=3)
                     if not st[0, 0]:
                         break
+                    p = np.asarray(nxt, np.float32)
                     pts[j] = p[0, 0]
             cache[key] = pts
         return cache[key]
@@ -227,7 +229,7 @@ def real(quick: bool) -> list[dict[str, Any]]:
             truth_fn = klt_truth(fr)
             case = name + (f", frames +{shift / 1e3:g} ms" if shift else "")
             for method in ("eklt", "icp"):
-                tr, cpu, _ = _run(e, fr, method=method)  # type: ignore[arg-type]
+                tr, cpu, _ = _run(e, fr, method=method)
                 rows.append({**_row(case, method, _score(tr, truth_fn, int(e.t[-1]), e.sensor), len(e), cpu),
                              "frames": len(fr)})
     return rows

@@ -229,8 +229,8 @@ class FeatureTracker(Operator):
 
     def warmup(self) -> None:
         """Compile the kernels on a twin fed a frame with one corner and events around it."""
-        twin = FeatureTracker(method=self.method, max_tracks=2, patch_px=7, min_distance_px=3.0, min_events=4,  # type: ignore[arg-type]
-                        max_events=8, rotation=bool(self.prm[7]))
+        twin = FeatureTracker(method=self.method, max_tracks=2, patch_px=7, min_distance_px=3.0, min_events=4,
+                              max_events=8, rotation=bool(self.prm[7]))
         img = np.zeros((1, 32, 32), np.uint8)
         img[0, 12:, 12:] = 200
         n = 64
