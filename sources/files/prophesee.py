@@ -179,7 +179,49 @@ class RawSource(FileSource):
         sensor = self._sensor(sensor)
         if sensor is None:
             sensor = self._scan_extent(f, start)
-        yield from self._events(f, start, sensor)
+        pos = start
+        if self.t_start_us is not None and self.evt_format == "evt2":
+            pos = self._seek_evt2(f, start, self.t_start_us - (self.t0_offset if self.apply_t0 else 0))
+            f.seek(pos)
+        yield from self._events(f, pos, sensor)
+
+    def _seek_evt2(self, f: Any, start: int, t: int) -> int:
+        """Where to start decoding an EVT 2.0 file for events at or after
+        time ``t`` (µs, before the offset): a TIME_HIGH word whose time base
+        lies below ``t``'s, found by bisection on the file (each probe scans
+        forward to the next TIME_HIGH word), so nothing before it needs
+        decoding. The file's start when its last time base is below its
+        first (the 34-bit time wrapped: bisection would go wrong) or ``t``
+        lies before the first. Assumes no wrap between the ends (a recording
+        under 4.7 h)."""
+        n = (f.seek(0, 2) - start) // 4
+        want = t >> 6
+
+        def time_base_from(i: int) -> tuple[int, int] | None:
+            """(word index, raw time base) of the first TIME_HIGH at or after word ``i``."""
+            block = 1 << 14
+            while i < n:
+                f.seek(start + 4 * i)
+                words = np.frombuffer(f.read(4 * min(block, n - i)), "<u4")
+                hit = np.flatnonzero((words >> 28) == 8)
+                if hit.size:
+                    return i + int(hit[0]), int(words[hit[0]]) & 0x0FFFFFFF
+                i += words.shape[0]
+            return None
+
+        first = time_base_from(0)
+        last = time_base_from(max(0, n - (1 << 14)))
+        if first is None or last is None or last[1] < first[1] or first[1] >= want:
+            return start
+        lo, hi = first[0], n  # the time base at word lo is below want's; none at or after hi is
+        while hi - lo > 1 << 14:
+            mid = (lo + hi) // 2
+            hit = time_base_from(mid)
+            if hit is None or hit[0] >= hi or hit[1] >= want:
+                hi = mid
+            else:
+                lo = hit[0]
+        return start + 4 * lo
 
     def _scan_extent(self, f: Any, start: int) -> tuple[int, int]:
         """No geometry in the file or options: the extent of the coordinates."""
