@@ -17,7 +17,8 @@ flow and count images every 50 ms (``filter.background_activity`` ->
   against one pipeline per file on 2 workers;
 * the seek cost per format: time to the first event of a range starting 3/4
   into a 2 M-event recording (DAT bisection, AEDAT 4 packet table, DSEC
-  HDF5 ``ms_to_idx``, EVT 2.0 with no index: decoded from the start).
+  HDF5 ``ms_to_idx``, EVT 2.0 bisection on its time bases, EVT 3.0 with no
+  index: decoded from the start).
 """
 
 from __future__ import annotations
@@ -155,7 +156,7 @@ def _seek_rows(folder: Path) -> list[dict[str, Any]]:
     dat = write_dat(folder / "seek.dat", n)
     span = int(n * 1e6 / RATE_HZ)
     rows: list[dict[str, Any]] = []
-    for ext in (".dat", ".aedat4", ".h5", ".raw"):
+    for ext in (".dat", ".aedat4", ".h5", ".raw", ".evt3.raw"):
         path = dat if ext == ".dat" else folder / f"seek{ext}"
         if ext != ".dat":
             try:
@@ -179,7 +180,8 @@ def _seek_rows(folder: Path) -> list[dict[str, Any]]:
         seek, _ = _timed(lambda: first(t_start_us=3 * span // 4))
         rows.append({"format": ext, "first_packet_ms": whole * 1e3, "seek_3/4_ms": seek * 1e3,
                      "how": {".dat": "bisection", ".aedat4": "packet table", ".h5": "ms_to_idx",
-                             ".raw": "no index: decoded from the start"}[ext]})
+                             ".raw": "bisection on time bases",
+                             ".evt3.raw": "no index: decoded from the start"}[ext]})
     return rows
 
 
