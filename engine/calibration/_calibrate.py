@@ -126,7 +126,7 @@ def read_recording(path: str) -> tuple[EventPacket | None, FramePacket | None]:
     from tectum import Pipeline, concat, run
 
     uri, _, query = path.partition("?")
-    params = dict(kv.split("=", 1) for kv in query.split("&") if "=" in kv)
+    params: dict[str, Any] = dict(kv.split("=", 1) for kv in query.split("&") if "=" in kv)
     p = Pipeline()
     p.source(uri, id="recording", **params)
     sink = _Collect()

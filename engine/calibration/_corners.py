@@ -28,5 +28,5 @@ def chessboard_corners(image: np.ndarray, inner: tuple[int, int]) -> np.ndarray 
     them, or None when the whole board is not found."""
     import cv2
 
-    found, corners = cv2.findChessboardCornersSB(_to_u8(image), inner, cv2.CALIB_CB_NORMALIZE_IMAGE)
+    found, corners = cv2.findChessboardCornersSB(_to_u8(image), inner, None, flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
     return corners.reshape(-1, 2).astype(np.float64) if found else None

@@ -26,13 +26,14 @@ def reconstruct(events: EventPacket, window_us: int = 20_000, alpha: float = 15.
     ``window_us`` µs, as frames."""
     from tectum import MapPacket, get_registry
 
-    op: Any = get_registry().operator("map.high_pass")(alpha=alpha, window_us=window_us)
+    cls: Any = get_registry().operator("map.high_pass")
+    op = cls(alpha=alpha, window_us=window_us)
     out = [*op.process_ports({"events": events}), *op.finish()]
     maps = [p for p in out if isinstance(p, MapPacket)]
     if not maps:
         return FramePacket(np.zeros(0, np.int64), images=np.zeros((0, events.sensor[1], events.sensor[0])))
     t = np.concatenate([m.t for m in maps])
-    images = np.concatenate([m.image for m in maps])  # type: ignore[attr-defined]
+    images = np.concatenate([m.image for m in maps])
     return FramePacket(t, images=images)
 
 

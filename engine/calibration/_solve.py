@@ -74,7 +74,7 @@ def _calibrate(obj: list[np.ndarray], img: list[np.ndarray], size: tuple[int, in
         crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
         _, K, D, rv, tv, *_ = cv2.calibrateCameraExtended(
             [o.astype(np.float32) for o in obj], [p.astype(np.float32).reshape(-1, 1, 2) for p in img],
-            size, None, None, flags=flags, criteria=crit)
+            size, np.eye(3), np.zeros(5), flags=flags, criteria=crit)  # no initial guess: K and D are ignored
         D = D.ravel()[:5] if k3 else D.ravel()[:4]
     return Camera(K, D, size, model=model), list(rv), list(tv)
 

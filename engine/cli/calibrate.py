@@ -57,7 +57,7 @@ def main(args: argparse.Namespace) -> int:
             cal = calibrate_frames(args.events, args.grid, args.spacing, reconstruct_us=args.reconstruct_us,
                                    model=model, k3=args.k3, min_views=args.min_views)
         else:
-            cal = calibrate(args.events, args.grid, args.spacing, **kw)  # type: ignore[arg-type]
+            cal = calibrate(args.events, args.grid, args.spacing, **kw)
         print(cal.summary())
         write_calibration(args.out, cal.camera, rms=cal.rms, fmt=args.format,
                           per_view=[v.rms for v in cal.views if v.points is not None])

@@ -31,7 +31,7 @@ W, H = 240, 180
 CAMERA = Camera(np.array([[200.0, 0, 121.3], [0, 201.0, 88.7], [0, 0, 1]]), np.array([-0.3, 0.1, 0.001, -0.001]),
                 (W, H))
 BOARD = Board(7, 5, 0.03, 0.0075)
-CONDITIONS: dict[str, dict[str, float]] = {
+CONDITIONS: dict[str, dict[str, Any]] = {
     "clean": {},
     "noise 1 Hz/px": {"noise_hz": 1.0},
     "noise 5 Hz/px": {"noise_hz": 5.0},

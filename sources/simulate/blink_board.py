@@ -110,7 +110,8 @@ def board_poses(camera: Camera, board: Board, n: int, *, distance: float = 0.0, 
         distance = 1.6 * (x1 - x0) * camera.fx / w
     rng = np.random.default_rng(seed)
     obj = board.object_points()
-    Rs, ts = [], []
+    Rs: list[np.ndarray] = []
+    ts: list[np.ndarray] = []
     for _ in range(2000 * n):
         if len(Rs) == n:
             break
@@ -299,7 +300,7 @@ def simulate_board(camera: Camera, board: Board, R: np.ndarray, t: np.ndarray, *
             fb, fd = cov_b.ravel(), cov_d.ravel()
             cached.clear()
         lk = (float(ambient[j]), float(emit[j]))
-        L1 = cached.get(lk) if lk[1] in (0.0, 1.0) else None  # type: ignore[assignment]
+        L1 = cached.get(lk) if lk[1] in (0.0, 1.0) else None
         if L1 is None:
             L1 = np.empty(w * h)
             levels_kernel(fb, fd, lamp, dark, board_level, led, lk[0], lk[1], 1e-3, L1)
