@@ -178,7 +178,7 @@ def test_eklt_tracks_simulated_rotation_within_half_a_pixel():
     tr = _tracks(feed_ports(op, {"events": [ev], "frames": [frames]}))
     s = _score(tr, truth)
     assert s.tracks >= 30
-    assert s.median_error_px <= 0.5, s
+    assert s.median_error_px <= 0.35, s  # measured 0.26 px (0.44 without extrapolating the window's middle)
     assert s.median_age_ratio >= 0.8, s
     # rows: each id starts with its detection at a frame's time, quality 1
     first = np.unique(tr.id, return_index=True)[1]
