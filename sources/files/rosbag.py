@@ -307,6 +307,12 @@ class RosbagSource(FileSource):
         self._files = []
 
 
+def _words(data: np.ndarray, big_endian: bool) -> np.ndarray:
+    """The payload's 16-bit words in native byte order (the kernels read an
+    array of another byte order as native: numba does not swap)."""
+    return np.frombuffer(data, ">u2" if big_endian else "<u2", len(data) // 2).astype(np.uint16, copy=False)
+
+
 class _Decoder:
     """Per-stream state while walking the messages of one bag."""
 
@@ -400,7 +406,7 @@ class _Decoder:
     def _event_packet(self, w: int, h: int, seq: int, time_base: int, enc: str, be: bool,
                       data: np.ndarray) -> Iterator[Packet]:
         if enc == "evt3":
-            words = np.frombuffer(data, ">u2" if be else "<u2", len(data) // 2)
+            words = _words(data, be)
             yield from self._room(w, h, words.shape[0] * 12 + 12)
             trig = np.empty((words.shape[0], 3), np.int64)
             ne, nt, bad, nbad, _ = K.decode_evt3(words, self.evt3_state, not self.src.skip_bad, *self._free(),
@@ -418,7 +424,7 @@ class _Decoder:
             self.n += ne
             self.src.rollovers += rolls
         elif enc == "libcaer_cmp":
-            words = np.frombuffer(data, ">u2" if be else "<u2", len(data) // 2)
+            words = _words(data, be)
             n = words.shape[0] * 12
             t, x, y = np.empty(n, np.int64), np.empty(n, np.uint16), np.empty(n, np.uint16)
             p = np.empty(n, np.int8)
