@@ -79,15 +79,16 @@ def picture(cal: Calibration, path: Path) -> None:
     except ImportError:
         print("(no matplotlib: no picture; pip install '.[charts]')")
         return
-    fig, (a, b) = plt.subplots(1, 2, figsize=(8.4, 3.2), gridspec_kw={"width_ratios": [1.35, 1]})
-    v = cal.used[len(cal.used) // 2]
+    fig, (a, b) = plt.subplots(1, 2, figsize=(8.0, 3.0), gridspec_kw={"width_ratios": [1.4, 1]})
+    v = max(cal.used, key=lambda u: float(np.ptp(u.points[:, 0])) if u.points is not None else 0.0)
     assert v.transitions is not None and v.points is not None
-    a.imshow(v.transitions, cmap="gray", interpolation="nearest")
+    a.imshow(v.transitions, cmap="magma", interpolation="nearest")
     g = v.points.reshape(cal.grid.rows, cal.grid.cols, 2)
     for row in g:
-        a.plot(row[:, 0], row[:, 1], "-", color="tab:orange", lw=0.8)
-    a.scatter(v.points[:, 0], v.points[:, 1], s=9, c=np.arange(len(v.points)), cmap="viridis", zorder=3)
-    a.set_title("ON→OFF transitions of one view, dots in grid order", fontsize=9)
+        a.plot(row[:, 0], row[:, 1], "-", color="tab:cyan", lw=0.7)
+    a.plot(v.points[:, 0], v.points[:, 1], "+", color="w", ms=4, mew=0.8)
+    a.plot(*v.points[0], "o", mfc="none", mec="tab:cyan", ms=7)
+    a.set_title("ON→OFF transitions of one view; dots in grid order (first circled)", fontsize=9)
     a.set_xticks([])
     a.set_yticks([])
     res = np.concatenate([v.residuals for v in cal.used if v.residuals is not None])
