@@ -31,24 +31,10 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["bilinear", "observed_patch", "predicted_patch", "eklt_cost", "eklt_align", "event_target"]
+__all__ = ["observed_patch", "eklt_cost", "eklt_align", "event_target"]
 
 #: The observed patch is blurred with this 5-tap Gaussian (σ 1 px) in x and y.
 _BLUR = (0.05448868, 0.24420134, 0.40261995, 0.24420134, 0.05448868)
-
-
-@njit(cache=True)
-def bilinear(img: np.ndarray, x: float, y: float) -> float:
-    """``img`` (H, W) at column ``x``, row ``y`` (px, bilinear); 0 outside."""
-    h, w = img.shape
-    if not (0.0 <= x <= w - 1.0 and 0.0 <= y <= h - 1.0):
-        return 0.0
-    i = min(int(x), w - 2)
-    j = min(int(y), h - 2)
-    fx = x - i
-    fy = y - j
-    return ((1 - fy) * ((1 - fx) * img[j, i] + fx * img[j, i + 1])
-            + fy * ((1 - fx) * img[j + 1, i] + fx * img[j + 1, i + 1]))
 
 
 @njit(cache=True)
@@ -90,40 +76,6 @@ def observed_patch(ex: np.ndarray, ey: np.ndarray, ep: np.ndarray, n: int, cx: i
     for k in range(P * P):
         out[k] *= nrm
     return inside
-
-
-@njit(cache=True)
-def predicted_patch(tmpl: np.ndarray, ox: float, oy: float, xref: float, yref: float, cx: int, cy: int,
-                    half: int, x: float, y: float, theta: float, phi: float, out: np.ndarray) -> bool:
-    """The predicted increment ``-∇L(W(u)) · R(θ) v̂`` over the patch centred
-    on pixel ``(cx, cy)`` for a feature at ``(x, y)`` px, rotation ``theta``
-    and flow direction ``phi`` (rad), normalised to unit norm, into ``out``
-    (P*P). ``tmpl[0]``, ``tmpl[1]``: the template's gradients (x, y), whose
-    pixel (0, 0) is frame pixel ``(ox, oy)``. False when the prediction is
-    flat. (The slow, obvious form of what :func:`eklt_cost` computes.)"""
-    P = 2 * half + 1
-    c = math.cos(theta)
-    s = math.sin(theta)
-    vx = math.cos(phi + theta)
-    vy = math.sin(phi + theta)
-    bx = xref - ox
-    by = yref - oy
-    ss = 0.0
-    for j in range(P):
-        uy = cy - half + j - y
-        for i in range(P):
-            ux = cx - half + i - x
-            wx = bx + c * ux - s * uy
-            wy = by + s * ux + c * uy
-            v = -(bilinear(tmpl[0], wx, wy) * vx + bilinear(tmpl[1], wx, wy) * vy)
-            out[j * P + i] = v
-            ss += v * v
-    if ss <= 0.0:
-        return False
-    nrm = 1.0 / math.sqrt(ss)
-    for k in range(P * P):
-        out[k] *= nrm
-    return True
 
 
 @njit(cache=True)
