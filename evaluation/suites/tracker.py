@@ -2,7 +2,9 @@
 one part per method: ``angular`` (``tracker.angular_velocity`` against the
 simulator's truth and the IMU of real recordings) and ``ladder`` (``tracker.ego_motion``:
 the model ladder's confusion matrix), ``features`` (``tracker.features``:
-EKLT and ICP against the rotation truth and KLT). Each part is a module
+EKLT and ICP against the rotation truth and KLT), ``clusters``
+(``tracker.clusters`` on simulated moving objects) and ``leds``
+(``tracker.led_markers`` on a simulated LED body: ids, positions, pose). Each part is a module
 ``_tracker_PART`` with ``run(out, quick) -> {"rows": ..., "targets": ...}``;
 pictures go to ``out``."""
 
@@ -13,7 +15,7 @@ from typing import Any
 
 from tectum.evaluation.harness import run_parts
 
-PARTS = ("angular", "ladder", "features")
+PARTS = ("angular", "ladder", "features", "clusters", "leds")
 
 
 def run(out: Path, quick: bool) -> dict[str, Any]:

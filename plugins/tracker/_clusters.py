@@ -28,7 +28,8 @@ __all__ = ["NCOL", "NPAR", "new_state", "clusters_kernel", "OUT_COLS"]
 X, Y, VX, VY, MASS, TLAST, VARX, VARY, XREF, YREF, TREF, TEXP, NVEL, RX, RY = range(15)
 NCOL = 15
 # parameters
-P_RADIUS, P_MIX, P_TAU, P_MIN_MASS, P_PRUNE, P_UPDATE, P_VEL_DT, P_VEL_TAU, P_MERGE, P_MAX_RADIUS, P_LN_PRUNE = range(11)
+(P_RADIUS, P_MIX, P_TAU, P_MIN_MASS, P_PRUNE, P_UPDATE, P_VEL_DT, P_VEL_TAU, P_MERGE, P_MAX_RADIUS,
+ P_LN_PRUNE) = range(11)
 NPAR = 11
 # output columns (float64): x, y, vx, vy, width, height, mass
 OUT_COLS = 7

@@ -60,13 +60,18 @@ def blob_estimate(ring_t, ring_xy, n_written, T, window, blob_px, work):  # type
     """A marker's position at ``T`` µs from its observations in ``(T -
     window, T]``: the per-axis median, then the mean of the observations
     within ``blob_px`` (L-inf) of it. Returns ``(x, y, kept)`` (NaN, NaN, 0
-    when none is kept). ``work`` (C, 2) is scratch space."""
+    when none is kept). The ring holds observations in time order (oldest
+    overwritten), so it is walked back from the newest until the window's
+    start. ``work`` (C, 2) is scratch space."""
     C = ring_t.shape[0]
     m = min(n_written, C)
     k = 0
-    for j in range(m):
+    for back in range(m):
+        j = (n_written - 1 - back) % C
         tj = ring_t[j]
-        if T - window < tj <= T:
+        if tj <= T - window:
+            break
+        if tj <= T:
             work[k, 0] = ring_xy[j, 0]
             work[k, 1] = ring_xy[j, 1]
             k += 1

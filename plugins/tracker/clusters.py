@@ -102,9 +102,10 @@ class Clusters(Operator):
     consumes = (Kind.EVENTS,)
     produces = (Kind.CLUSTERS,)
 
-    def __init__(self, radius_px: float = 12.0, max_radius_px: float = 16.0, max_clusters: int = 16, mix: float = 0.05, tau_us: int = 10_000,
-                 min_mass: float = 30.0, prune_mass: float = 0.5, update_us: int = 1000, velocity_us: int = 1000,
-                 velocity_tau_us: int = 10_000, merge: float = 1.0, predict: bool = True) -> None:
+    def __init__(self, radius_px: float = 12.0, max_radius_px: float = 16.0, max_clusters: int = 16,
+                 mix: float = 0.05, tau_us: int = 10_000, min_mass: float = 30.0, prune_mass: float = 0.5,
+                 update_us: int = 1000, velocity_us: int = 1000, velocity_tau_us: int = 10_000, merge: float = 1.0,
+                 predict: bool = True) -> None:
         if not 0 < radius_px <= max_radius_px or max_clusters < 1 or not 0 < mix <= 1 or tau_us <= 0:
             raise ValueError("need 0 < radius_px <= max_radius_px, max_clusters >= 1, 0 < mix <= 1 and tau_us > 0")
         if not 0 < prune_mass < min_mass or update_us < 0 or velocity_us < 1 or velocity_tau_us < 0 or merge < 0:

@@ -138,7 +138,8 @@ class LedMarkers(Operator):
         self.layout: MarkerLayout | None = None
         if layout:
             if freqs:
-                raise ValueError("tracker.led_markers: give layout= or freqs=, not both (the layout has the frequencies)")
+                raise ValueError("tracker.led_markers: give layout= or freqs=, not both (the layout has the "
+                                 "frequencies)")
             self.layout = read_layout(layout)
             ids, f = self.layout.ids, self.layout.freqs
         elif freqs:
@@ -260,7 +261,7 @@ def _blinking_events(duration_us: int, sensor: tuple[int, int] = (32, 24), seed:
                     ps.append(np.full(len(k), pol))
     edge_t = np.arange(0, duration_us, 40)
     ts.append(edge_t)
-    xs.append((edge_t * sensor[0] // duration_us))
+    xs.append(edge_t * sensor[0] // duration_us)
     ys.append(rng.integers(0, sensor[1], len(edge_t)))
     ps.append(np.ones(len(edge_t), int))
     nt = rng.integers(0, duration_us, 300)
@@ -270,5 +271,6 @@ def _blinking_events(duration_us: int, sensor: tuple[int, int] = (32, 24), seed:
     ps.append(rng.choice([-1, 1], 300))
     t = np.concatenate(ts)
     order = np.argsort(t, kind="stable")
-    return EventPacket(t[order], np.concatenate(xs)[order].astype(np.uint16), np.concatenate(ys)[order].astype(np.uint16),
-                       np.concatenate(ps)[order].astype(np.int8), sensor=sensor, t_start=0, t_end=duration_us)
+    x, y, p = (np.concatenate(a)[order] for a in (xs, ys, ps))
+    return EventPacket(t[order], x.astype(np.uint16), y.astype(np.uint16), p.astype(np.int8), sensor=sensor, t_start=0,
+                       t_end=duration_us)

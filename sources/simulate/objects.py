@@ -187,7 +187,8 @@ class LedBody:
             pos = [a[k] + b[k] * self.position[k] for k in range(2)]
             box = [a[k] + b[k] * (self.position[k] - self.bounce[k]) for k in range(2)] + \
                   [a[k] + b[k] * (self.position[k] + self.bounce[k]) for k in range(2)]
-            objs.append({"shape": "disk", "position": pos, "velocity": [b[0] * self.velocity[0], b[1] * self.velocity[1]],
+            vel = [b[0] * self.velocity[0], b[1] * self.velocity[1]]
+            objs.append({"shape": "disk", "position": pos, "velocity": vel,
                          "radius": self.radius_px, "intensity": self.on, "intensity_off": self.off,
                          "blink_hz": float(hz), "blink_duty": self.duty, "blink_rise_us": self.rise_us, "id": i + 1,
                          "bounce": box if any(self.bounce) else False})
@@ -202,5 +203,6 @@ class LedBody:
     def layout_text(self) -> str:
         """The LEDs as a ``layout=`` file (see :mod:`tectum.plugins.tracker.layout`)."""
         rows = ["# LED marker layout: id, x, y, z (m, body frame), frequency (Hz)"]
-        rows += [f"{i + 1} {p[0]!r} {p[1]!r} {p[2]!r} {hz!r}" for i, (p, hz) in enumerate(zip(self.points, self.freqs_hz))]
+        rows += [f"{i + 1} {float(p[0])!r} {float(p[1])!r} {float(p[2])!r} {float(hz)!r}"
+                 for i, (p, hz) in enumerate(zip(self.points, self.freqs_hz))]
         return "\n".join(rows) + "\n"
