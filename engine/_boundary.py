@@ -16,6 +16,10 @@ class Guard:
     """Checks every packet a source emits: the packet contract, and that the
     stream moves forward (``next.t_start >= prev.t_end`` per kind).
 
+    Event packets go through :meth:`EventPacket.validate`, one compiled pass;
+    a packet the source already validated (or a view of one: it is marked
+    :attr:`~EventPacket.checked`) is not checked twice.
+
     Raises :class:`PacketError` naming the source and the bad event.
     """
 

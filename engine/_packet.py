@@ -18,6 +18,12 @@ The packet contract
   the sensor size ``(width, height)`` in pixels and any extra per-event
   columns (``vx``, ``vy``, ``lifetime``, ``noise`` ...), attached without
   copying the base columns.
+* Checked once: :meth:`EventPacket.validate` (one compiled pass over the
+  events) marks the packet as checked, and views and selections of a
+  checked packet are checked too, so a source that validates its packets
+  does not pay for a second check where they enter the pipeline (the
+  pipeline's guard checks every packet that is not marked). The mark is
+  sound because packets are immutable.
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ from types import MappingProxyType
 from typing import Any, ClassVar, Self, cast
 
 import numpy as np
+from numba import njit
 
 from .errors import PacketError
 
@@ -224,9 +231,10 @@ class Packet:
             ev: Any = self
             if type(self) is EventPacket and not ev.columns:  # the hot case, inlined
                 x, y, p, sensor, trusted = ev.x, ev.y, ev.p, ev.sensor, cast(Any, EventPacket._trusted)
+                checked = ev._checked
                 for stop, hi in zip(runs, ts):
                     yield trusted(t[start:stop], x[start:stop], y[start:stop], p[start:stop], sensor, lo, hi,
-                                  _NO_COLUMNS)
+                                  _NO_COLUMNS, checked)
                     start, lo = stop, hi
             else:
                 for stop, hi in zip(runs, ts):
@@ -276,7 +284,7 @@ class EventPacket(Packet):
         Extra per-event columns, each with one row per event.
     """
 
-    __slots__ = ("t", "x", "y", "p", "sensor", "columns")
+    __slots__ = ("t", "x", "y", "p", "sensor", "columns", "_checked")
     kind = Kind.EVENTS
     x: np.ndarray
     y: np.ndarray
@@ -320,14 +328,17 @@ class EventPacket(Packet):
         set_(self, "p", p)
         set_(self, "sensor", (w, h))
         set_(self, "columns", MappingProxyType(cols))
+        set_(self, "_checked", False)
         self._init_interval(t, t_start, t_end)
 
     # -- construction -------------------------------------------------------
     @classmethod
     def _trusted(cls, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, sensor: tuple[int, int],
-                 t_start: int, t_end: int, columns: Mapping[str, np.ndarray]) -> EventPacket:
+                 t_start: int, t_end: int, columns: Mapping[str, np.ndarray], checked: bool = False) -> EventPacket:
         """Internal: build from arrays already known to satisfy the contract
-        (views and selections of a valid packet); skips every check."""
+        (views and selections of a valid packet); skips every check.
+        ``checked``: the arrays are views or selections of a packet that
+        :meth:`validate` passed (see :attr:`checked`)."""
         pkt = _new(cls)
         _set_t(pkt, t)
         _set_x(pkt, x)
@@ -337,6 +348,7 @@ class EventPacket(Packet):
         _set_columns(pkt, MappingProxyType(dict(columns)) if columns else _NO_COLUMNS)
         _set_t_start(pkt, t_start)
         _set_t_end(pkt, t_end)
+        _set_checked(pkt, checked)
         return pkt
 
     @classmethod
@@ -402,12 +414,36 @@ class EventPacket(Packet):
         return pkt
 
     # -- checks ---------------------------------------------------------------
+    @property
+    def checked(self) -> bool:
+        """True when :meth:`validate` passed on this packet, or on the packet
+        it is a view or a selection of: the pipeline's guard does not check
+        it again."""
+        return self._checked
+
     def validate(self) -> EventPacket:
         """Check the whole contract (order, interval, geometry, polarity).
 
-        Raises :class:`PacketError` naming the first bad event; returns self.
-        Sources call this where data enters; operators' outputs are trusted.
+        Raises :class:`PacketError` naming the first bad event; returns self,
+        marked :attr:`checked`. Sources call this where data enters (or let
+        the pipeline's guard do it); operators' outputs are trusted. One
+        compiled pass over the events; the error is worked out only when
+        that pass finds one.
         """
+        if self._checked:
+            return self
+        t = self.t
+        n = t.shape[0]
+        w, h = self.sensor
+        if n and (t[0] < self.t_start or t[n - 1] >= self.t_end or not _events_ok(t, self.x, self.y, self.p, w, h)):
+            self._raise_first_error()
+        _set_checked(self, True)
+        return self
+
+    def _raise_first_error(self) -> None:
+        """Raise the :class:`PacketError` of :meth:`validate`, naming the
+        first bad event (checks in order: time order, interval, x, y,
+        polarity)."""
         self._check_times()
         w, h = self.sensor
         if len(self):
@@ -423,14 +459,14 @@ class EventPacket(Packet):
             if bad.size:
                 i = int(bad[0])
                 raise PacketError(f"event {i} has polarity {int(self.p[i])}, expected +1 or -1", index=i)
-        return self
+        raise PacketError("packet breaks the contract")  # _events_ok and the checks above disagree
 
     # -- views ----------------------------------------------------------------
     def _take_slice(self, i: int, j: int, t_start: int, t_end: int) -> EventPacket:
         cols = self.columns
         return EventPacket._trusted(
             self.t[i:j], self.x[i:j], self.y[i:j], self.p[i:j], self.sensor, t_start, t_end,
-            {k: v[i:j] for k, v in cols.items()} if cols else cols,
+            {k: v[i:j] for k, v in cols.items()} if cols else cols, self._checked,
         )
 
     def select(self, mask: np.ndarray) -> EventPacket:
@@ -446,25 +482,29 @@ class EventPacket(Packet):
         """The events at the increasing indices ``idx`` (a copy), same interval."""
         return EventPacket._trusted(
             self.t[idx], self.x[idx], self.y[idx], self.p[idx], self.sensor, self.t_start, self.t_end,
-            {k: v[idx] for k, v in self.columns.items()},
+            {k: v[idx] for k, v in self.columns.items()}, self._checked,
         )
 
     def with_columns(self, **columns: np.ndarray) -> EventPacket:
         """A new packet sharing every array, with these columns added or replaced."""
         cols = dict(self.columns)
         cols.update(columns)
-        return EventPacket(
+        pkt = EventPacket(
             self.t, self.x, self.y, self.p, sensor=self.sensor,
             t_start=self.t_start, t_end=self.t_end, columns=cols,
         )
+        _set_checked(pkt, self._checked)  # the same base columns and interval
+        return pkt
 
     def without_columns(self, *names: str) -> EventPacket:
         """A new packet sharing every array, without the named extra columns."""
         cols = {k: v for k, v in self.columns.items() if k not in names}
-        return EventPacket(
+        pkt = EventPacket(
             self.t, self.x, self.y, self.p, sensor=self.sensor,
             t_start=self.t_start, t_end=self.t_end, columns=cols,
         )
+        _set_checked(pkt, self._checked)  # the same base columns and interval
+        return pkt
 
     def with_interval(self, t_start: int, t_end: int) -> EventPacket:
         """The same events with another interval (checked)."""
@@ -493,10 +533,38 @@ class EventPacket(Packet):
         )
 
 
+@njit(cache=True, nogil=True)
+def _events_ok(t, x, y, p, w, h):  # type: ignore[no-untyped-def]
+    """True when ``t`` never decreases, every ``x < w``, ``y < h`` and every
+    ``p`` is +1 or -1: the per-event part of the contract, in one
+    branch-free pass (no early exit: the loop vectorises)."""
+    bad = False
+    prev = t[0]
+    for i in range(t.shape[0]):
+        ti = t[i]
+        pi = p[i]
+        bad |= (ti < prev) | (x[i] >= w) | (y[i] >= h) | ((pi != 1) & (pi != -1))
+        prev = ti
+    return not bad
+
+
+
+def join_consecutive(pkts: list[EventPacket]) -> EventPacket:
+    """Consecutive packets of one event stream (same sensor and columns,
+    ``next.t_start >= prev.t_end``, not checked) as one packet covering
+    ``[first.t_start, last.t_end)`` (a copy); checked when every packet is."""
+    first = pkts[0]
+    if len(pkts) == 1:
+        return first
+    t, x, y, p = (np.concatenate([getattr(q, k) for q in pkts]) for k in _BASE)
+    cols = {k: np.concatenate([q.columns[k] for q in pkts]) for k in first.columns}
+    return EventPacket._trusted(t, x, y, p, first.sensor, first.t_start, pkts[-1].t_end, cols,
+                                all(q._checked for q in pkts))
+
 # Slot setters for EventPacket._trusted (faster than object.__setattr__).
 _new = object.__new__
-_set_t, _set_x, _set_y, _set_p, _set_sensor, _set_columns = (
-    EventPacket.__dict__[n].__set__ for n in ("t", "x", "y", "p", "sensor", "columns")
+_set_t, _set_x, _set_y, _set_p, _set_sensor, _set_columns, _set_checked = (
+    EventPacket.__dict__[n].__set__ for n in ("t", "x", "y", "p", "sensor", "columns", "_checked")
 )
 _set_t_start, _set_t_end = (Packet.__dict__[n].__set__ for n in ("t_start", "t_end"))
 
