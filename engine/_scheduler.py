@@ -23,7 +23,7 @@ from ._boundary import Guard, Repair
 from ._edge import Edge
 from ._graph import END, Delivery, Graph
 from ._operator import Sink, Source
-from ._packet import Packet
+from ._packet import EventPacket, Packet, join_consecutive
 from ._pipeline import BatchPolicy, EdgePolicy, Pipeline, Plan
 from ._registry import Registry
 from ._stats import Stats
@@ -310,33 +310,59 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
     try:
         source = node.instantiate()
         pacer = _Pacer(batch) if batch.pace is not None and not source.live else None
-        last_yield = time.perf_counter()
+        small = 0 if source.live else _SMALL  # a live source's packets go in as they come
+        clock = time.perf_counter
+        push, add = graph.push, out.add
+        last_yield = clock()
+        arrival = trio.current_time()
+        held: list[EventPacket] = []  # small event packets waiting to go in as one
+        held_n = 0
         async for raw in _read(source, out, st):
             for pkt in repair(raw) if repair is not None else (raw,):
                 pkt = guard(pkt)
                 if pacer is not None:
-                    async for piece, arrival in pacer.release(pkt):
+                    async for piece, due in pacer.release(pkt):
                         st.packets_out += 1
                         st.gave(piece)
-                        out.add(graph.push(sid, piece), arrival)
+                        add(push(sid, piece), due)
                         await out.flush()  # paced: hand over at once, latency counts
                     continue
                 # As fast as possible: yield to the other tasks (sinks) every
                 # _SLICE_S of work, not per packet: a task switch costs more
-                # than pushing one event through the operators.
-                # (Arrival is read once per slice: latency errs on the high side.)
-                arrival = trio.current_time()
+                # than pushing one event through the operators. Small event
+                # packets are joined (up to max_events) before they go in:
+                # operators give the same output however the stream is cut,
+                # and a packet costs the engine and each operator a few µs
+                # whatever its size. (Arrival is read once per packet and
+                # slice: latency errs on the high side.)
                 st.gave(pkt)
-                push, add, clock = graph.push, out.add, time.perf_counter
-                for piece in pkt.batches(batch.max_events):
-                    st.packets_out += 1
-                    add(push(sid, piece), arrival)
-                    now = clock()
-                    if now - last_yield > _SLICE_S:
-                        await out.flush()
-                        await trio.lowlevel.checkpoint()
-                        last_yield = now
-                        arrival = trio.current_time()
+                n = pkt.t.shape[0]
+                if type(pkt) is EventPacket and n < small and held_n + n <= batch.max_events and (
+                        not held or (pkt.sensor == held[0].sensor and pkt.columns.keys() == held[0].columns.keys())):
+                    held.append(pkt)
+                    held_n += n
+                else:
+                    if held:
+                        st.packets_out += 1
+                        add(push(sid, join_consecutive(held)), arrival)
+                        held, held_n = [], 0
+                    arrival = trio.current_time()
+                    for piece in pkt.batches(batch.max_events):
+                        st.packets_out += 1
+                        add(push(sid, piece), arrival)
+                now = clock()
+                if now - last_yield > _SLICE_S:
+                    if held:
+                        st.packets_out += 1
+                        add(push(sid, join_consecutive(held)), arrival)
+                        held, held_n = [], 0
+                    await out.flush()
+                    await trio.lowlevel.checkpoint()
+                    last_yield = clock()
+                    arrival = trio.current_time()
+        if held:
+            st.packets_out += 1
+            add(push(sid, join_consecutive(held)), arrival)
         if repair is not None:
             for pkt in repair.flush():
                 out.add(graph.push(sid, guard(pkt)), trio.current_time())
@@ -355,29 +381,33 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
 
 
 async def _read(source: Source, out: _Outbox, st: Any) -> AsyncIterator[Packet]:
-    """The source's packets; what was delivered is flushed before each wait.
-    Time spent inside a file source (decoding) counts as its busy time."""
+    """The source's packets; what was delivered is flushed before each wait
+    of an async source (a sync source's caller yields on its own schedule,
+    every ``_SLICE_S``). Time spent inside a file source (decoding) counts
+    as its busy time."""
     if source.is_async:
         async for pkt in source.apackets():
             yield pkt
             await out.flush()
         return
     it = iter(source.packets())
+    clock = time.perf_counter_ns
     while True:
-        t0 = time.perf_counter_ns()
+        t0 = clock()
         try:
             pkt = next(it)
         except StopIteration:
             return
         finally:
-            st.busy_ns += time.perf_counter_ns() - t0
+            st.busy_ns += clock() - t0
         yield pkt
-        await out.flush()
-        await trio.lowlevel.checkpoint()
 
 
 #: Longest stretch (s) a source task works before letting other tasks run.
 _SLICE_S = 200e-6
+
+#: Event packets smaller than this (unpaced) are joined before they go in.
+_SMALL = 8192
 
 
 #: Pacing sleeps until this long (s) before a release time, then spins:
