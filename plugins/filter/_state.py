@@ -24,18 +24,19 @@ def padded_timestamps(sensor: tuple[int, int], channels: int = 1) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def compact_kernel(t, x, y, p, keep, ot, ox, oy, op, idx):  # type: ignore[no-untyped-def]
+def compact_kernel(t, x, y, p, keep, ot, ox, oy, op, idx, want_idx):  # type: ignore[no-untyped-def]
     """Copy the events where ``keep`` to the front of ``ot, ox, oy, op``
-    (one branch-free pass; outputs need one spare slot) and their input
-    indices to ``idx``; returns how many."""
+    (one branch-free pass; outputs need one spare slot) and, with
+    ``want_idx``, their input indices to ``idx``; returns how many."""
     n = 0
     for i in range(t.shape[0]):
         ot[n] = t[i]
         ox[n] = x[i]
         oy[n] = y[i]
         op[n] = p[i]
-        idx[n] = i
-        n += keep[i]
+        if want_idx:
+            idx[n] = i
+        n += np.intp(keep[i])
     return n
 
 
@@ -45,12 +46,11 @@ def select(packet: EventPacket, keep: np.ndarray) -> EventPacket:
     (numpy's boolean indexing rescans the mask per column). Returns
     ``packet`` itself when every event is kept."""
     m = len(packet)
+    cols = packet.columns
     ot, ox, oy = np.empty(m + 1, np.int64), np.empty(m + 1, np.uint16), np.empty(m + 1, np.uint16)
-    op, idx = np.empty(m + 1, np.int8), np.empty(m + 1, np.int64)
-    n = compact_kernel(packet.t, packet.x, packet.y, packet.p, keep, ot, ox, oy, op, idx)
+    op, idx = np.empty(m + 1, np.int8), np.empty(m + 1 if cols else 1, np.intp)
+    n = compact_kernel(packet.t, packet.x, packet.y, packet.p, keep, ot, ox, oy, op, idx, bool(cols))
     if n == m:
         return packet
-    return EventPacket(
-        ot[:n], ox[:n], oy[:n], op[:n], sensor=packet.sensor, t_start=packet.t_start, t_end=packet.t_end,
-        columns={k: v[idx[:n]] for k, v in packet.columns.items()},
-    )
+    return EventPacket._trusted(ot[:n], ox[:n], oy[:n], op[:n], packet.sensor, packet.t_start, packet.t_end,
+                                {k: v[idx[:n]] for k, v in cols.items()}, packet.checked)

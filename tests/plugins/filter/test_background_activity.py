@@ -57,3 +57,25 @@ def test_default_keeps_signal_and_rejects_most_noise(make_pattern):
 def test_rejects_negative_dt():
     with pytest.raises(ValueError):
         BackgroundActivity(dt_us=-1)
+
+
+@pytest.mark.parametrize("dt_us", [500, 2**29])  # int32 state with a moving origin; int64 state
+def test_streams_longer_than_the_int32_span(dt_us):
+    """Hours of events with gaps of 2^29..2^31 µs and packets spanning more
+    than 2^29 µs: the state's origin moves on and the output is the slow
+    reference's."""
+    from tectum import EventPacket
+
+    rng = np.random.default_rng(3)
+    n = 4000
+    steps = rng.integers(0, 400, n)
+    steps[rng.choice(n, 12, replace=False)] = rng.choice([2**29, 2**30 + 7, 2**31 + 11], 12)
+    t = np.cumsum(steps).astype(np.int64) + 2**40
+    ev = EventPacket.from_arrays(t, rng.integers(0, 6, n), rng.integers(0, 5, n), rng.choice([-1, 1], n),
+                                 sensor=(6, 5))
+    cuts = [ev.t_start, int(t[1000]), int(t[1001]) + 1, int(t[3000]), ev.t_end]
+    pieces = [ev.slice_time(a, b) for a, b in zip(cuts, cuts[1:])]
+    assert max(q.duration for q in pieces) > 2**30
+    out = np.concatenate([q.t for q in feed(BackgroundActivity(dt_us=dt_us), pieces)])
+    exp = reference(ev, dt_us)
+    assert 0 < exp.sum() < n and np.array_equal(out, ev.t[exp])

@@ -22,7 +22,7 @@ from tectum.testing import feed
 CASES = {
     "stcf k=2": (lambda: SpatioTemporalCorrelation(dt_us=3000, k=2), ["stcf.stcf_kernel"]),
     "stcf k=3 polarity": (lambda: SpatioTemporalCorrelation(dt_us=5000, k=3, polarity=True), ["stcf.stcf_kernel"]),
-    "background activity": (lambda: BackgroundActivity(dt_us=2000), ["background_activity.background_activity_kernel"]),
+    "background activity": (lambda: BackgroundActivity(dt_us=2000), ["background_activity.background_activity_select"]),
     "refractory": (lambda: Refractory(period_us=4000), ["refractory.refractory_kernel"]),
     "hot pixel": (lambda: HotPixel(learn_us=20_000, factor=1.5, min_events=2, learning="drop"),
                   ["hot_pixel.count_kernel", "hot_pixel.mask_kernel"]),
