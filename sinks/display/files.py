@@ -2,8 +2,9 @@
 to PNG snapshots, and to a Python callback. Maps (:class:`tectum.MapPacket`,
 ``map.*`` operators) are drawn as pictures, one per sample (see
 :mod:`.maps`): ``out.png`` keeps the last map of a map stream. Feature
-tracks (:class:`tectum.TrackPacket`) are drawn over the events, or alone
-(see :mod:`.tracks`)."""
+tracks (:class:`tectum.TrackPacket`: features, LED markers) are drawn over
+the events, or alone (see :mod:`.tracks`); moving-object clusters
+(:class:`tectum.ClusterPacket`) over the events (see :mod:`.clusters`)."""
 
 from __future__ import annotations
 
@@ -13,9 +14,10 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
-from tectum import EventPacket, Kind, MapPacket, Packet, ResultPacket, Sink, TrackPacket
+from tectum import ClusterPacket, EventPacket, Kind, MapPacket, Packet, ResultPacket, Sink, TrackPacket
 from tectum.sinks.files._common import temp_beside
 
+from .clusters import ClusterOverlay, as_tracks
 from .maps import map_picture
 from .render import MODES, Mode, Renderer
 from .tracks import TrackFrames
@@ -24,7 +26,7 @@ __all__ = ["VideoSink", "PngSink", "FrameCallbackSink"]
 
 
 class _Rendering(Sink):
-    consumes = (Kind.EVENTS, Kind.RESULTS, Kind.MAPS, Kind.TRACKS)  # results, tracks: over the events; maps: pictures
+    consumes = (Kind.EVENTS, Kind.RESULTS, Kind.MAPS, Kind.TRACKS, Kind.CLUSTERS)  # maps: pictures; others: over events
 
     def __init__(self, fps: float, mode: Mode, tau_us: float, flow_max_px_s: float = 500.0) -> None:
         if mode not in MODES:
@@ -35,6 +37,7 @@ class _Rendering(Sink):
         self._tracks: list[ResultPacket] = []
         self.last_map: MapPacket | None = None
         self.track_frames = TrackFrames(fps)  # TrackPackets: over the events, or alone (see .tracks)
+        self.clusters = ClusterOverlay()  # ClusterPackets: over the events (see .clusters)
 
     def _frames(self, packet: Packet) -> list[tuple[int, np.ndarray]]:
         if isinstance(packet, MapPacket):
@@ -50,6 +53,13 @@ class _Rendering(Sink):
                 return alone
             self.track_frames.overlay.add(packet)
             return []
+        if isinstance(packet, ClusterPacket):
+            if self.renderer is None:  # clusters alone: their centres' trails on a canvas
+                alone = self.track_frames.add(as_tracks(packet))
+                self.frames += len(alone)
+                return alone
+            self.clusters.add(packet)
+            return []
         if isinstance(packet, ResultPacket):
             if self.renderer is None:
                 self._tracks.append(packet)
@@ -62,7 +72,8 @@ class _Rendering(Sink):
             for r in self._tracks:
                 self.renderer.add_tracks(r)
             self._tracks = []
-        got = [(t, self.track_frames.overlay.draw(img, t)) for t, img in self.renderer.add(packet)]
+        tracks = self.track_frames.overlay
+        got = [(t, self.clusters.draw(tracks.draw(img, t), t)) for t, img in self.renderer.add(packet)]
         self.frames += len(got)
         return got
 
