@@ -87,7 +87,7 @@ class DaskExecutor:
                 client = Client(self.scheduler)
             else:
                 n = max(1, min(self.workers or os.cpu_count() or 1, len(tasks)))
-                cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
+                cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0")
                 own.append(cluster)
                 client = Client(cluster)
             own.insert(0, client)

@@ -209,7 +209,9 @@ def _scratch(pipelines: Sequence[Pipeline], scratch: str | None) -> str:
     if base is None:
         for p in pipelines:
             for s in p.nodes:
-                if s.role == "sink" and s.component is None and os.path.isdir(os.path.dirname(os.path.abspath(s.name))):
+                url = "://" in s.name or s.name.endswith(":")
+                if s.role == "sink" and s.component is None and not url \
+                        and os.path.isdir(os.path.dirname(os.path.abspath(s.name))):
                     base = os.path.dirname(os.path.abspath(s.name))
                     break
             if base is not None:

@@ -196,7 +196,7 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
         except ImportError:
             raise tectum.TectumError('bench scale needs dask.distributed: pip install "tectum[dask]"') from None
         up_s, cluster = _timed(lambda: distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                                                dashboard_address=None))
+                                                                dashboard_address=":0"))
         with cluster, distributed.Client(cluster) as client:
             print(f"LocalCluster of 2 worker processes up in {up_s:.1f} s")
             _warm(folder, client)
