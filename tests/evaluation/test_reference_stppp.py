@@ -6,7 +6,6 @@ follows the reference's README: same arguments, same output layout)."""
 from __future__ import annotations
 
 import textwrap
-from pathlib import Path
 
 import numpy as np
 import pytest
