@@ -25,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["throughput", "peer", "table", "target", "target_row", "targets_table", "write_results", "shared_data"]
+__all__ = ["throughput", "interleaved", "versus", "peer", "table", "target", "target_row", "targets_table",
+           "write_results", "shared_data", "memory_bandwidth"]
 
 #: columns of :func:`targets_table`
 TARGET_COLUMNS = ["measure", "value", "unit", "target", "met"]
@@ -46,6 +47,65 @@ def throughput(fn: Callable[[], Any], n_events: int, *, repeat: int = 5, warmup:
     best, med = min(times), float(np.median(times))
     return {"mev_s": n_events / best / 1e6, "mev_s_median": n_events / med / 1e6, "seconds": best,
             "cpu_mev_s": n_events / max(min(cpu), 1e-9) / 1e6, "events": n_events}
+
+
+def interleaved(fns: dict[str, Callable[[], Any]], n_events: dict[str, int] | int, *, repeat: int = 5,
+                warmup: int = 1) -> dict[str, dict[str, Any]]:
+    """Run every function of ``fns`` in turn, ``repeat`` rounds (a, b, a, b,
+    ...), after ``warmup`` rounds, so load from other processes falls on
+    all of them alike. Per function: the median and the spread (min, max)
+    of Mev/s by the wall clock and per CPU second of this process (all its
+    threads), and the per-round times (s) that :func:`versus` pairs up.
+    ``n_events``: events each function processes (one number for all)."""
+    counts = {k: n_events if isinstance(n_events, int) else n_events[k] for k in fns}
+    for _ in range(warmup):
+        for fn in fns.values():
+            fn()
+    wall: dict[str, list[float]] = {k: [] for k in fns}
+    cpu: dict[str, list[float]] = {k: [] for k in fns}
+    for _ in range(repeat):
+        for k, fn in fns.items():
+            c0, t0 = time.process_time(), time.perf_counter()
+            fn()
+            wall[k].append(time.perf_counter() - t0)
+            cpu[k].append(max(time.process_time() - c0, 1e-9))
+    out = {}
+    for k in fns:
+        n, w, c = counts[k], np.array(wall[k]), np.array(cpu[k])
+        out[k] = {"events": n, "mev_s": n / float(np.median(w)) / 1e6, "mev_s_min": n / w.max() / 1e6,
+                  "mev_s_max": n / w.min() / 1e6, "cpu_mev_s": n / float(np.median(c)) / 1e6,
+                  "cpu_mev_s_min": n / c.max() / 1e6, "cpu_mev_s_max": n / c.min() / 1e6,
+                  "wall_s": wall[k], "cpu_s": cpu[k]}
+    return out
+
+
+def versus(name: str, ours: dict[str, Any], theirs: dict[str, Any], goal: float = 2.0, *, clock: str = "wall",
+           peer_name: str = "peer") -> dict[str, Any]:
+    """The target "ours at least ``goal`` x theirs" from two :func:`interleaved`
+    results: the ratio of the medians of Mev/s (by ``clock``: ``wall`` or
+    ``cpu``), and its spread over the rounds (each round's pair of runs
+    gives one ratio: min and max). A :func:`target` record with
+    ``ratio_min``/``ratio_max`` and both speeds added."""
+    key, times = ("mev_s", "wall_s") if clock == "wall" else ("cpu_mev_s", "cpu_s")
+    per_round = [(ours["events"] / a) / (theirs["events"] / b) for a, b in zip(ours[times], theirs[times])]
+    ratio = ours[key] / theirs[key]
+    rec = target(f"{name} vs {peer_name} ({clock})", ratio, goal, "x")
+    rec.update({"ratio_min": min(per_round), "ratio_max": max(per_round), "ours_mev_s": ours[key],
+                "theirs_mev_s": theirs[key], "clock": clock})
+    return rec
+
+
+def memory_bandwidth(mbytes: int = 256, repeat: int = 5) -> float:
+    """This machine's copy bandwidth now, bytes/s (read plus write of a
+    ``mbytes`` MB array; the median of ``repeat`` copies)."""
+    a = np.ones(mbytes * 1_000_000 // 8)
+    b = np.empty_like(a)
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        np.copyto(b, a)
+        times.append(time.perf_counter() - t0)
+    return 2 * a.nbytes / float(np.median(times))
 
 
 def peer(module: str) -> Any | None:
@@ -83,9 +143,14 @@ def target(name: str, value: float, goal: float, unit: str, higher_is_better: bo
 
 def target_row(rec: dict[str, Any]) -> dict[str, Any]:
     """A :func:`target` record as a row of :data:`TARGET_COLUMNS`: the goal
-    as ``>= 200000`` / ``<= 5``, and ``met`` or ``MISSED``."""
+    as ``>= 200000`` / ``<= 5``, and ``met`` or ``MISSED``; a ratio from
+    :func:`versus` shows its spread over the rounds in ``value``
+    (``2.31 (2.05-2.6)``)."""
     goal = (">= " if rec["higher_is_better"] else "<= ") + _fmt(float(rec["goal"]))
-    return {"measure": rec["name"], "value": rec["value"], "unit": rec["unit"], "target": goal,
+    value: Any = rec["value"]
+    if "ratio_min" in rec:
+        value = f"{_fmt(float(rec['value']))} ({_fmt(float(rec['ratio_min']))}-{_fmt(float(rec['ratio_max']))})"
+    return {"measure": rec["name"], "value": value, "unit": rec["unit"], "target": goal,
             "met": "met" if rec["met"] else "MISSED"}
 
 

@@ -27,7 +27,17 @@ from typing import Any, cast
 import numpy as np
 
 from tectum import EventPacket, concat
-from tectum.evaluation.harness import peer, shared_data, table, target, target_row, throughput
+from tectum.evaluation.harness import (
+    TARGET_COLUMNS,
+    interleaved,
+    peer,
+    shared_data,
+    table,
+    target,
+    target_row,
+    throughput,
+    versus,
+)
 from tectum.evaluation.metrics import denoise_rates, roc_auc
 from tectum.plugins.filter import (
     BackgroundActivity,
@@ -164,17 +174,17 @@ def _peer_ops(ev: EventPacket, pieces: list[EventPacket], quick: bool) -> list[t
         k = CAMERA.K
         geom = dv.camera.CameraGeometry(list(CAMERA.D), k[0, 0], k[1, 1], k[0, 2], k[1, 2], SENSOR, model)
 
-        def dv_undistort() -> None:
+        def dv_undistort(stores: list[Any] = stores) -> None:
             for s in stores:
                 geom.undistortEvents(s)
 
-        def dv_frame() -> None:
+        def dv_frame(stores: list[Any] = stores) -> None:
             acc = dv.EdgeMapAccumulator(SENSOR)
             for s in stores:
                 acc.accept(s)
                 acc.generateFrame()
 
-        def dv_surface() -> None:
+        def dv_surface(stores: list[Any] = stores) -> None:
             ts = dv.TimeSurface(SENSOR)
             for s in stores:
                 ts.accept(s)
@@ -239,6 +249,136 @@ def speed(ev: EventPacket, quick: bool) -> list[dict[str, Any]]:
         if "mev_s" in row and not row["impl"].startswith("tectum"):
             row["tectum_ratio"] = ours[row["operation"]] / row["mev_s"]
     return rows
+
+
+# -- targets: the pipeline against its kernels, tectum against the fastest peer ----
+#: BA windows (µs) and event rates (Mev/s) of the peer comparison
+TARGET_DTS = (1000, 2000, 6000, 10_000, 20_000)
+TARGET_RATES = (0.1, 0.5, 1.0, 2.0, 5.0)
+
+
+def at_rate(ev: EventPacket, rate_mev_s: float) -> EventPacket:
+    """``ev`` with its timestamps stretched or squeezed to ``rate_mev_s``
+    (the same scene, slower or faster); validated (checked)."""
+    now = len(ev) / max(ev.t_end - ev.t_start, 1)  # events per µs
+    t = ev.t_start + np.round((ev.t - ev.t_start) * (now / rate_mev_s)).astype(np.int64)
+    return EventPacket(t, ev.x, ev.y, ev.p, sensor=ev.sensor).validate()
+
+
+def _pipeline(make: Callable[[], Any], pieces: list[EventPacket]) -> Callable[[], None]:
+    """A run of the whole pipeline: a source of ``pieces`` (checked, as a
+    source that validated them gives them), the operator, a null sink."""
+    import tectum
+    from tectum.sinks.null import NullSink
+    from tectum.testing import ListSource
+
+    def fn() -> None:
+        p = tectum.Pipeline()
+        p.sink(NullSink(), p.op(make(), p.source(ListSource(pieces), id="src"), id="op"), id="sink")
+        tectum.run(p)
+    return fn
+
+
+def _one_array(make: Callable[[], Any], ev: EventPacket) -> Callable[[], None]:
+    """The operator's kernels on the whole stream as one packet (no packet
+    or engine cost: the kernel-only figure)."""
+    def fn() -> None:
+        op = make()
+        op.process(ev)
+        op.finish()
+    return fn
+
+
+def pipeline_gap(ev: EventPacket, quick: bool) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """Every filter and representation: Mev/s (CPU time, medians of
+    interleaved rounds) on one array and through a pipeline at 10 ms and
+    1 ms packets; target pipeline >= 0.9 x one array. For BA also the old
+    mask-only kernel (it does not select)."""
+    ev = ev.validate()
+    rows, targets = [], []
+    for name, make in _tectum_ops().items():
+        fns = {"one array": _one_array(make, ev), "10 ms": _pipeline(make, chunks(ev, 10_000)),
+               "1 ms": _pipeline(make, chunks(ev, 1_000))}
+        if name == "background_activity":
+            fns["mask kernel"] = partial(_mask_kernel, ev, np.empty(len(ev), np.bool_))
+        r = interleaved(fns, len(ev), repeat=3 if quick else 7)
+        for k, v in r.items():
+            rows.append({"operation": name, "path": k, "cpu_mev_s": v["cpu_mev_s"],
+                         "spread": f"{v['cpu_mev_s_min']:.0f}-{v['cpu_mev_s_max']:.0f}", "mev_s": v["mev_s"]})
+        for k in ("10 ms", "1 ms"):
+            rec = versus(f"{name}: pipeline {k} packets / one array", r[k], r["one array"], 0.9, clock="cpu",
+                         peer_name="kernel")
+            targets.append(rec)
+    return rows, targets
+
+
+def _mask_kernel(ev: EventPacket, keep: np.ndarray) -> None:
+    background_activity_kernel(ev.t, ev.x, ev.y, padded_timestamps(ev.sensor), 6000, keep)
+
+
+def _dv_ba_fn(dv: Any, stores: list[Any], sensor: tuple[int, int], dt: int) -> Callable[[], None]:
+    def fn() -> None:
+        f = _dv_ba(dv, sensor, dt)
+        for s in stores:
+            f.accept(s)
+            f.generateEvents()
+    return fn
+
+
+def peer_targets(ev: EventPacket, quick: bool) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """tectum (a whole pipeline, 10 ms packets) against dv-processing (its
+    filter or accumulator fed the same 10 ms stores), medians of
+    interleaved rounds, wall clock and CPU time: BA over every window of
+    :data:`TARGET_DTS` at every rate of :data:`TARGET_RATES`; event frame,
+    time surface and undistort at every rate. Target: 2x."""
+    dv = peer("dv_processing")
+    if dv is None:
+        return [], []
+    rows, targets = [], []
+    repeat = 3 if quick else 7
+    model = dv.camera.DistortionModel.RADIAL_TANGENTIAL
+    k = CAMERA.K
+    geom = dv.camera.CameraGeometry(list(CAMERA.D), k[0, 0], k[1, 1], k[0, 2], k[1, 2], SENSOR, model)
+    for rate in TARGET_RATES:
+        rev = at_rate(ev, rate)
+        pieces = chunks(rev)
+        stores = _dv_stores(dv, pieces)
+        cases: list[tuple[str, Callable[[], None], Callable[[], None]]] = [
+            (f"BA dt {dt // 1000} ms", _pipeline(partial(BackgroundActivity, dt_us=dt), pieces),
+             _dv_ba_fn(dv, stores, SENSOR, dt)) for dt in TARGET_DTS]
+
+        def dv_frame(stores: list[Any] = stores) -> None:
+            acc = dv.EdgeMapAccumulator(SENSOR)
+            for s in stores:
+                acc.accept(s)
+                acc.generateFrame()
+
+        def dv_surface(stores: list[Any] = stores) -> None:
+            ts = dv.TimeSurface(SENSOR)
+            for s in stores:
+                ts.accept(s)
+                ts.generateFrame()
+
+        def dv_undistort(stores: list[Any] = stores) -> None:
+            for s in stores:
+                geom.undistortEvents(s)
+
+        cases += [("event frame", _pipeline(partial(EventFrame, window_us=CHUNK_US), pieces), dv_frame),
+                  ("time surface", _pipeline(partial(TimeSurface, window_us=CHUNK_US, tau_us=50_000.0), pieces),
+                   dv_surface),
+                  ("undistort", _pipeline(partial(Undistort, camera=CAMERA), pieces), dv_undistort)]
+        for what, ours, theirs in cases:
+            r = interleaved({"tectum": ours, "dv": theirs}, len(rev), repeat=repeat)
+            for clock in ("wall", "cpu"):
+                rec = versus(f"{what} @ {rate:g} Mev/s", r["tectum"], r["dv"], 2.0, clock=clock,
+                             peer_name="dv-processing")
+                targets.append(rec)
+            rows.append({"operation": what, "rate_mev_s": rate, "tectum": r["tectum"]["mev_s"],
+                         "dv": r["dv"]["mev_s"], "ratio": targets[-2]["value"],
+                         "spread": f"{targets[-2]['ratio_min']:.2f}-{targets[-2]['ratio_max']:.2f}",
+                         "cpu_ratio": targets[-1]["value"]})
+        print(f"  peers at {rate:g} Mev/s done", flush=True)
+    return rows, targets
 
 
 # -- accuracy --------------------------------------------------------------------
@@ -614,6 +754,19 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
     ev_plain = ev.without_columns("noise", "vx", "vy")
     rows = speed(ev_plain, quick)
     print(table(rows, ["operation", "impl", "mev_s", "mev_s_median", "events", "tectum_ratio", "error"]))
+    gap_rows, gap_targets = pipeline_gap(ev_plain.slice_time(None, int(ev_plain.t[min(len(ev_plain) - 1,
+                                                                                       n // 2)])), quick)
+    print("pipeline against one array (CPU time, medians of interleaved rounds; spread = min-max):")
+    print(table(gap_rows, ["operation", "path", "cpu_mev_s", "spread", "mev_s"]))
+    n_peer = 300_000 if quick else 1_000_000
+    peer_rows, peer_tgts = peer_targets(ev_plain.slice_time(None, int(ev_plain.t[min(len(ev_plain) - 1, n_peer)])),
+                                        quick)
+    if peer_rows:
+        print(f"tectum (pipeline, 10 ms packets) against dv-processing, {n_peer:,} events, medians of "
+              "interleaved rounds (wall ratio, its spread over rounds, CPU ratio):")
+        print(table(peer_rows, ["operation", "rate_mev_s", "tectum", "dv", "ratio", "spread", "cpu_ratio"]))
+    speed_targets = gap_targets + peer_tgts
+    print(table([target_row(t) for t in speed_targets], TARGET_COLUMNS))
 
     print(f"accuracy on the simulator ({SIM_SENSOR[0]}x{SIM_SENSOR[1]}, shot noise {SIM_NOISE_HZ} Hz/px, "
           f"first {SIM_WARMUP_US // 1000} ms not scored):")
@@ -648,5 +801,6 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
     return {"speed": rows, "accuracy": acc, "auc_table": sim_auc, "defaults_table": sim_def,
             "accuracy_pattern": pat, "auc_table_pattern": pat_auc, "defaults_table_pattern": pat_def,
             "setting_speeds": settings, "setting_speeds_stream": {"scene": SIM_REFERENCE[0], "events": len(ref_ev)},
-            "real": real, "charts": files, "targets": sim_targets + pat_targets,
+            "real": real, "charts": files, "targets": speed_targets + sim_targets + pat_targets,
+            "pipeline_gap": gap_rows, "peers": peer_rows,
             "stream": {"events": len(ev), "sensor": list(ev.sensor), "noise_hz": 2.0, "speed_px_s": 200.0}}
