@@ -60,7 +60,29 @@ from tectum import EventPacket, FramePacket, Kind, MapPacket, Operator, Packet, 
 from tectum.plugins.map._integrate import log_frame
 
 from ._eklt import event_target
-from ._feature_events import ALIVE, COLUMNS, EKLT, ICP, NE, OX, OY, PARAMS, PHI, STATS, TM, XR, YR, X, Y, track_events
+from ._feature_events import (
+    ALIVE,
+    COLUMNS,
+    EKLT,
+    ICP,
+    NE,
+    OX,
+    OY,
+    P_C,
+    P_H,
+    P_MIN,
+    P_ROT,
+    P_W,
+    PARAMS,
+    PHI,
+    STATS,
+    TM,
+    XR,
+    YR,
+    X,
+    Y,
+    track_events,
+)
 
 __all__ = ["FeatureTracker", "image_derivatives", "edge_image", "edge_model"]
 
@@ -230,7 +252,7 @@ class FeatureTracker(Operator):
     def warmup(self) -> None:
         """Compile the kernels on a twin fed a frame with one corner and events around it."""
         twin = FeatureTracker(method=self.method, max_tracks=2, patch_px=7, min_distance_px=3.0, min_events=4,
-                              max_events=8, rotation=bool(self.prm[7]))
+                              max_events=8, rotation=bool(self.prm[P_ROT]))
         img = np.zeros((1, 32, 32), np.uint8)
         img[0, 12:, 12:] = 200
         n = 64
@@ -242,21 +264,21 @@ class FeatureTracker(Operator):
     # -- input ------------------------------------------------------------------
     def process_ports(self, ports: Mapping[str, Packet]) -> list[Packet]:
         first = next(iter(ports.values()))
-        ev = ports.get("events")
+        got = ports.get("events")
+        ev = got if isinstance(got, EventPacket) and len(got) else None
         images = self._images(ports)
         rows: list[tuple[np.ndarray, ...]] = []
         a = 0
-        if ev is not None and len(ev):
-            assert isinstance(ev, EventPacket)
+        if ev is not None:
             self._check_sensor(ev.sensor, "events")
-        for t_img, img in images:
-            if ev is not None and len(ev):
+        for t_img, img in images:  # an image applies to the events at its time and later
+            if ev is not None:
                 b = int(np.searchsorted(ev.t, t_img, side="left"))
-                rows += self._events(ev, a, b)  # type: ignore[arg-type]
+                rows += self._events(ev, a, b)
                 a = b
             rows.append(self._detect(t_img, img))
-        if ev is not None and len(ev):
-            rows += self._events(ev, a, len(ev))  # type: ignore[arg-type]
+        if ev is not None:
+            rows += self._events(ev, a, len(ev))
         t = np.concatenate([r[0] for r in rows]) if rows else np.empty(0, np.int64)
         ids = np.concatenate([r[1] for r in rows]) if rows else np.empty(0, np.int64)
         v = np.concatenate([r[2] for r in rows]) if rows else np.empty((0, 3))
@@ -281,7 +303,7 @@ class FeatureTracker(Operator):
     def _check_sensor(self, size: tuple[int, int], what: str) -> None:
         if self.sensor is None:
             self.sensor = (int(size[0]), int(size[1]))
-            self.prm[5], self.prm[6] = self.sensor
+            self.prm[P_W], self.prm[P_H] = self.sensor
         elif tuple(size) != self.sensor:
             raise ValueError(f"{self.name}: {what} of {size[0]}x{size[1]} px after {self.sensor[0]}x{self.sensor[1]}")
 
@@ -340,7 +362,7 @@ class FeatureTracker(Operator):
         der = image_derivatives(log_img)
         edges = edge_image(log_img) if self.method == "icp" else None
         S, a = self.size, self.margin
-        c = self.prm[1]
+        c = self.prm[P_C]
         for k, (cx, cy) in zip(free, corners):
             ox, oy = int(round(cx)) - S // 2, int(round(cy)) - S // 2
             self.trk[k] = 0.0
@@ -348,11 +370,11 @@ class FeatureTracker(Operator):
             self.tg[k] = der[:, oy:oy + S, ox:ox + S]
             n_e = event_target(self.tg[k, 0, a:S - a, a:S - a], self.tg[k, 1, a:S - a, a:S - a], math.nan, c)
             self.trk[k, [PHI, TM, ALIVE]] = math.nan, t, 1.0
-            self.trk[k, NE] = min(max(n_e, self.prm[2]), self.ring.shape[1])
+            self.trk[k, NE] = min(max(n_e, self.prm[P_MIN]), self.ring.shape[1])
             if edges is not None:
                 m = edge_model(edges, cx, cy, self.half)[: self.mdl.shape[1]]
                 self.mdl[k, :len(m)], self.nmdl[k] = m, len(m)
-                self.trk[k, NE] = min(max(len(m) * ICP_EVENTS_PER_POINT, self.prm[2]), self.ring.shape[1])
+                self.trk[k, NE] = min(max(len(m) * ICP_EVENTS_PER_POINT, self.prm[P_MIN]), self.ring.shape[1])
             self.cnt[k] = 0
             self.ids[k] = self.next_id
             self.next_id += 1
