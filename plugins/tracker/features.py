@@ -141,7 +141,7 @@ class FeatureTracker(Operator):
     min_distance_px:
         Corners at least this far apart, px, and from the live features.
     patch_px:
-        Side of a feature's patch, px (odd; EKLT used 25).
+        Side of a feature's patch, px (odd).
     redetect:
         Detect again on every new image to keep ``max_tracks`` features.
     rotation:
