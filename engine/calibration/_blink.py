@@ -17,7 +17,8 @@ the dot's core than at its partly covered rim, and symmetric about the
 centre, so the weights add sub-pixel accuracy without a bias).
 
 Views: the recording is cut in windows of ``window_periods`` periods;
-consecutive windows whose blobs match within ``still_px`` are one still
+consecutive windows whose blobs match within ``still_px`` (or, when a blob
+split or merged, whose blinking pixels overlap by 90 %) are one still
 view; the windows at a view's two ends (where the board may have
 started or stopped moving) are left out, then each view's transitions are
 counted again over its whole span.
@@ -121,27 +122,39 @@ def _matches(a: Blobs, b: Blobs, still_px: float) -> bool:
     return bool(np.all(d.min(axis=1) <= still_px))
 
 
+def _same(a: tuple[Blobs, np.ndarray], b: tuple[Blobs, np.ndarray], still_px: float, overlap: float) -> bool:
+    """True when two windows (blobs, blinking mask) show the pattern at the
+    same place: the same blobs (:func:`_matches`); or, when a blob split
+    or merged between them (timestamp jitter, the touching squares of a
+    checkerboard), masks overlapping by ``overlap`` (intersection over
+    union)."""
+    if len(a[0]) == len(b[0]):
+        return _matches(a[0], b[0], still_px)
+    union = np.count_nonzero(a[1] | b[1])
+    return union > 0 and np.count_nonzero(a[1] & b[1]) >= overlap * union
+
+
 def still_spans(events: EventPacket, period_us: float, *, duty: float = 0.5, tol: float = 0.25,
                 window_periods: int = 5, min_fraction: float = 0.5, still_px: float = 0.5,
-                min_windows: int = 2) -> list[tuple[int, int]]:
+                min_windows: int = 2, overlap: float = 0.9) -> list[tuple[int, int]]:
     """Spans ``[t0, t1)`` µs where the blinking pattern holds still: runs of
-    windows of ``window_periods`` periods whose blobs match within
-    ``still_px`` px, less the run's first and last window, at least
+    windows of ``window_periods`` periods showing the pattern at the same
+    place (:func:`_same`), less the run's first and last window, at least
     ``min_windows`` windows long."""
     if len(events) == 0:
         return []
     win = int(round(window_periods * period_us))
     t0, t1 = int(events.t[0]), int(events.t[-1]) + 1
     edges = np.arange(t0, t1 + win, win)
-    found: list[Blobs] = []
+    found: list[tuple[Blobs, np.ndarray]] = []
     for a, b in zip(edges[:-1], edges[1:], strict=True):
         tr, wt = transition_map(events.slice_time(int(a), int(b)), period_us, duty, tol)
-        found.append(blobs(tr, wt, window_periods, min_fraction))
+        found.append((blobs(tr, wt, window_periods, min_fraction), tr >= max(1.0, min_fraction * window_periods)))
     spans: list[tuple[int, int]] = []
     k = 0
     while k < len(found):
         j = k
-        while j + 1 < len(found) and _matches(found[j], found[j + 1], still_px):
+        while j + 1 < len(found) and _same(found[j], found[j + 1], still_px, overlap):
             j += 1
         first, last = k + 1, j - 1  # drop the run's two end windows
         if j > k and last - first + 1 >= min_windows:
@@ -151,40 +164,43 @@ def still_spans(events: EventPacket, period_us: float, *, duty: float = 0.5, tol
 
 
 @njit(cache=True)
-def blink_period_kernel(t, x, y, p, width, gap_us, last_burst, hist, sums, bin_log):  # type: ignore[no-untyped-def]
-    """Histogram of the intervals between a pixel's successive ON bursts (an
-    ON event more than ``gap_us`` after the pixel's previous ON event starts
-    a burst): ``hist[b] += 1`` and ``sums[b] += dt`` for
-    ``b = int(log(dt) / bin_log)``."""
+def blink_period_kernel(t, x, y, p, width, last_start, off_seen, hist, sums, bin_log):  # type: ignore[no-untyped-def]
+    """Histogram of the intervals between the starts of a pixel's ON bursts
+    (a burst starts at the first ON event after an OFF event, so however
+    long jitter makes a burst): ``hist[b] += 1`` and ``sums[b] += dt`` for
+    ``b = int(log(dt) / bin_log)``. ``last_start`` (int64, -1: none) and
+    ``off_seen`` (bool) per pixel."""
     nb = hist.shape[0]
     for i in range(t.shape[0]):
-        if p[i] <= 0:
-            continue
         k = np.int64(y[i]) * width + x[i]
-        prev = last_burst[k]
-        last_burst[k] = t[i]
-        if prev >= 0:
-            dt = t[i] - prev
-            if dt > gap_us:
+        if p[i] <= 0:
+            off_seen[k] = True
+            continue
+        if last_start[k] >= 0 and not off_seen[k]:
+            continue  # inside a burst
+        if last_start[k] >= 0:
+            dt = t[i] - last_start[k]
+            if dt > 0:
                 b = int(np.log(dt) / bin_log)
                 if b < nb:
                     hist[b] += 1
                     sums[b] += dt
-            else:
-                last_burst[k] = prev
+        last_start[k] = t[i]
+        off_seen[k] = False
 
 
-def dominant_period(events: EventPacket, gap_us: float = 100.0) -> float:
-    """The most common interval between a pixel's ON bursts, µs (0 when
-    there is none): the blink period of a recording of a blinking
-    pattern (the mean interval in the fullest bin of a histogram of 2% wide
-    bins and its two neighbours)."""
+def dominant_period(events: EventPacket) -> float:
+    """The most common interval between the starts of a pixel's ON bursts,
+    µs (0 when there is none): the blink period of a recording of a
+    blinking pattern (the mean interval in the fullest bin of a histogram
+    of 2% wide bins and its two neighbours)."""
     w, h = events.sensor
     bin_log = np.log(1.02)
     hist = np.zeros(int(np.log(1e7) / bin_log) + 1, np.int64)
     sums = np.zeros(len(hist))
     last = np.full(w * h, -1, np.int64)
-    blink_period_kernel(events.t, events.x, events.y, events.p, w, gap_us, last, hist, sums, bin_log)
+    blink_period_kernel(events.t, events.x, events.y, events.p, w, last, np.zeros(w * h, np.bool_), hist, sums,
+                        bin_log)
     if hist.sum() == 0:
         return 0.0
     b = int(np.argmax(hist))

@@ -51,13 +51,13 @@ def test_transition_map_equals_reference() -> None:
 
 
 def square_blink(period: float, duration: int, pixels: list[tuple[int, int]], sensor=(20, 10),
-                 on_events: int = 3) -> EventPacket:
+                 on_events: int = 3, spread_us: float = 5.0) -> EventPacket:
     ts, xs, ys, ps = [], [], [], []
     for k in range(int(duration // period)):
         t0 = k * period
         for x, y in pixels:
             for e in range(on_events):
-                ts += [t0 + 5 * e, t0 + period / 2 + 5 * e]
+                ts += [t0 + spread_us * e, t0 + period / 2 + spread_us * e]
                 xs += [x, x]
                 ys += [y, y]
                 ps += [1, -1]
@@ -69,6 +69,8 @@ def square_blink(period: float, duration: int, pixels: list[tuple[int, int]], se
 def test_dominant_period_and_blob_centroid() -> None:
     ev = square_blink(2_500.0, 100_000, [(3, 3), (4, 3), (4, 4), (12, 6)])
     assert abs(dominant_period(ev) - 2_500.0) < 5
+    smeared = square_blink(4_000.0, 100_000, [(3, 3)], on_events=4, spread_us=300.0)  # bursts 900 µs long
+    assert abs(dominant_period(smeared) - 4_000.0) < 10
     tr, wt = transition_map(ev, 2_500.0)
     assert tr[3, 3] == 40 and wt[3, 3] == 120
     b = blobs(tr, wt, 40, min_pixels=1)
