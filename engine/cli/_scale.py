@@ -91,10 +91,12 @@ def _pipelines(args: argparse.Namespace,
                build: Callable[[argparse.Namespace], Pipeline]) -> tuple[list[Pipeline], int, bool]:
     """The pipelines to run, the files skipped as done, and whether the
     source was a pattern."""
+    from tectum.scale import expand
+
     if not is_glob(args.source):
         return [build(args)], 0, False
     pattern, query = _split(args.source)
-    files = sorted(f for f in glob.glob(pattern, recursive=True) if os.path.isfile(f))
+    files = expand(pattern)
     if not files:
         raise PipelineError(f"no file matches {pattern!r}")
     if not args.sink:

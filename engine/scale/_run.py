@@ -85,10 +85,16 @@ class ShardedStats(Stats):
 
     def as_dict(self) -> dict[str, Any]:
         return {**super().as_dict(), "shards": self.shard_rows(), "rerun": self.rerun,
-                "warmup_us": {job.label: job.warmup.span_us for job in self.jobs}}
+                "warmup_us": {job.label: job.warmup.span_us for job in self.jobs},
+                "plan_s": {job.label: job.plan_s for job in self.jobs}}
 
     def report(self) -> str:
         lines = [super().report(), "", "shards:"]
+        for job in self.jobs:
+            if len(job.shards) > 1:
+                lines.append(f"  {job.label}: warm-up {job.warmup.span_us:,} µs"
+                             + (f" on a {job.warmup.grid_us:,} µs grid" if job.warmup.grid_us > 1 else "")
+                             + f", span found in {job.plan_s * 1e3:.0f} ms")
         for row in self.shard_rows():
             lines.append(f"  {row['file']} #{row['shard']} {row['range']}: {row['events_in']:,} events read "
                          f"({row['warmup_events']:,} warm-up), {row['events_out']:,} out, {row['wall_s']:.2f} s "
