@@ -130,8 +130,8 @@ def _same(a: tuple[Blobs, np.ndarray], b: tuple[Blobs, np.ndarray], still_px: fl
     union)."""
     if len(a[0]) == len(b[0]):
         return _matches(a[0], b[0], still_px)
-    union = np.count_nonzero(a[1] | b[1])
-    return union > 0 and np.count_nonzero(a[1] & b[1]) >= overlap * union
+    union = int(np.count_nonzero(a[1] | b[1]))
+    return union > 0 and int(np.count_nonzero(a[1] & b[1])) >= overlap * union
 
 
 def still_spans(events: EventPacket, period_us: float, *, duty: float = 0.5, tol: float = 0.25,
