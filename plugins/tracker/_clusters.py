@@ -166,7 +166,8 @@ def clusters_kernel(t, x, y, start, watermark, cl, ids, meta, par, table, counts
     overflow. ``table[g] = exp(-g / tau)`` for gaps of ``g`` whole µs.
 
     Each event: clusters whose mass has decayed below the prune mass are
-    dropped; the event joins the nearest live cluster (L-inf distance)
+    dropped (looked for only once the event's time passes the earliest
+    time any cluster could fall that low); the event joins the nearest live cluster (L-inf distance)
     whose capture box holds it (half sizes ``GROW sqrt(3 var)`` per axis,
     within ``radius .. max_radius`` px), else seeds a new one (when all
     ``K`` rows are taken, the never-visible cluster that took its last
@@ -202,6 +203,9 @@ def clusters_kernel(t, x, y, start, watermark, cl, ids, meta, par, table, counts
     r = 0
     i = start
     N = t.shape[0]
+    min_texp = np.inf  # no cluster can be pruned before this time (µs)
+    for k in range(n):
+        min_texp = min(min_texp, cl[k, TEXP])
     while i < N:
         ti = float(t[i])
         if update > 0.0:
@@ -222,22 +226,28 @@ def clusters_kernel(t, x, y, start, watermark, cl, ids, meta, par, table, counts
             return r, i, False
         ex = float(x[i])
         ey = float(y[i])
+        if ti > min_texp:  # some cluster may have decayed below the prune mass
+            k = 0
+            min_texp = np.inf
+            while k < n:
+                if cl[k, TEXP] < ti:
+                    m = cl[k, MASS] * _decay(ti - cl[k, TLAST], table, tau)
+                    if m < prune:
+                        n = _remove(cl, ids, k, n)
+                        counts[C_PRUNED] += 1
+                        continue
+                    cl[k, TEXP] = cl[k, TLAST] + tau * math.log(cl[k, MASS] / prune)  # the exact time
+                min_texp = min(min_texp, cl[k, TEXP])
+                k += 1
         best = -1
         bd = np.inf
-        k = 0
-        while k < n:
-            if cl[k, TEXP] < ti and cl[k, MASS] * _decay(ti - cl[k, TLAST], table, tau) < prune:
-                n = _remove(cl, ids, k, n)
-                counts[C_PRUNED] += 1
-                continue
+        for k in range(n):
             ax = abs(ex - cl[k, X])
             ay = abs(ey - cl[k, Y])
-            if ax * ax <= cl[k, RX] and ay * ay <= cl[k, RY]:
-                d = max(ax, ay)
-                if d < bd:
-                    bd = d
-                    best = k
-            k += 1
+            d = max(ax, ay)
+            if d < bd and ax * ax <= cl[k, RX] and ay * ay <= cl[k, RY]:
+                bd = d
+                best = k
         if best < 0:
             if n == K:
                 victim = -1
@@ -294,6 +304,7 @@ def clusters_kernel(t, x, y, start, watermark, cl, ids, meta, par, table, counts
                 cl[c, YREF] = cl[c, Y]
                 cl[c, TREF] = ti
         _refresh(cl, best, par)
+        min_texp = min(min_texp, cl[best, TEXP])
         if cl[best, TREF] == ti:  # a velocity sample (or a seed): time to look for clusters to merge with
             n, best = _merge(cl, ids, best, n, ti, par, table, counts)
         if ids[best] < 0 and cl[best, MASS] >= par[P_MIN_MASS]:

@@ -93,22 +93,23 @@ def blob_estimate(ring_t, ring_xy, n_written, T, window, blob_px, work):  # type
 
 
 @njit(cache=True, nogil=True)
-def led_kernel(t, x, y, p, start, watermark, pix, band_lo, band_hi, reject_lo, reject_hi, ring_t, ring_xy, ring_n,
-               meta, par, counts, work, out_t, out_m, out_xyq):  # type: ignore[no-untyped-def]
+def led_kernel(t, x, y, p, start, watermark, pix, bands, rejects,  # type: ignore[no-untyped-def]
+               ring_t, ring_xy, ring_n, meta, par, counts, work, out_tm, out_xyq):
     """Events ``start..`` then the output times before ``watermark`` (µs).
 
-    ``par`` = (update µs, window µs, blob_px, min_hits). At every multiple
-    ``T`` of ``update`` µs (from the first event on), once the events up to
-    ``T`` are in: one row per marker with at least ``min_hits`` observations
-    kept by :func:`blob_estimate` (``out_t`` = T, ``out_m`` = marker index,
-    ``out_xyq`` = x, y px and the kept count). Output times with no
+    ``bands`` (M, 2) and ``rejects`` (R, 2): the markers' and the rejected
+    lights' interval limits, µs. ``par`` = (update µs, window µs, blob_px,
+    min_hits). At every multiple ``T`` of ``update`` µs (from the first event
+    on), once the events up to ``T`` are in: one row per marker with at least
+    ``min_hits`` observations kept by :func:`blob_estimate` (``out_tm`` = T
+    and the marker's index, ``out_xyq`` = x, y px and the kept count). Output times with no
     observation in any marker's window are skipped at once (a gap in the
     stream costs nothing). Returns ``(rows, next event
     index, done)``; not done when the output could overflow (the caller
     resumes from that index with a fresh output)."""
-    M = band_lo.shape[0]
+    M = bands.shape[0]
     C = ring_t.shape[1]
-    cap = out_t.shape[0]
+    cap = out_tm.shape[0]
     update = par[0]
     window = par[1]
     blob_px = par[2]
@@ -138,8 +139,8 @@ def led_kernel(t, x, y, p, start, watermark, pix, band_lo, band_hi, reject_lo, r
             for m in range(M):
                 ex, ey, kept = blob_estimate(ring_t[m], ring_xy[m], ring_n[m], T, window, blob_px, work)
                 if kept >= min_hits:
-                    out_t[r] = T
-                    out_m[r] = m
+                    out_tm[r, 0] = T
+                    out_tm[r, 1] = m
                     out_xyq[r, 0] = ex
                     out_xyq[r, 1] = ey
                     out_xyq[r, 2] = kept
@@ -153,7 +154,7 @@ def led_kernel(t, x, y, p, start, watermark, pix, band_lo, band_hi, reject_lo, r
         if dt > 0:
             hit = -1
             for m in range(M):
-                if band_lo[m] <= dt <= band_hi[m]:
+                if bands[m, 0] <= dt <= bands[m, 1]:
                     hit = m
                     break
             if hit >= 0:
@@ -165,8 +166,8 @@ def led_kernel(t, x, y, p, start, watermark, pix, band_lo, band_hi, reject_lo, r
                 counts[C_OBSERVED] += 1
             else:
                 flick = False
-                for j in range(reject_lo.shape[0]):
-                    if reject_lo[j] <= dt <= reject_hi[j]:
+                for j in range(rejects.shape[0]):
+                    if rejects[j, 0] <= dt <= rejects[j, 1]:
                         flick = True
                 if flick:
                     counts[C_FLICKER] += 1

@@ -2,22 +2,31 @@
 in the style of jAER's rectangular cluster tracker (Delbruck & Lichtsteiner,
 ISCAS 2007, the robot goalie).
 
-Every event joins the nearest cluster whose centre lies within ``radius_px``
-on both axes (a square capture region), or seeds a new one. A cluster's
-centre moves ``mix`` of the way to each event it takes (after moving by its
-velocity over the time since its last event: ``predict``); its mass is a
+Every event joins the nearest cluster (L-inf distance) whose capture box
+holds it, or seeds a new one. A cluster's capture box has half sides of
+1.5 times the half width of a uniformly filled box with the cluster's
+variance per axis, within ``radius_px .. max_radius_px``: a new cluster
+captures ``radius_px`` about its seed and grows to its object (the factor
+above 1 lets it grow; ``max_radius_px`` keeps two objects that met from
+staying one cluster once they part). A cluster's centre moves ``mix`` of
+the way to each event it takes (after moving by its velocity over the time
+since its last event: ``predict``), its variances likewise; its mass is a
 count of its events decaying with time constant ``tau_us``, so ``mass /
 tau`` is its event rate; its velocity follows the centre's displacement,
-sampled every ``velocity_us`` and low-passed over ``velocity_tau_us``; two
-clusters whose centres come within ``merge * radius_px`` become one. A
-cluster is visible once its mass reaches ``min_mass`` (an event rate of
-``min_mass / tau_us``: 3,000 ev/s with the defaults) and takes the next id
-then, so noise that seeds short-lived clusters takes no ids; it is dropped
-when its mass decays below ``prune_mass``. At most ``max_clusters`` live at
-once: when full, the never-visible cluster that would expire first gives up
-its place. Width and height (px) are those of a uniformly filled box with
-the cluster's variance per axis (mixed like the centre): the extent of an
-object's events, not its outline.
+sampled every ``velocity_us`` of its events and low-passed over
+``velocity_tau_us``. At each velocity sample (and at its seed) a cluster
+merges with every cluster whose centre lies within ``merge`` times the
+larger of the two capture boxes into the heavier one, which keeps the older
+id. A cluster is visible once its mass reaches ``min_mass`` (an event rate
+of ``min_mass / tau_us``: 3,000 ev/s with the defaults) and takes the next
+id then, so noise that seeds short-lived clusters takes no ids; it is
+dropped when its mass decays below ``prune_mass``. At most ``max_clusters``
+live at once: when full, the never-visible cluster whose last event is
+oldest gives up its place. Width and height (px) are those of a uniformly
+filled box with the cluster's variance per axis: the extent of an object's
+events, not its outline. Choose ``radius_px`` about the objects' radius
+(the defaults suit objects of 6-10 px radius: a cluster seeded on one edge
+of an object must reach the opposite edge).
 
 Output (:class:`~tectum.ClusterPacket`: ``t, id, x, y, vx, vy, width,
 height, mass``; px, px/s, events): with ``update_us`` > 0, every visible
@@ -26,11 +35,12 @@ up to and including that time (a row comes out when an event or the
 watermark passes that time: event-to-output delay at most ``update_us`` in
 stream time); with ``update_us=0``, a row per event that lands in a visible
 cluster, at the event's time (the goalie's path: no delay, one row per
-event). Either way the rows depend on the events alone, never on how
-packets cut the stream.
+event). Rows of one time come by id. Either way the rows depend on the
+events alone, never on how packets cut the stream.
 
-Cost: per event one pass over the live clusters (comparisons only) and one
-exponential; state ``max_clusters x 14`` float64. Noise seeds clusters that
+Cost: per event one pass over the live clusters (comparisons only) and a
+table lookup for the mass decay; a pass more per velocity sample (merges);
+state ``max_clusters x 15`` float64. Noise seeds clusters that
 never become visible; at 2 Hz/px on 346x260 that is 180,000 seeds per second
 (each lives ``tau_us ln(1 / prune_mass)``), so a denoiser in front
 (``filter.background_activity``) keeps the cluster slots for objects.
@@ -73,8 +83,9 @@ class Clusters(Operator):
     Parameters
     ----------
     radius_px:
-        Half side of a cluster's capture square, px: an event joins a
-        cluster whose centre is at most this far on both axes.
+        Smallest half side of a cluster's capture box, px (a new cluster's).
+    max_radius_px:
+        Largest half side of a capture box, px.
     max_clusters:
         Live clusters at most (visible or not).
     mix:
@@ -93,7 +104,8 @@ class Clusters(Operator):
     velocity_tau_us:
         Velocity low-pass time constant, µs.
     merge:
-        Clusters whose centres are within ``merge * radius_px`` on both axes merge.
+        Clusters whose centres are within ``merge`` times the larger capture
+        box (per axis) merge.
     predict:
         Move the centre by its velocity before mixing in an event.
     """

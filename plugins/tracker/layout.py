@@ -95,7 +95,8 @@ def read_layout(path: str, min_markers: int = 4) -> MarkerLayout:
         return parse_layout(f.read(), path, min_markers)
 
 
-def check_bands(freqs: Sequence[float], tol: float, reject_hz: Sequence[float], source: str = "layout") -> None:
+def check_bands(freqs: Sequence[float] | np.ndarray, tol: float, reject_hz: Sequence[float],
+                source: str = "layout") -> None:
     """Each LED's frequency band ``f / (1 + tol) .. f (1 + tol)`` must not
     overlap another's nor hold a rejected (mains flicker) frequency:
     ValueError with the two frequencies otherwise."""

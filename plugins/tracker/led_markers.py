@@ -162,11 +162,10 @@ class LedMarkers(Operator):
             self.camera = camera_from(calib)
         self.ids = ids
         self.freqs = np.asarray(f, np.float64)
-        # bands as intervals, µs
-        self.band_lo = 1e6 / (self.freqs * (1 + tol))
-        self.band_hi = 1e6 * (1 + tol) / self.freqs
-        rej = np.asarray(reject_hz, np.float64)
-        self.reject_lo, self.reject_hi = 1e6 / (rej * (1 + tol)), 1e6 * (1 + tol) / rej
+        # bands as interval limits, µs
+        self.bands = np.stack([1e6 / (self.freqs * (1 + tol)), 1e6 * (1 + tol) / self.freqs], axis=1)
+        rej = np.asarray(reject_hz, np.float64).reshape(-1)
+        self.rejects = np.stack([1e6 / (rej * (1 + tol)), 1e6 * (1 + tol) / rej], axis=1)
         self.par = np.array([update_us, window_us, blob_px, min_hits], np.float64)
         self.max_reproj_px = float(max_reproj_px)
         M = len(f)
@@ -184,6 +183,7 @@ class LedMarkers(Operator):
     def warmup(self) -> None:
         twin = LedMarkers(**self.conformance_params)  # type: ignore[arg-type]
         stream = self.conformance_stream()
+        assert isinstance(stream, EventPacket)
         twin.process(stream)
         if self.layout is not None:
             solve_pose(self.layout.points, self.layout.points[:, :2] * 100 + 50, np.array(
@@ -199,12 +199,12 @@ class LedMarkers(Operator):
         parts, i = [], 0
         while True:
             cap = max(64, 4 * M)
-            ot, om, oq = np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty((cap, 3))
-            r, i, done = led_kernel(packet.t, packet.x, packet.y, packet.p, i, packet.t_end, self._pix, self.band_lo,
-                                    self.band_hi, self.reject_lo, self.reject_hi, self.ring_t, self.ring_xy,
-                                    self.ring_n, self.meta, self.par, self._counts, self._work, ot, om, oq)
+            otm, oq = np.empty((cap, 2), np.int64), np.empty((cap, 3))
+            r, i, done = led_kernel(packet.t, packet.x, packet.y, packet.p, i, packet.t_end, self._pix, self.bands,
+                                    self.rejects, self.ring_t, self.ring_xy, self.ring_n, self.meta, self.par,
+                                    self._counts, self._work, otm, oq)
             if r:
-                parts.append((ot[:r], om[:r], oq[:r]))
+                parts.append((otm[:r, 0], otm[:r, 1], oq[:r]))
             if done:
                 break
         for name, k in (("observations", C_OBSERVED), ("flicker", C_FLICKER), ("unmatched", C_UNMATCHED)):
