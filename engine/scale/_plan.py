@@ -6,10 +6,10 @@ reached when it was emitted (its watermark), and reads its sources from
 down onto the window grid counted from the stream's start. The first shard
 starts with the stream and the last ends with it, so their bounds are None
 (the sources' own ``t_start_us``/``t_end_us``, if any). Bounds are spread
-evenly over the stream's time span, which comes from the format's index or
-ends where it has them (:meth:`FileSource.time_span`: DAT's first and last
-records, DSEC's ``t`` dataset, AEDAT 4's packet table) and from one pass
-over the file otherwise.
+evenly over the stream's time span: its start is the first event packet's
+(exact: windows are counted from it), its end comes from the file's ends
+where the format allows (:meth:`FileSource.time_span`: DAT's last record,
+EVT 2.0's last time base) and from one pass over the file otherwise.
 """
 
 from __future__ import annotations
@@ -100,22 +100,31 @@ def stream_span(plan: Plan) -> tuple[tuple[int, int], float]:
 
 def span_of_source(cls: type, path: str, params: Mapping[str, Any]) -> tuple[int, int]:
     """First µs and µs after the last event of one file source with
-    ``params``, as one sequential run would see them: from the format's
-    index when it has one, by a pass over the file otherwise."""
-    src: Any = cls(path, **params)
+    ``params``, as one sequential run would see them. The start is exact
+    (windows are counted from it): the first event packet's start, from the
+    first chunk. The end only balances the shards: from the format's index
+    or ends when it has them (:meth:`FileSource.time_span`), by a pass over
+    the file otherwise."""
+    from tectum._packet import EventPacket
+
     lo, hi = params.get("t_start_us"), params.get("t_end_us")
+    src: Any = cls(path, **params)
     try:
-        span = src.time_span() if hasattr(src, "time_span") else None
-        if span is None:
-            first = last = None
-            for pkt in src.packets():
-                first = pkt.t_start if first is None else first
-                last = pkt.t_end
-            span = (first or 0, last or 0) if first is not None else (0, 0)
+        it = iter(src.packets())
+        first = next((p.t_start for p in it if isinstance(p, EventPacket)), None)
+        src.close()
+        if first is None:
+            return (int(lo or 0),) * 2
+        known = src.time_span() if hasattr(src, "time_span") else None
+        if known is not None:
+            end = known[1] + 1
         else:
-            span = (span[0], span[1] + 1)
+            end = first
+            src = cls(path, **params)
+            for pkt in src.packets():
+                end = max(end, pkt.t_end)
     finally:
         src.close()
-    a = int(lo) if lo is not None else span[0]
-    b = min(int(hi), span[1]) if hi is not None else span[1]
+    a = int(lo) if lo is not None else first
+    b = min(int(hi), end) if hi is not None else end
     return a, max(a, b)

@@ -196,32 +196,49 @@ class RawSource(FileSource):
         under 4.7 h)."""
         n = (f.seek(0, 2) - start) // 4
         want = t >> 6
-
-        def time_base_from(i: int) -> tuple[int, int] | None:
-            """(word index, raw time base) of the first TIME_HIGH at or after word ``i``."""
-            block = 1 << 14
-            while i < n:
-                f.seek(start + 4 * i)
-                words = np.frombuffer(f.read(4 * min(block, n - i)), "<u4")
-                hit = np.flatnonzero((words >> 28) == 8)
-                if hit.size:
-                    return i + int(hit[0]), int(words[hit[0]]) & 0x0FFFFFFF
-                i += words.shape[0]
-            return None
-
-        first = time_base_from(0)
-        last = time_base_from(max(0, n - (1 << 14)))
-        if first is None or last is None or last[1] < first[1] or first[1] >= want:
+        ends = self._time_base_ends(f, start, n)
+        if ends is None or ends[0][1] >= want:
             return start
-        lo, hi = first[0], n  # the time base at word lo is below want's; none at or after hi is
-        while hi - lo > 1 << 14:
+        lo, hi = ends[0][0], n  # the time base at word lo is below want's; none at or after hi is
+        while hi - lo > _PROBE_WORDS:
             mid = (lo + hi) // 2
-            hit = time_base_from(mid)
+            hit = _time_base_from(f, start, n, mid)
             if hit is None or hit[0] >= hi or hit[1] >= want:
                 hi = mid
             else:
                 lo = hit[0]
         return start + 4 * lo
+
+    def _time_base_ends(self, f: Any, start: int, n: int) -> tuple[tuple[int, int], tuple[int, int]] | None:
+        """The first and last (word index, raw time base) of an EVT 2.0
+        file of ``n`` words, or None when there is none or they show a wrap."""
+        first = _time_base_from(f, start, n, 0)
+        last = None
+        for i in range(max(0, n - _PROBE_WORDS), -1, -_PROBE_WORDS):  # the last block holding one
+            f.seek(start + 4 * i)
+            words = np.frombuffer(f.read(4 * min(_PROBE_WORDS, n - i)), "<u4")
+            hit = np.flatnonzero((words >> 28) == 8)
+            if hit.size:
+                last = i + int(hit[-1]), int(words[hit[-1]]) & 0x0FFFFFFF
+                break
+        if first is None or last is None or last[1] < first[1]:
+            return None
+        return first, last
+
+    def time_span(self) -> tuple[int, int] | None:
+        """EVT 2.0: from the first and last time bases (the last event lies
+        within 64 µs of the last one); None for EVT 3.0, which has no such
+        marks at its ends, or a file whose time wrapped."""
+        f = self._open()
+        try:
+            _, start, _ = self._header(f)
+            if self.evt_format != "evt2":
+                return None
+            ends = self._time_base_ends(f, start, (f.seek(0, 2) - start) // 4)
+        finally:
+            self.close()
+        off = self.t0_offset if self.apply_t0 else 0
+        return None if ends is None else (ends[0][1] * 64 + off, ends[1][1] * 64 + 63 + off)
 
     def _scan_extent(self, f: Any, start: int) -> tuple[int, int]:
         """No geometry in the file or options: the extent of the coordinates."""
@@ -298,6 +315,23 @@ class RawSource(FileSource):
         """A function giving each event's byte offset, by decoding ``words``
         again from ``state`` (called only when an event is bad)."""
         return lambda: at + self._decode(words, state.copy())[4] * np.dtype(self.word).itemsize
+
+
+#: Words an EVT 2.0 bisection probe reads (64 KB) looking for a TIME_HIGH word.
+_PROBE_WORDS = 1 << 14
+
+
+def _time_base_from(f: Any, start: int, n: int, i: int) -> tuple[int, int] | None:
+    """(word index, raw time base) of the first EVT 2.0 TIME_HIGH word at or
+    after word ``i`` of a file of ``n`` words from byte ``start``."""
+    while i < n:
+        f.seek(start + 4 * i)
+        words = np.frombuffer(f.read(4 * min(_PROBE_WORDS, n - i)), "<u4")
+        hit = np.flatnonzero((words >> 28) == 8)
+        if hit.size:
+            return i + int(hit[0]), int(words[hit[0]]) & 0x0FFFFFFF
+        i += words.shape[0]
+    return None
 
 
 class Evt2Source(RawSource):
