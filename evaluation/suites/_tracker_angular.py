@@ -221,22 +221,32 @@ def rotdisk(quick: bool) -> list[dict[str, Any]]:
     return rows
 
 
-def ecd(quick: bool) -> list[dict[str, Any]]:
+def _ecd_excerpt(name: str) -> tuple[Path, EventPacket, str] | None:
+    """An ECD excerpt of the shared data: its folder, events and inline
+    calibration, or None where it is absent."""
     data = shared_data()
+    folder = data / "ecd" / name if data else None
+    if folder is None or not (folder / "events.txt").exists():
+        return None
+    from tectum.sources.files import open_file
+
+    src = open_file(str(folder / "events.txt"))
+    try:
+        ev = concat([q for q in src.packets() if isinstance(q, EventPacket)])
+    finally:
+        src.close()
+    assert isinstance(ev, EventPacket)
+    return folder, ev, ";".join((folder / "calib.txt").read_text().split())
+
+
+def ecd(quick: bool) -> list[dict[str, Any]]:
     rows = []
     for name in ("shapes_rotation", "boxes_rotation"):
-        folder = data / "ecd" / name if data else None
-        if folder is None or not (folder / "events.txt").exists():
+        found = _ecd_excerpt(name)
+        if found is None:
             continue
-        from tectum.sources.files import open_file
-
-        src = open_file(str(folder / "events.txt"))
-        try:
-            ev = concat([q for q in src.packets() if isinstance(q, EventPacket)])
-        finally:
-            src.close()
-        vals = (folder / "calib.txt").read_text().split()
-        out, _lat, total = _estimate(ev, ";".join(vals), 10_000, 5_000)
+        _folder, ev, calib = found
+        out, _lat, total = _estimate(ev, calib, 10_000, 5_000)
         w = np.stack([out["wx"], out["wy"], out["wz"]], axis=1)
         rows.append({"case": f"ecd/{name} (no imu.txt in the excerpt: no truth)", "windows": len(out),
                      "mean_w": np.round(w.mean(axis=0), 2).tolist(), "confidence": float(np.mean(out["confidence"])),
@@ -274,20 +284,12 @@ def reference(quick: bool) -> tuple[list[dict[str, Any]], str]:
             rows.append({"case": f"sim {speed} deg/s", "impl": f"ST-PPP code, {method}",
                          **_score(got, _truth_per_window(got, ev, truth, REF_NE)),
                          "kev_s": REF_NE / float(np.median(ref.seconds)) / 1e3})
-    data = shared_data()
     for name in ("shapes_rotation",) if quick else ("shapes_rotation", "boxes_rotation"):
-        folder = data / "ecd" / name if data else None
-        if folder is None or not (folder / "events.txt").exists():
+        found = _ecd_excerpt(name)
+        if found is None:
             continue
-        from tectum.sources.files import open_file
-
-        src = open_file(str(folder / "events.txt"))
-        try:
-            ev = concat([q for q in src.packets() if isinstance(q, EventPacket)])
-        finally:
-            src.close()
-        op = AngularVelocity(calib=";".join((folder / "calib.txt").read_text().split()), window_events=REF_NE,
-                             step_events=REF_NE)
+        folder, ev, calib = found
+        op = AngularVelocity(calib=calib, window_events=REF_NE, step_events=REF_NE)
         mine = concat(op.process(ev.take(np.arange(REF_NE))) + op.finish())
         assert isinstance(mine, AngularVelocityPacket)
         row: dict[str, Any] = {"case": f"ecd/{name} (one window, no truth)",
