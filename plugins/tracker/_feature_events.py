@@ -107,9 +107,9 @@ def _align(k: int, trk: np.ndarray, ring: np.ndarray, cnt: np.ndarray, tg: np.nd
     dt = t_mid - trk[k, TM]
     trk[k, NA] += 1
     if dt > 0:
-        a = 1.0 if trk[k, NA] == 1 else 0.5  # smoothing of the velocity over successive windows
-        trk[k, VX] = (1 - a) * trk[k, VX] + a * (trk[k, X] - x0) / dt
-        trk[k, VY] = (1 - a) * trk[k, VY] + a * (trk[k, Y] - y0) / dt
+        mix = 1.0 if trk[k, NA] == 1 else 0.5  # smoothing of the velocity over successive windows
+        trk[k, VX] = (1 - mix) * trk[k, VX] + mix * (trk[k, X] - x0) / dt
+        trk[k, VY] = (1 - mix) * trk[k, VY] + mix * (trk[k, Y] - y0) / dt
         trk[k, TM] = t_mid
     return math.sqrt((trk[k, X] - x0) ** 2 + (trk[k, Y] - y0) ** 2)
 
@@ -123,8 +123,9 @@ def track_events(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, sta
     features; write one row per alignment into ``out_i`` (rows of t µs,
     id) and ``out_v`` (rows of x, y px, quality). ``ring`` (T, capacity,
     4) holds each feature's latest events (x, y, p, t), ``cnt`` (T, 3)
-    their number, the ring's head and the events since the last alignment. Stops before an event when
-    fewer than T rows are left; returns (rows written, next event)."""
+    their number, the ring's head and the events since the last
+    alignment. Stops before an event when fewer than T rows are left;
+    returns (rows written, next event)."""
     T = trk.shape[0]
     cap = ring.shape[1]
     half = int(prm[P_HALF])
