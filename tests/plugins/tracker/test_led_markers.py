@@ -254,3 +254,10 @@ def test_in_a_pipeline_with_inline_calib(tmp_path):
     p.sink(sink, led)
     tectum.run(p)
     assert {q.kind for q in sink.packets if len(q)} == {tectum.Kind.TRACKS, tectum.Kind.POSES}
+
+
+def test_poses_do_not_depend_on_how_packets_cut_the_stream(tmp_path):
+    ev = _body_events().slice_time(0, 12_000)
+    layout = _layout(tmp_path)
+    tectum.testing.assert_batch_invariant(lambda: LedMarkers(layout=layout, calib=BODY.calib), ev, max_examples=5,
+                                          event_by_event_check=False)
