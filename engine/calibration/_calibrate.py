@@ -198,8 +198,8 @@ def _views_or_fail(events: EventPacket, grid: Grid, period_us: float, min_views:
 def _solve(views: list[View], grid: Grid, size: tuple[int, int], model: Model, k3: bool,
            min_views: int) -> tuple[Solution, list[View]]:
     whole = [i for i, v in enumerate(views) if v.points is not None]
-    sol = solve_mono(grid.object_points().astype(np.float64), [views[i].points for i in whole  # type: ignore[misc]
-                                                               ], size, model=model, k3=k3, min_views=min_views)
+    pts = [v.points for v in views if v.points is not None]
+    sol = solve_mono(grid.object_points().astype(np.float64), pts, size, model=model, k3=k3, min_views=min_views)
     out = list(views)
     for k, i in enumerate(whole):
         status: Status = "used" if k in sol.used else "outlier"
