@@ -49,3 +49,14 @@ def test_blinking_checker_screen() -> None:
     c = cal.camera
     assert abs(c.fx / CAMERA.fx - 1) < 0.03 and abs(c.cx - CAMERA.cx) < 2 and abs(c.cy - CAMERA.cy) < 2
     assert cal.rms < 0.4 and len(cal.used) >= 5
+
+
+def test_reconstruct_gives_frames_from_events() -> None:
+    """``--reconstruct-us``: map.high_pass images every 20 ms, as frames."""
+    from tectum.calibration._frames import reconstruct
+
+    rec = record(Board(), 1, seed=23, still_us=60_000)
+    frames = reconstruct(rec.events, 20_000)
+    assert frames.images.shape == (3, 96, 128) and list(frames.t) == [19_999, 39_999, 59_999]  # at each window's last µs
+    lit = frames.images[-1][np.isfinite(frames.images[-1])]
+    assert lit.size > 0 and np.ptp(lit) > 0  # the dots show
