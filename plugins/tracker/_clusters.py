@@ -206,22 +206,28 @@ def clusters_kernel(t, x, y, start, watermark, cl, ids, meta, par, table, counts
     min_texp = np.inf  # no cluster can be pruned before this time (µs)
     for k in range(n):
         min_texp = min(min_texp, cl[k, TEXP])
-    while i < N:
-        ti = float(t[i])
+    while True:
+        ti = float(t[i]) if i < N else float(watermark)  # outputs are due before this time
         if update > 0.0:
-            if meta[2] < 0:
+            if meta[2] < 0 and i < N:
                 meta[2] = np.int64(math.ceil(ti / update) * update)
-            while meta[2] < ti:
+            while 0 <= meta[2] < ti:
                 if r + K > cap:
                     meta[0] = n
                     return r, i, False
                 T = float(meta[2])
                 r, horizon = _emit_grid(cl, ids, n, T, par, out_t, out_id, out, r)
                 nxt = T + update
-                if horizon < nxt:  # nothing visible until the next event: jump to its grid time
+                if horizon < nxt:  # nothing visible until the next event: on to its grid time
+                    if i >= N:
+                        meta[2] = -1  # (set when it comes)
+                        break
                     nxt = max(nxt, math.ceil(ti / update) * update)
                 meta[2] = np.int64(nxt)
-        elif r + 1 > cap:
+        if i >= N:
+            meta[0] = n
+            return r, N, True
+        if update == 0.0 and r + 1 > cap:
             meta[0] = n
             return r, i, False
         ex = float(x[i])
@@ -316,16 +322,3 @@ def clusters_kernel(t, x, y, start, watermark, cl, ids, meta, par, table, counts
             _row(cl, best, ti, par, out, r)
             r += 1
         i += 1
-    if update > 0.0 and meta[2] >= 0:
-        while meta[2] < watermark:
-            if r + K > cap:
-                meta[0] = n
-                return r, N, False
-            T = float(meta[2])
-            r, horizon = _emit_grid(cl, ids, n, T, par, out_t, out_id, out, r)
-            if horizon < T + update:  # nothing visible any more: wait for the next event
-                meta[2] = -1
-                break
-            meta[2] = np.int64(T + update)
-    meta[0] = n
-    return r, N, True
