@@ -167,8 +167,8 @@ def clusters_kernel(t, x, y, start, watermark, cl, ids, meta, par, table, counts
 
     Each event: clusters whose mass has decayed below the prune mass are
     dropped (looked for only once the event's time passes the earliest
-    time any cluster could fall that low); the event joins the nearest live cluster (L-inf distance)
-    whose capture box holds it (half sizes ``GROW sqrt(3 var)`` per axis,
+    time any cluster could fall that low); the event joins the nearest live
+    cluster (L-inf distance) whose capture box holds it (half sizes ``GROW sqrt(3 var)`` per axis,
     within ``radius .. max_radius`` px), else seeds a new one (when all
     ``K`` rows are taken, the never-visible cluster that took its last
     event longest ago is evicted; with none, the event is left out). The
@@ -176,7 +176,7 @@ def clusters_kernel(t, x, y, start, watermark, cl, ids, meta, par, table, counts
     its velocity over the gap (prediction on) and then by ``mix`` of the way
     to the event; its variances per axis mix the same way; every
     ``vel_dt`` µs its velocity mixes towards the centre's displacement rate
-    by ``dt / (dt + vel_tau)``, and then (and when it is seeded) it merges
+    by ``dt / (dt + vel_tau)`` (the first sample sets it), and then (and when it is seeded) it merges
     with clusters whose centre lies within ``merge`` times the larger of the
     two capture boxes (so merges wait at most ``vel_dt`` µs of the cluster's
     events, and cost one pass per sample instead of one per event). A
