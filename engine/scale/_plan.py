@@ -105,10 +105,12 @@ def span_of_source(cls: type, path: str, params: Mapping[str, Any]) -> tuple[int
     first chunk. The end only balances the shards: from the format's index
     or ends when it has them (:meth:`FileSource.time_span`), by a pass over
     the file otherwise."""
+    from tectum._operator import component_params
     from tectum._packet import EventPacket
 
     lo, hi = params.get("t_start_us"), params.get("t_end_us")
-    src: Any = cls(path, **params)
+    small = {"chunk_bytes": 1 << 16} if "chunk_bytes" in component_params(cls) else {}
+    src: Any = cls(path, **{**params, **small})  # the first packet only: a small chunk
     try:
         it = iter(src.packets())
         first = next((p.t_start for p in it if isinstance(p, EventPacket)), None)

@@ -149,8 +149,9 @@ def run_many(pipelines: Sequence[Pipeline], *, shards: int | None = None, execut
         joiner = _Joiner(jobs, ready)
         joiner.start()
         done_jobs = 0
+        results = ex.run(tasks)
         try:
-            for res in ex.run(tasks):
+            for res in results:
                 job = jobs[res.job]
                 with ready:
                     job.results[res.index] = res
@@ -167,6 +168,9 @@ def run_many(pipelines: Sequence[Pipeline], *, shards: int | None = None, execut
             joiner.fail(str(e) or type(e).__name__)
             raise
         finally:
+            stop = getattr(results, "close", None)  # a generator: the executor stops, running shards end
+            if stop is not None:
+                stop()
             joiner.join()
         if joiner.error is not None:
             raise joiner.error
