@@ -105,7 +105,8 @@ def peer_targets(quick: bool) -> tuple[list[dict[str, Any]], list[dict[str, Any]
         return [], []
     bw = memory_bandwidth()
     print(f"memory copy bandwidth now: {bw / 1e9:.1f} GB/s (read + write)")
-    rows, targets = [], []
+    rows: list[dict[str, Any]] = []
+    targets: list[dict[str, Any]] = []
     repeat = 3 if quick else 7
     for fmt, goal in GOALS.items():
         path = shared / FILES[fmt]
@@ -134,6 +135,7 @@ def peer_targets(quick: bool) -> tuple[list[dict[str, Any]], list[dict[str, Any]
             rec = versus(f"{fmt} decode", r["tectum"], r[best], goal, clock=clock, peer_name=best)
             targets.append(rec)
             if not rec["met"] and r[best][key] * goal > limit / 1.5:  # 2x is past the bandwidth: within 1.5x of it
+                rec["name"] += f" [{goal:g}x = {r[best][key] * goal:.0f} Mev/s is past the memory limit: next row]"
                 lim = target(f"{fmt} decode within 1.5x of the memory limit {limit:.0f} Mev/s "
                              f"({path.stat().st_size / n:.1f} + {COLUMN_BYTES} B/event at {bw / 1e9:.1f} GB/s) "
                              f"({clock})", r["tectum"][key], limit / 1.5, "Mev/s")
