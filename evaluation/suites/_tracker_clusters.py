@@ -23,6 +23,8 @@ scored against the renderer's own object positions.
   (packets of 100 µs with a row per event, ``update_us=0``, the goalie's
   path; packets of 1 ms with rows every ms): stream-time wait plus the
   packet's processing time, p50/p99.
+* chart (with matplotlib): ``tracker_clusters_failure_map.png``, the
+  failure map's rows as bars.
 * speed: Mev/s per CPU second on 1 s of 346x260 (three disks at
   1000 px/s, realistic noise), denoised as advised and raw, one core.
 """
@@ -92,6 +94,33 @@ def _failure_map(quick: bool, dur: int) -> list[dict[str, Any]]:
     return rows
 
 
+def failure_chart(out: Path, name: str, title: str, rows: list[dict[str, Any]], metrics: list[str]) -> None:
+    """A failure map as a picture: one panel of horizontal bars per metric,
+    one bar per case (missing values left blank); ``out/NAME.png``. Needs
+    matplotlib (the ``charts`` extra); without it, nothing."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return
+    cases = [str(r["case"]) for r in rows]
+    fig, axes = plt.subplots(1, len(metrics), figsize=(3.2 * len(metrics) + 3, 0.35 * len(cases) + 1.5), sharey=True)
+    for ax, m in zip(np.atleast_1d(axes), metrics):
+        vals = np.array([float(r.get(m, np.nan)) for r in rows])
+        ax.barh(range(len(cases)), np.nan_to_num(vals, nan=0.0), color="tab:blue")
+        ax.set_title(m)
+    first = np.atleast_1d(axes)[0]
+    first.set_yticks(range(len(cases)), cases)
+    first.invert_yaxis()  # (shared: once for all) the first case on top
+    fig.suptitle(title)
+    fig.tight_layout()
+    out.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out / f"{name}.png", dpi=100)
+    plt.close(fig)
+
+
 def _latency(ev: EventPacket) -> list[dict[str, Any]]:
     from tectum.plugins.tracker.clusters import Clusters
 
@@ -115,6 +144,8 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
     rows = [main, *_failure_map(quick, dur)]
     print(table(rows, COLS))
     print("(3 disks of 8 px radius on 240x180 unless stated; 'denoised': filter.background_activity dt_us=3000)")
+    failure_chart(out, "tracker_clusters_failure_map", "tracker.clusters: failure map", rows,
+                  ["median_px", "coverage", "false_rows", "switches_per_s"])
 
     _, big = _events(1000, 1_000_000 if not quick else 300_000, sensor=(346, 260))
     lat_rows = _latency(big)

@@ -26,6 +26,7 @@ about 500 Hz gives events at all (measured: none of the five).
 * failure map: speed, shot noise (0.2 to 10 Hz/px), flicker lamps (none,
   one at 100 Hz, three at 100 Hz, one at 120 Hz: 60 Hz mains, not in the
   default rejected bands but in no LED's band either).
+* chart (with matplotlib): ``tracker_leds_failure_map.png``.
 * latency (1 ms packets: stream-time wait plus processing, p50/p99) and
   speed (Mev/s per CPU second, one core) on a busy stream (20 Hz/px of shot
   noise added: the body alone gives about 0.5 Mev/s, where the per-update
@@ -44,6 +45,7 @@ import numpy as np
 from tectum import EventPacket, PosePacket, TrackPacket, concat
 from tectum.evaluation.harness import table, target, throughput
 from tectum.evaluation.metrics.tracking import id_accuracy, output_latencies, pose_errors
+from tectum.evaluation.suites._tracker_clusters import failure_chart
 
 POINTS = ((0, 0, 0), (0.24, 0, 0), (0.24, 0.18, 0), (0, 0.18, 0.06), (0.12, 0.09, 0.1))
 FREQS = (800.0, 1050.0, 1400.0, 1850.0, 2450.0)
@@ -144,6 +146,8 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
     for name, ls in (lamps.items() if not quick else list(lamps.items())[1:2]):
         rows.append(_score(name, _body(lamps=ls), _events(_body(lamps=ls), dur)))
     print(table(rows, COLS))
+    failure_chart(out, "tracker_leds_failure_map", "tracker.led_markers: failure map", rows,
+                  ["id_acc", "median_px", "coverage", "trans_mm", "rot_deg"])
     top_f = _highest(freq_rows, [FREQS[-1] * s for s in scales])
     top_v = _highest(speed_rows, [v * 220 / 0.8 for v in speeds])
     print(f"highest LED frequency that works: {top_f:.0f} Hz; highest image speed that works: {top_v:.0f} px/s "
