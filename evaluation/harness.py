@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["throughput", "interleaved", "versus", "peer", "table", "target", "target_row", "targets_table",
-           "markdown_targets", "write_results", "shared_data", "memory_bandwidth"]
+           "write_results", "shared_data", "memory_bandwidth"]
 
 #: columns of :func:`targets_table`
 TARGET_COLUMNS = ["measure", "value", "unit", "target", "met"]
@@ -157,17 +157,6 @@ def target_row(rec: dict[str, Any]) -> dict[str, Any]:
 def targets_table(records: Sequence[dict[str, Any]]) -> str:
     """:func:`target` records as a text table, one line each with met/MISSED."""
     return table([target_row(r) for r in records], TARGET_COLUMNS)
-
-
-def markdown_targets(records: Sequence[dict[str, Any]]) -> str:
-    """:func:`target` records as a Markdown table (what the README's speed
-    table is made of): measure, value (a ratio with its spread), target,
-    met or MISSED."""
-    lines = ["| measure | value | target | met |", "|---|---|---|---|"]
-    for r in map(target_row, records):
-        value = r["value"] if isinstance(r["value"], str) else _fmt(float(r["value"]))
-        lines.append(f"| {r['measure']} | {value} {r['unit']} | {r['target']} | {r['met']} |")
-    return "\n".join(lines)
 
 
 def run_parts(suite: str, parts: Sequence[str], out: Path, quick: bool) -> dict[str, Any]:

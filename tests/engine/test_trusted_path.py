@@ -13,8 +13,8 @@ import pytest
 
 import tectum
 from tectum import EventPacket, NodeError, PacketError, Pipeline, Source
-from tectum.testing import ListSink, ListSource, assert_streams_equal, feed
 from tectum.plugins.filter import BackgroundActivity
+from tectum.testing import ListSink, ListSource, assert_streams_equal, feed
 
 
 def events(n: int = 50, sensor: tuple[int, int] = (16, 12)) -> EventPacket:
