@@ -4,8 +4,10 @@ A pixel that sees a dot blinking at period ``T`` µs gives a burst of ON
 events when the dot lights and a burst of OFF events ``duty·T`` later when it
 goes dark. As rpg_dvs_ros's calibration does, a *transition* is counted when
 a pixel's first OFF event comes between ``(1 - tol)·duty·T`` and
-``(1 + tol)·duty·T`` after its last ON event; a pixel blinks when it makes
-a transition in at least ``min_fraction`` of the periods of a window.
+``(1 + tol)·duty·T`` after the first ON event of its burst (first to first:
+timestamp jitter spreads both bursts alike, where last ON to first OFF
+would shorten the gap by about twice the jitter); a pixel blinks when it
+makes a transition in at least ``min_fraction`` of the periods of a window.
 Shot noise (an ON then an OFF within that gap, a few Hz per pixel) and mains
 flicker (one ON→OFF cycle per 10 or 20 ms, against one per ``T``) stay far
 below that fraction unless ``T`` is itself the flicker period.
@@ -41,15 +43,16 @@ __all__ = ["transition_kernel", "transition_map", "Blobs", "blobs", "still_spans
 def transition_kernel(t, x, y, p, width, lo_us, hi_us, last_on, burst, transitions, weight):  # type: ignore[no-untyped-def]
     """Count ON→OFF transitions per pixel (flat ``y * width + x``).
 
-    ``last_on`` (int64, -1: none) the time of each pixel's last ON event and
-    ``burst`` (int32) the ON events since its last OFF: state kept across
-    calls. A pixel's first OFF event ``lo_us <= dt <= hi_us`` after its last
-    ON event adds 1 to ``transitions`` and the burst's ON events to
-    ``weight``."""
+    ``last_on`` (int64, -1: none) the time of the first ON event of each
+    pixel's current burst (the ON events since its last OFF event) and
+    ``burst`` (int32) their number: state kept across calls. A pixel's first
+    OFF event ``lo_us <= dt <= hi_us`` after its burst's first ON event
+    adds 1 to ``transitions`` and the burst's ON events to ``weight``."""
     for i in range(t.shape[0]):
         k = np.int64(y[i]) * width + x[i]
         if p[i] > 0:
-            last_on[k] = t[i]
+            if burst[k] == 0:
+                last_on[k] = t[i]
             burst[k] += 1
         else:
             if last_on[k] >= 0:

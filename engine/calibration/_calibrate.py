@@ -178,6 +178,12 @@ def _views_or_fail(events: EventPacket, grid: Grid, period_us: float, min_views:
     hz = 1e6 / period_us
     if not views:
         tr, _ = transition_map(events, period_us, kw.get("duty", 0.5), kw.get("tol", 0.25))
+        blinking = int(np.count_nonzero(tr >= 3))
+        if blinking >= 10:
+            raise CalibrationError(
+                f"0 still views at {hz:.1f} Hz: {blinking} pixels blink, but the pattern never held still for "
+                f"{kw.get('window_periods', 5) * 4} periods with the same dots (the board or camera kept moving, or "
+                "timestamps jitter by more than a tenth of the ON time)")
         raise CalibrationError(
             f"no blinking found at {hz:.1f} Hz: 0 still views ({int(np.count_nonzero(tr))} pixels with any ON→OFF "
             f"transition at that period in {len(events):,} events); check --frequency and that the pattern blinks")

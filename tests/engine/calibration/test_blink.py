@@ -18,7 +18,8 @@ def reference_transitions(ev: EventPacket, period_us: float, duty: float = 0.5, 
             last, burst = None, 0
             for t, p in zip(ev.t[sel], ev.p[sel], strict=True):
                 if p > 0:
-                    last, burst = t, burst + 1
+                    last = t if burst == 0 else last  # the burst's first ON event
+                    burst += 1
                     continue
                 if last is not None and (1 - tol) * on <= t - last <= (1 + tol) * on:
                     trans[y, x] += 1

@@ -124,3 +124,23 @@ def test_no_blinking() -> None:
         tectum.calibrate(ev, (7, 5), 0.03, frequency_hz=250)
     with pytest.raises(CalibrationError, match="no blinking found"):
         tectum.calibrate(ev.select(ev.p < 0), (7, 5), 0.03)  # no ON events: no period to find
+
+
+def test_blinking_that_never_holds_still() -> None:
+    """Dots that blink at 250 Hz but jump every 20 ms: blinking is found, no still view."""
+    ts, xs, ys, ps = [], [], [], []
+    for k in range(250):  # 1 s
+        t0 = k * 4000
+        shift = 3 * (t0 // 20_000) % 90
+        for x in range(10 + shift, 14 + shift):
+            for y in range(40, 44):
+                ts += [t0, t0 + 2000]
+                xs += [x, x]
+                ys += [y, y]
+                ps += [1, -1]
+    order = np.argsort(ts, kind="stable")
+    ev = tectum.EventPacket.from_arrays(np.array(ts)[order], np.array(xs)[order], np.array(ys)[order],
+                                        np.array(ps)[order], sensor=(128, 96))
+    with pytest.raises(CalibrationError, match=r"0 still views at 250\.0 Hz: \d+ pixels blink, but the pattern "
+                                               r"never held still for 20 periods"):
+        tectum.calibrate(ev, (7, 5), 0.03)
