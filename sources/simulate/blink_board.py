@@ -15,8 +15,10 @@ board plane, so the image holds exactly what a camera with ``camera.K`` and
 
 Events come from the simulator's DVS pixel model (:func:`.dvs.dvs_step`,
 per-pixel thresholds with spread ``sigma_c``), sampled at every corner of
-the blink waveform (exact for a piecewise linear log-intensity... up to the
-log of a linear ramp) and ``flicker_samples`` times per flicker period.
+the blink waveform (between corners the intensity is a linear ramp, whose
+log the pixel model takes as linear: event times within an edge of
+``rise_us`` are approximate, the edges' order is exact) and
+``flicker_samples`` times per flicker period.
 Non-idealities: shot noise ``noise_hz`` events per pixel per second (random
 polarity), mains flicker ``flicker_hz`` of depth ``flicker_depth`` on part of
 the background (a lamp), and Gaussian
@@ -243,8 +245,8 @@ def simulate_board(camera: Camera, board: Board, R: np.ndarray, t: np.ndarray, *
     ``sigma_c``; ``noise_hz`` shot-noise events per pixel per second;
     ``flicker_hz`` mains flicker (50/100 Hz) of depth ``flicker_depth``
     (light times ``1 + depth sin 2πft``) on the background of the right
-    ``flicker_width`` of the image (a lamp behind the board); ``jitter_us`` standard
-    deviation of Gaussian timestamp jitter (µs); intensities ``dark``,
+    ``flicker_width`` of the image (a lamp behind the board); ``jitter_us``
+    the standard deviation of Gaussian timestamp jitter; intensities ``dark``,
     ``board_level``, ``led`` linear, full scale 1."""
     R, t = np.asarray(R, np.float64).reshape(-1, 3, 3), np.asarray(t, np.float64).reshape(-1, 3)
     if len(R) == 0 or len(R) != len(t):
