@@ -335,6 +335,21 @@ class Graph:
             rec.routes = tuple(routes)
         self._recs = recs
 
+    def joinable(self, node_id: str) -> bool:
+        """True when packets pushed at ``node_id`` may be joined before they
+        go in: no operator below it acts on ticks (``on_tick`` runs after
+        each input packet, so its calls would change)."""
+        todo, seen = [node_id], set()
+        while todo:
+            nid = todo.pop()
+            if nid in seen:
+                continue
+            seen.add(nid)
+            if self._recs[nid].ticks:
+                return False
+            todo += self.plan.nodes[nid].children
+        return True
+
     def _emit(self, rec: _Node, pkt: Packet, out: list[Delivery]) -> None:
         if rec.tapped:
             out.append(("tap:" + rec.id, pkt))

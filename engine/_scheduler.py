@@ -310,7 +310,9 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
     try:
         source = node.instantiate()
         pacer = _Pacer(batch) if batch.pace is not None and not source.live else None
-        small = 0 if source.live else _SMALL  # a live source's packets go in as they come
+        # a live source's packets go in as they come, and so do those of a
+        # source feeding an operator that acts on each packet's tick
+        small = _SMALL if not source.live and graph.joinable(sid) else 0
         clock = time.perf_counter
         push, add = graph.push, out.add
         last_yield = clock()
@@ -330,7 +332,8 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                 # As fast as possible: yield to the other tasks (sinks) every
                 # _SLICE_S of work, not per packet: a task switch costs more
                 # than pushing one event through the operators. Small event
-                # packets are joined (up to max_events) before they go in:
+                # packets are joined (up to max_events) before they go in
+                # (not for live sources, nor above an operator with on_tick):
                 # operators give the same output however the stream is cut,
                 # and a packet costs the engine and each operator a few µs
                 # whatever its size. (Arrival is read once per packet and
