@@ -155,6 +155,32 @@ def _tectum_ops() -> dict[str, Callable[[], Any]]:
     }
 
 
+def _dv_runs(dv: Any, stores: list[Any]) -> dict[str, Callable[[], None]]:
+    """dv-processing's undistortion, edge-map accumulator and time surface
+    over ``stores`` (one frame generated per store), by operation name."""
+    k = CAMERA.K
+    geom = dv.camera.CameraGeometry(list(CAMERA.D), k[0, 0], k[1, 1], k[0, 2], k[1, 2], SENSOR,
+                                    dv.camera.DistortionModel.RADIAL_TANGENTIAL)
+
+    def undistort() -> None:
+        for s in stores:
+            geom.undistortEvents(s)
+
+    def frame() -> None:
+        acc = dv.EdgeMapAccumulator(SENSOR)
+        for s in stores:
+            acc.accept(s)
+            acc.generateFrame()
+
+    def surface() -> None:
+        ts = dv.TimeSurface(SENSOR)
+        for s in stores:
+            ts.accept(s)
+            ts.generateFrame()
+
+    return {"undistort": undistort, "event_frame": frame, "time_surface": surface}
+
+
 def _peer_ops(ev: EventPacket, pieces: list[EventPacket], quick: bool) -> list[tuple[str, str, Callable[[], Any], int]]:
     """(operation, peer, fn, events processed) for every peer that imports."""
     out: list[tuple[str, str, Callable[[], Any], int]] = []
@@ -164,35 +190,11 @@ def _peer_ops(ev: EventPacket, pieces: list[EventPacket], quick: bool) -> list[t
     if dv is not None:
         stores = _dv_stores(dv, pieces)
 
-        def dv_ba() -> None:
-            f = _dv_ba(dv, SENSOR, 6000)
-            for s in stores:
-                f.accept(s)
-                f.generateEvents()
-
-        model = dv.camera.DistortionModel.RADIAL_TANGENTIAL
-        k = CAMERA.K
-        geom = dv.camera.CameraGeometry(list(CAMERA.D), k[0, 0], k[1, 1], k[0, 2], k[1, 2], SENSOR, model)
-
-        def dv_undistort(stores: list[Any] = stores) -> None:
-            for s in stores:
-                geom.undistortEvents(s)
-
-        def dv_frame(stores: list[Any] = stores) -> None:
-            acc = dv.EdgeMapAccumulator(SENSOR)
-            for s in stores:
-                acc.accept(s)
-                acc.generateFrame()
-
-        def dv_surface(stores: list[Any] = stores) -> None:
-            ts = dv.TimeSurface(SENSOR)
-            for s in stores:
-                ts.accept(s)
-                ts.generateFrame()
-
-        out += [("background_activity", "dv-processing", dv_ba, n), ("undistort", "dv-processing", dv_undistort, n),
-                ("event_frame", "dv-processing (EdgeMapAccumulator)", dv_frame, n),
-                ("time_surface", "dv-processing (TimeSurface, no decay)", dv_surface, n)]
+        runs = _dv_runs(dv, stores)
+        out += [("background_activity", "dv-processing", _dv_ba_fn(dv, stores, SENSOR, 6000), n),
+                ("undistort", "dv-processing", runs["undistort"], n),
+                ("event_frame", "dv-processing (EdgeMapAccumulator)", runs["event_frame"], n),
+                ("time_surface", "dv-processing (TimeSurface, no decay)", runs["time_surface"], n)]
     tonic = peer("tonic.functional")
     if tonic is not None:
         tdt = np.dtype([("x", "<i2"), ("y", "<i2"), ("t", "<i8"), ("p", "<i1")])
@@ -336,9 +338,6 @@ def peer_targets(ev: EventPacket, quick: bool) -> tuple[list[dict[str, Any]], li
         return [], []
     rows, targets = [], []
     repeat = 3 if quick else 7
-    model = dv.camera.DistortionModel.RADIAL_TANGENTIAL
-    k = CAMERA.K
-    geom = dv.camera.CameraGeometry(list(CAMERA.D), k[0, 0], k[1, 1], k[0, 2], k[1, 2], SENSOR, model)
     for rate in TARGET_RATES:
         rev = at_rate(ev, rate)
         pieces = chunks(rev)
@@ -347,26 +346,11 @@ def peer_targets(ev: EventPacket, quick: bool) -> tuple[list[dict[str, Any]], li
             (f"BA dt {dt // 1000} ms", _pipeline(partial(BackgroundActivity, dt_us=dt), pieces),
              _dv_ba_fn(dv, stores, SENSOR, dt)) for dt in TARGET_DTS]
 
-        def dv_frame(stores: list[Any] = stores) -> None:
-            acc = dv.EdgeMapAccumulator(SENSOR)
-            for s in stores:
-                acc.accept(s)
-                acc.generateFrame()
-
-        def dv_surface(stores: list[Any] = stores) -> None:
-            ts = dv.TimeSurface(SENSOR)
-            for s in stores:
-                ts.accept(s)
-                ts.generateFrame()
-
-        def dv_undistort(stores: list[Any] = stores) -> None:
-            for s in stores:
-                geom.undistortEvents(s)
-
-        cases += [("event frame", _pipeline(partial(EventFrame, window_us=CHUNK_US), pieces), dv_frame),
+        runs = _dv_runs(dv, stores)
+        cases += [("event frame", _pipeline(partial(EventFrame, window_us=CHUNK_US), pieces), runs["event_frame"]),
                   ("time surface", _pipeline(partial(TimeSurface, window_us=CHUNK_US, tau_us=50_000.0), pieces),
-                   dv_surface),
-                  ("undistort", _pipeline(partial(Undistort, camera=CAMERA), pieces), dv_undistort)]
+                   runs["time_surface"]),
+                  ("undistort", _pipeline(partial(Undistort, camera=CAMERA), pieces), runs["undistort"])]
         for what, ours, theirs in cases:
             r = interleaved({"tectum": ours, "dv": theirs}, len(rev), repeat=repeat)
             for clock in ("wall", "cpu"):
@@ -593,13 +577,8 @@ def setting_speeds(ev: EventPacket, quick: bool) -> list[dict[str, Any]]:
     if dv is not None:
         stores = _dv_stores(dv, pieces)
         for dt in BA_DTS:
-            def fn(dt: int = dt) -> None:
-                f = _dv_ba(dv, ev.sensor, dt)
-                for s in stores:
-                    f.accept(s)
-                    f.generateEvents()
             rows.append({"filter": "dv-processing BA", "dt_us": dt,
-                         "mev_s": throughput(fn, len(ev), repeat=2)["mev_s"]})
+                         "mev_s": throughput(_dv_ba_fn(dv, stores, ev.sensor, dt), len(ev), repeat=2)["mev_s"]})
     return rows
 
 
