@@ -178,7 +178,8 @@ class LedMarkers(Operator):
         self.counts = {"observations": 0, "flicker": 0, "unmatched": 0, "poses": 0, "poses_rejected": 0,
                        "too_few_leds": 0}
         self._pix: np.ndarray | None = None
-        self._mark: int | None = None
+        self._mark: int | None = None  # start of the next track packet's interval, µs
+        self._pose_mark: int | None = None  # the same for poses (updates without a pose give none)
 
     def warmup(self) -> None:
         twin = LedMarkers(**self.conformance_params)  # type: ignore[arg-type]
@@ -216,9 +217,13 @@ class LedMarkers(Operator):
         out: list[Packet] = [TrackPacket(ot, id=self.ids[om], x=oq[:, 0], y=oq[:, 1], quality=oq[:, 2],
                                          t_start=mark, t_end=packet.t_end)]
         if self.layout is not None:
-            poses = self._poses(ot, om, oq[:, :2], mark, packet.t_end)
+            start = mark if self._pose_mark is None else self._pose_mark
+            poses = self._poses(ot, om, oq[:, :2], start, packet.t_end)
             if poses is not None:
                 out.append(poses)
+                self._pose_mark = packet.t_end
+            elif self._pose_mark is None:
+                self._pose_mark = mark  # the pose stream's intervals start where the tracks' do
         return out
 
     def _poses(self, t: np.ndarray, m: np.ndarray, xy: np.ndarray, t0: int, t1: int) -> PosePacket | None:
