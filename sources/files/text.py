@@ -121,11 +121,15 @@ def parse_lines(buf, order, digits, state, skip, t, x, y, p, where, bad):  # typ
                 i += 1
             ip = np.int64(0)
             nd = 0
+            over = False  # the whole part does not fit int64 (it stops growing)
             while 48 <= _at(buf, i) <= 57:
-                ip = ip * 10 + (_at(buf, i) - 48)
+                d = _at(buf, i) - 48
+                if ip < 922337203685477580 or (ip == 922337203685477580 and d <= 7):
+                    ip = ip * 10 + d
+                else:
+                    over = True
                 i += 1
                 nd += 1
-            nint = nd
             frac = np.int64(0)
             fd = 0
             up = 0
@@ -155,10 +159,10 @@ def parse_lines(buf, order, digits, state, skip, t, x, y, p, where, bad):  # typ
             if nd == 0 or not (c == 10 or _sep(c)) or col >= 4:
                 code = 1
                 break
-            if order[col] == 0 and (nint > 18 or ip >= big):  # int64 µs would wrap
+            if order[col] == 0 and (over or ip >= big):  # int64 µs would wrap
                 code = 5
                 break
-            if nint > 18:  # a coordinate or polarity far out of range: kept from wrapping
+            if over:  # a coordinate or polarity far out of range: kept from wrapping
                 code = 4 if order[col] == 3 else 3
                 break
             f = order[col]
@@ -170,9 +174,10 @@ def parse_lines(buf, order, digits, state, skip, t, x, y, p, where, bad):  # typ
                     for _ in range(digits - min(fd, digits)):
                         frac *= 10
                     v += frac + up
-                else:
-                    for _ in range(-digits):
+                else:  # below 1 µs: rounds half up on the first dropped digit
+                    for _ in range(-digits - 1):
                         v //= 10
+                    v = v // 10 + (1 if v % 10 >= 5 else 0)
                 tv = -v if neg else v
             else:
                 if nzfrac:
@@ -348,10 +353,13 @@ class TextSource(FileSource):
                     return
                 if not buf.endswith(b"\n"):
                     buf += b"\n"  # last line without a newline
-            if first:
+            if first:  # the header: the first line that is no comment nor blank, if it has letters
                 first = False
+                k = 0
                 nl = buf.find(b"\n")
-                if nl >= 0 and re.search(rb"[A-Za-z]", buf[:nl]) and not buf.startswith((b"#", b"%")):
+                while nl >= 0 and (buf.startswith((b"#", b"%"), k) or not buf[k:nl].strip()):
+                    k, nl = nl + 1, buf.find(b"\n", nl + 1)
+                if nl >= 0 and re.search(rb"[A-Za-z]", buf[k:nl]):
                     pos += nl + 1
                     buf = buf[nl + 1:]
             arr = np.frombuffer(buf, np.uint8)
