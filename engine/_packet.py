@@ -291,6 +291,7 @@ class EventPacket(Packet):
     p: np.ndarray
     sensor: tuple[int, int]
     columns: Mapping[str, np.ndarray]
+    _checked: bool
 
     def __init__(
         self,

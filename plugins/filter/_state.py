@@ -36,7 +36,7 @@ def compact_kernel(t, x, y, p, keep, ot, ox, oy, op, idx, want_idx):  # type: ig
         op[n] = p[i]
         if want_idx:
             idx[n] = i
-        n += np.intp(keep[i])
+        n += keep[i]
     return n
 
 

@@ -77,7 +77,7 @@ def background_activity_select(t, x, y, p, last, base, dt_us, ot, ox, oy, op, id
         op[n] = p[i]
         if want_idx:
             idx[n] = i
-        n += np.intp(ok)
+        n += int(ok)
         m[yy, xx] = ti - base
     return n
 
