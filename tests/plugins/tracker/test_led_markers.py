@@ -266,6 +266,6 @@ def test_poses_do_not_depend_on_how_packets_cut_the_stream(tmp_path):
 def test_pose_packets_are_back_to_back_when_some_updates_have_no_pose(tmp_path):
     ev = _body_events().slice_time(0, 20_000)
     op = LedMarkers(layout=_layout(tmp_path), calib=BODY.calib)
-    poses = [q for q in feed(op, list(ev.batches(500))) if isinstance(q, PosePacket)]  # no pose in the first window
+    poses = [q for q in feed(op, list(ev.batches(20))) if isinstance(q, PosePacket)]  # most packets: no output time
     assert len(poses) > 3 and poses[0].t_start == 0
     tectum.testing.assert_stream_contract(poses)
