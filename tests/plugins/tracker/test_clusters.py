@@ -30,7 +30,7 @@ class _Ref:
     in a list; a removal moves the last cluster into the hole, as in the
     kernel's array, so that ties go to the same cluster)."""
 
-    def __init__(self, radius=12.0, max_radius=16.0, K=16, mix=0.05, tau=10_000.0, min_mass=30.0, prune=0.5,
+    def __init__(self, radius=14.0, max_radius=20.0, K=16, mix=0.05, tau=10_000.0, min_mass=30.0, prune=0.5,
                  update=1000, vel_dt=1000.0, vel_tau=10_000.0, merge=1.0, predict=True):
         self.__dict__.update(locals())
         self.cl: list[dict] = []
