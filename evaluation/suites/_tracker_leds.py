@@ -45,7 +45,7 @@ import numpy as np
 from tectum import EventPacket, PosePacket, TrackPacket, concat
 from tectum.evaluation.harness import table, target, throughput
 from tectum.evaluation.metrics.tracking import id_accuracy, output_latencies, pose_errors
-from tectum.evaluation.suites._tracker_clusters import failure_chart
+from tectum.evaluation.suites._tracker_clusters import LATENCY_COLS, failure_chart, latency_row
 
 POINTS = ((0, 0, 0), (0.24, 0, 0), (0.24, 0.18, 0), (0, 0.18, 0.06), (0.12, 0.09, 0.1))
 FREQS = (800.0, 1050.0, 1400.0, 1850.0, 2450.0)
@@ -156,10 +156,8 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as d:
         op = _operator(body, d)
         op.warmup()
-        lat, cost = output_latencies(op, main_ev, 1000)
-        lat_row = {"mode": "update_us=1000, 1 ms packets", "rows": len(lat), "p50_us": float(np.percentile(lat, 50)),
-                   "p99_us": float(np.percentile(lat, 99)), "processing_p99_us": float(np.percentile(cost, 99))}
-        print("\n" + table([lat_row], ["mode", "rows", "p50_us", "p99_us", "processing_p99_us"]))
+        lat_row = latency_row("update_us=1000, 1 ms packets", output_latencies(op, main_ev, 1000))
+        print("\n" + table([lat_row], LATENCY_COLS))
 
     # speed on a busy stream: the same body with 20 Hz/px of shot noise (about 4.6 Mev/s of events)
     busy = _events(body, dur, shot_noise_hz=20.0)
