@@ -70,11 +70,9 @@ def main_scaled(args: argparse.Namespace, build: Callable[[argparse.Namespace], 
                      workers=args.workers, progress=show.update if show else None)
     if show:
         show.done()
-    rows = stats.shard_rows()
-    out = sum(r["events_out"] for r in rows)
     what = f"{len(pipelines)} file(s)" + (f" ({skipped} done before, skipped)" if skipped else "") if files else \
-        f"{len(rows)} shard(s)"
-    print(f"{out:,} events out of {what} in {stats.wall_s:.2f} s")
+        f"{len(stats.shard_rows())} shard(s)"
+    print(f"{_produced(stats) or '0 events'} out of {what} in {stats.wall_s:.2f} s")
     for line in stats.rerun:
         print(f"tectum run: ran twice (a worker died): {line}", file=sys.stderr)
     if args.stats:
@@ -85,6 +83,20 @@ def main_scaled(args: argparse.Namespace, build: Callable[[argparse.Namespace], 
         with open(args.stats_json, "w") as f:
             json.dump(stats.as_dict(), f, indent=1)
     return 0
+
+
+def _produced(stats: Any) -> str:
+    """What the chains gave their sinks, summed over the recordings."""
+    from tectum._stats import amounts
+
+    counts: dict[str, int] = {"events": 0}
+    for job in stats.jobs:
+        for nid, st in (job.stats.nodes.items() if job.stats is not None else ()):
+            if nid.startswith("parts."):  # the join's sources: each output node once
+                counts["events"] += st.events_out
+                for kind, n in st.samples_out.items():
+                    counts[str(kind)] = counts.get(str(kind), 0) + n
+    return amounts(counts)
 
 
 def _pipelines(args: argparse.Namespace,
