@@ -121,7 +121,7 @@ class Hdf5Source(FileSource):
 
     def _layouts(self) -> Iterator[Packet]:
         h = self._file()
-        if "events" in h and all(k in h["events"] for k in "txyp"):
+        if "events" in h and hasattr(h["events"], "keys") and all(k in h["events"] for k in "txyp"):  # a group
             off = int(h["t_offset"][()]) if "t_offset" in h and not self.apply_t0 else 0
             yield from interleave(self._dsec(h), sample_streams(h, self, off))
             return
