@@ -210,7 +210,7 @@ class Hdf5Source(FileSource):
             keep = self._values(i, keep, (ds, a, _mvsec_rows(a)))
             if keep is not None:
                 a = a[keep]
-            t = np.round(a[:, 2] * 1e6).astype(np.int64)
+            t = np.round(a[:, 2].astype(np.float64) * 1e6).astype(np.int64)  # float32 times: µs in double
             yield from asm.push(t, a[:, 0].astype(np.uint16), a[:, 1].astype(np.uint16),
                                 np.where(a[:, 3] > 0, 1, -1).astype(np.int8), i)
         yield from asm.finish()

@@ -122,3 +122,14 @@ def test_an_events_dataset_at_the_root(tmp_path: Path) -> None:
     got = [e for q in Hdf5Source(str(path)).packets() if isinstance(q, EventPacket)
            for e in zip(q.t.tolist(), q.x.tolist(), q.y.tolist(), q.p.tolist())]
     assert got == [(7, 3, 4, 1), (12, 5, 6, -1)]  # 12.5 µs: numpy rounds half to even
+
+
+def test_float32_seconds_convert_in_double(tmp_path: Path) -> None:
+    """An MVSEC-style float32 dataset: each stored time, exactly as stored,
+    to the nearest µs (computed in float32, 1.5e9 s came out 14 s late)."""
+    path = tmp_path / "e.h5"
+    t = np.array([1.5e9, 1.5e9 + 256], np.float32)
+    with h5py.File(path, "w") as h:
+        h["davis/events"] = np.stack([[1, 2], [3, 4], t, [1, -1]], axis=1).astype(np.float32)
+    got = [int(v) for q in Hdf5Source(str(path)).packets() if isinstance(q, EventPacket) for v in q.t]
+    assert got == [int(np.round(float(v) * 1e6)) for v in t] == [1_500_000_000_000_000, 1_500_000_256_000_000]
