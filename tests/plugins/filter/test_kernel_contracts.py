@@ -60,3 +60,10 @@ def test_a_neighbour_exactly_dt_before_counts(dx: int, dy: int, late: int) -> No
         else:
             background_activity_kernel(t, x, y, padded_timestamps((12, 9)), dt, keep)
         assert keep.tolist() == [False, late == 0], run
+
+
+def test_the_last_whole_token_passes_an_event() -> None:
+    """A bucket holding exactly one token lets one event through, not two."""
+    keep = np.zeros(2, np.bool_)
+    assert token_bucket_kernel(np.array([0, 0], np.int64), np.array([1.0, 0.0, 0.0]), 0.0, 1.0, keep) == 1
+    assert keep.tolist() == [True, False]
