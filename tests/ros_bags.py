@@ -22,6 +22,8 @@ records (op 0x05, ``compression=none``, ``size``) holding connection (op
 followed by one index data record (op 0x04) per connection in it; at
 ``index_pos`` every connection record again, then one chunk info record (op
 0x06) per chunk.
+
+:func:`ref_libcaer` decodes a ``libcaer`` EventPacket payload the slow way.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ from pathlib import Path
 
 from tectum.sources.files.rosbag import DVS_MSGS, EVENT_CAMERA_MSGS
 
-__all__ = ["Out", "header", "dvs_event_array", "event_packet", "image", "imu", "write_ros1_bag", "ros2_bag", "TYPES"]
+__all__ = ["Out", "header", "dvs_event_array", "event_packet", "image", "imu", "write_ros1_bag", "ros2_bag", "ref_libcaer", "TYPES"]
 
 
 class Out:
@@ -194,3 +196,19 @@ def ros2_bag(path: Path, topics: dict[str, str], messages: Sequence[tuple[str, i
         conns = {t: w.add_connection(t, typ.replace("/", "/msg/", 1), typestore=ts) for t, typ in topics.items()}
         for topic, t_ns, raw in messages:
             w.write(conns[topic], t_ns, raw)
+
+
+def ref_libcaer(payload: bytes, time_base_ns: int) -> list[tuple[int, int, int, int]]:
+    """libcaer polarity events: u32 data (bit 0 valid, bit 1 ON, y bits 2-16,
+    x bits 17-31), i32 time (µs, low 31 bits); a time falling by more than
+    2^30 inside the packet is the 31-bit clock rolling over."""
+    out, high, last = [], time_base_ns, None
+    for k in range(len(payload) // 8):
+        d, ts = struct.unpack_from("<Ii", payload, 8 * k)
+        ts &= 0x7FFFFFFF
+        if last is not None and last - ts > 1 << 30:
+            high += (1 << 31) * 1000
+        last = ts
+        if d & 1:
+            out.append(((high + ts * 1000) // 1000, d >> 17, (d >> 2) & 0x7FFF, 1 if d & 2 else -1))
+    return out

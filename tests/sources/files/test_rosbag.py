@@ -12,6 +12,8 @@ import pytest
 
 pytest.importorskip("rosbags")
 
+from ros_bags import ref_libcaer  # noqa: E402
+
 from tectum import EventPacket, FormatError, concat, get_registry  # noqa: E402
 from tectum.sources.files import _ros_kernels as R  # noqa: E402
 from tectum.sources.files import open_file  # noqa: E402
@@ -164,19 +166,6 @@ def test_several_event_topics_need_a_choice(tmp_path: Path, small_stream: EventP
 
 
 # -- payload kernels against slow references -------------------------------------------
-def _ref_libcaer(raw: bytes, base_ns: int):
-    out, high, last = [], base_ns, None
-    for k in range(len(raw) // 8):
-        d, ts = struct.unpack_from("<Ii", raw, 8 * k)
-        ts &= 0x7FFFFFFF
-        if last is not None and last - ts > 1 << 30:
-            high += (1 << 31) * 1000
-        last = ts
-        if d & 1:
-            out.append(((high + ts * 1000) // 1000, d >> 17, (d >> 2) & 0x7FFF, 1 if d & 2 else -1))
-    return out
-
-
 def test_libcaer_kernel_with_rollover() -> None:
     rng = np.random.default_rng(1)
     ts = [(1 << 31) - 30, (1 << 31) - 5, 3, 40]
@@ -189,7 +178,7 @@ def test_libcaer_kernel_with_rollover() -> None:
     k, inval, rolls = R.libcaer_events(np.frombuffer(raw, np.uint8), base, t, x, y, p)
     assert (inval, rolls) == (1, 1)
     got = list(zip(t[:k].tolist(), x[:k].tolist(), y[:k].tolist(), p[:k].tolist()))
-    assert got == _ref_libcaer(raw, base)
+    assert got == ref_libcaer(raw, base)
     assert t[2] - t[1] == 40 + (1 << 31) - ((1 << 31) - 5)
 
 

@@ -25,7 +25,7 @@ from hypothesis import strategies as st
 
 pytest.importorskip("rosbags")
 
-from ros_bags import dvs_event_array, event_packet, image, imu, ros2_bag, write_ros1_bag  # noqa: E402
+from ros_bags import dvs_event_array, event_packet, image, imu, ref_libcaer, ros2_bag, write_ros1_bag  # noqa: E402
 
 from tectum import EventPacket, FormatError, FramePacket, ImuPacket, TriggerPacket  # noqa: E402
 from tectum.sources.files.rosbag import RosbagSource  # noqa: E402
@@ -37,22 +37,6 @@ TYPES = {"/events": None, "/image": "sensor_msgs/Image", "/imu": "sensor_msgs/Im
 
 
 # -- slow references, from the payload descriptions ------------------------------------
-def ref_libcaer(payload: bytes, time_base_ns: int) -> list[tuple[int, int, int, int]]:
-    """libcaer polarity events: u32 data (bit 0 valid, bit 1 ON, y bits 2-16,
-    x bits 17-31), i32 time (µs, low 31 bits); a time falling by more than
-    2^30 inside the packet is the 31-bit clock rolling over."""
-    out, high, last = [], time_base_ns, None
-    for k in range(len(payload) // 8):
-        d, ts = struct.unpack_from("<Ii", payload, 8 * k)
-        ts &= 0x7FFFFFFF
-        if last is not None and last - ts > 1 << 30:
-            high += (1 << 31) * 1000
-        last = ts
-        if d & 1:
-            out.append(((high + ts * 1000) // 1000, d >> 17, (d >> 2) & 0x7FFF, 1 if d & 2 else -1))
-    return out
-
-
 def ref_evt3(words: list[int]) -> tuple[list[tuple[int, int, int, int]], list[tuple[int, int, int]]]:
     """The EVT 3.0 words these tests write: ADDR_Y 0x0, ADDR_X 0x2 (an event,
     polarity bit 11), TIME_LOW 0x6, TIME_HIGH 0x8 (a fall by more than half
