@@ -67,3 +67,16 @@ def test_the_last_whole_token_passes_an_event() -> None:
     keep = np.zeros(2, np.bool_)
     assert token_bucket_kernel(np.array([0, 0], np.int64), np.array([1.0, 0.0, 0.0]), 0.0, 1.0, keep) == 1
     assert keep.tolist() == [True, False]
+
+
+def test_parameter_bounds_are_inclusive() -> None:
+    """The documented ranges hold at both ends: STCF k in 1..8, a rate limit
+    of any positive rate (below 1 Hz too) with a burst of one event."""
+    from tectum.plugins.filter import RateLimit, SpatioTemporalCorrelation
+
+    for k in (1, 8):
+        assert SpatioTemporalCorrelation(k=k).k == k
+    assert RateLimit(rate_hz=0.5, burst=1).burst == 1
+    for kw in ({"rate_hz": 0.0}, {"rate_hz": -1.0}, {"burst": 0}, {"rate_hz": 0.0, "burst": 5}):
+        with pytest.raises(ValueError, match="need rate_hz > 0 and burst >= 1"):
+            RateLimit(**kw)
