@@ -80,3 +80,27 @@ def test_parameter_bounds_are_inclusive() -> None:
     for kw in ({"rate_hz": 0.0}, {"rate_hz": -1.0}, {"burst": 0}, {"rate_hz": 0.0, "burst": 5}):
         with pytest.raises(ValueError, match="need rate_hz > 0 and burst >= 1"):
             RateLimit(**kw)
+
+
+def test_hot_pixels_equal_the_rule() -> None:
+    """``hot_pixels``: a pixel is hot with at least ``min_events`` events and
+    more than ``factor`` times the mean count of the pixels that fired;
+    small counts make every boundary (>= min_events, > limit) come up.
+    ``count_kernel`` counts one per event."""
+    from tectum.plugins.filter.hot_pixel import count_kernel, hot_pixels
+
+    rng = np.random.default_rng(7)
+    for _ in range(300):
+        x, y = rng.integers(0, 4, 12).astype(np.uint16), rng.integers(0, 3, 12).astype(np.uint16)
+        counts = np.zeros((3, 4), np.int64)
+        count_kernel(x, y, counts)
+        want = np.zeros((3, 4), np.int64)
+        for xi, yi in zip(x.tolist(), y.tolist()):
+            want[yi, xi] += 1
+        assert np.array_equal(counts, want)
+        factor, min_events = float(rng.choice([0.5, 1.0, 1.5, 2.0])), int(rng.integers(1, 4))
+        fired = [c for c in want.ravel().tolist() if c > 0]
+        limit = max(min_events, factor * sum(fired) / len(fired))
+        rule = [[c >= min_events and c > limit for c in row] for row in want.tolist()]
+        assert hot_pixels(counts, factor, min_events).tolist() == rule
+    assert not hot_pixels(np.zeros((3, 4), np.int64), 1.0, 1).any()
