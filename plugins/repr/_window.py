@@ -74,6 +74,14 @@ class Windowed(Operator):
     def _frame(self, t0: int, t1: int) -> np.ndarray:
         raise NotImplementedError
 
+    def _reserve(self, n: int) -> None:
+        """Told, before a packet is sliced, that it completes ``n`` time
+        windows (a subclass may prepare their frames at once)."""
+
+    def _stack(self, images: list[np.ndarray]) -> np.ndarray:
+        """The frames of one packet as one (N, ...) array."""
+        return images[0][None] if len(images) == 1 else np.stack(images)
+
     # -- slicing ------------------------------------------------------------------
     def process(self, packet: EventPacket) -> list[FramePacket]:
         if self._sensor is None:
@@ -83,6 +91,8 @@ class Windowed(Operator):
             self._end = packet.t_start + (self.window_us or 0)
         frames: list[tuple[int, np.ndarray]] = []
         if self.count is None:
+            if self._end <= packet.t_end:
+                self._reserve((packet.t_end - self._end) // int(self.window_us) + 1)  # type: ignore[arg-type]
             self._by_time(packet, frames)
         else:
             self._by_count(packet, frames)
@@ -131,7 +141,7 @@ class Windowed(Operator):
         if not frames:
             return FramePacket(np.empty(0, np.int64), images=np.empty((0, 0, 0)), t_start=t0, t_end=self._out)
         ts = np.array([f[0] for f in frames], np.int64)
-        images = frames[0][1][None] if len(frames) == 1 else np.stack([f[1] for f in frames])
+        images = self._stack([f[1] for f in frames])
         return FramePacket(ts, images=images, t_start=t0, t_end=self._out)
 
     def finish(self) -> list[FramePacket]:

@@ -23,11 +23,38 @@ class _Image(Windowed):
 
     def _start(self, sensor: tuple[int, int]) -> None:
         self.state: np.ndarray = np.zeros((sensor[1], sensor[0], *self.shape_tail), self.dtype)
+        self._block: np.ndarray | None = None  # frames of the packet being sliced, and the window after
+        self._slot = 0  # the block's next free frame
+
+    def _reserve(self, n: int) -> None:
+        """A packet that completes ``n`` >= 2 windows gets one zeroed block
+        of ``n + 1`` frames: each window accumulates in its own slice, which
+        becomes its frame, so the packet's frames are the block itself
+        (no copy when they are stacked, and a page of a sparse frame is only
+        touched where events land). The window in progress moves in."""
+        if n < 2:
+            return
+        block = np.zeros((n + 1, *self.state.shape), self.state.dtype)
+        if self._n:
+            block[0] = self.state
+        self.state, self._block, self._slot = block[0], block, 1
 
     def _frame(self, t0: int, t1: int) -> np.ndarray:
         out = self.state  # the accumulator becomes the frame; a fresh one takes over
-        self.state = np.zeros(out.shape, out.dtype)  # calloc: cheaper than zeros_like's fill
+        if self._block is not None and self._slot < len(self._block):
+            self.state = self._block[self._slot]
+            self._slot += 1
+        else:
+            self._block = None
+            self.state = np.zeros(out.shape, out.dtype)  # calloc: cheaper than zeros_like's fill
         return out
+
+    def _stack(self, images: list[np.ndarray]) -> np.ndarray:
+        b = self._block
+        if b is not None and len(images) < len(b) and all(im.ctypes.data == b[i].ctypes.data
+                                                         for i, im in enumerate(images)):
+            return b[:len(images)]  # the block's first frames, in order: no copy
+        return super()._stack(images)
 
 
 class EventFrame(_Image):
