@@ -328,9 +328,10 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                         st.gave(piece)
                         add(push(sid, piece), due)
                         await out.flush()  # paced: hand over at once, latency counts
-                    # a paced source running behind its schedule never sleeps in
-                    # the pacer: let the other tasks (sinks, watchers) run
-                    await trio.lowlevel.checkpoint()
+                        # the pacer releases a piece whenever time has moved on, without
+                        # sleeping while each microsecond brings one: let the other
+                        # tasks (sinks, watchers) run after each piece, however long the packet
+                        await trio.lowlevel.checkpoint()
                     continue
                 # As fast as possible: yield to the other tasks (sinks) every
                 # _SLICE_S of work, not per packet: a task switch costs more

@@ -48,9 +48,10 @@ def test_robot_loop_on_an_emulated_usb_camera() -> None:
     assert np.all(ms > -5.0)  # results never come from the future (tolerance: wall-clock jitter)
 
 
-def test_robot_loop_on_the_paced_pattern() -> None:
+@pytest.mark.parametrize("packet_us", [1000, 1_000_000])  # results flow within a long source packet too
+def test_robot_loop_on_the_paced_pattern(packet_us: int) -> None:
     p = tectum.Pipeline(pace=1.0)
-    src = p.source("pattern:", sensor="64x48", duration_us=3_000_000, window_us=1000)
+    src = p.source("pattern:", sensor="64x48", duration_us=3_000_000, window_us=packet_us)
     node = p.op("filter.refractory", src, period_us=1000)
     tp = tectum.ThreadedPipeline(p, watch=[node]).start()
     t0 = time.monotonic()
