@@ -281,24 +281,19 @@ def contrast_max_window(t, x, y, t_mid, half_s, patch, max_speed, min_step, min_
         py_, px_ = ps[lo] // npx, ps[lo] % npx
         if prev_k[py_, px_] > 0:  # predicted to fail on one window: starts on a longer span
             need[py_, px_] = True
-            for q in range(lo, hi):
-                i = src[q]
-                valid[i] = False
-                vx[i] = np.nan
-                vy[i] = np.nan
-            lo = hi
-            continue
-        if prev_ok[py_, px_]:
-            sx, sy, st = prev_v[py_, px_, 0], prev_v[py_, px_, 1], max_speed / 64.0
+            fx, fy, ok = 0.0, 0.0, False
         else:
-            sx, sy, st = 0.0, 0.0, max_speed / 2.0
-        fx, fy, f, ok, longer = _estimate(xs, ys, ts, lo, hi, img, margin, max_speed, sx, sy, st, min_step,
-                                          half_s, min_events, min_focus, min_gain, min_cond)
-        need[py_, px_] = longer or (ok and np.hypot(fx, fy) * 2.0 * half_s < min_disp)
-        prev_ok[py_, px_] = ok
-        prev_k[py_, px_] = _first_span(f, fx, fy, ok, 0, half_s, min_focus, min_disp)
-        prev_v[py_, px_, 0] = fx
-        prev_v[py_, px_, 1] = fy
+            if prev_ok[py_, px_]:
+                sx, sy, st = prev_v[py_, px_, 0], prev_v[py_, px_, 1], max_speed / 64.0
+            else:
+                sx, sy, st = 0.0, 0.0, max_speed / 2.0
+            fx, fy, f, ok, longer = _estimate(xs, ys, ts, lo, hi, img, margin, max_speed, sx, sy, st, min_step,
+                                              half_s, min_events, min_focus, min_gain, min_cond)
+            need[py_, px_] = longer or (ok and np.hypot(fx, fy) * 2.0 * half_s < min_disp)
+            prev_ok[py_, px_] = ok
+            prev_k[py_, px_] = _first_span(f, fx, fy, ok, 0, half_s, min_focus, min_disp)
+            prev_v[py_, px_, 0] = fx
+            prev_v[py_, px_, 1] = fy
         for q in range(lo, hi):
             i = src[q]
             valid[i] = ok
