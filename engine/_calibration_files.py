@@ -79,6 +79,9 @@ def camera_from(calib: str) -> Camera:
         if vals:
             fx, fy, cx, cy, *d = vals
             return Camera(np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]]), np.array(d or [0.0] * 4))
+    if not Path(calib).is_file():
+        raise ValueError(f"calib={calib!r} is neither a calibration file nor inline intrinsics "
+                         "'fx;fy;cx;cy[;k1;k2;p1;p2[;k3]]' (4, 8 or 9 numbers)")
     return read_calibration(calib)
 
 

@@ -427,3 +427,6 @@ def test_camera_from_takes_inline_intrinsics_or_a_file(tmp_path):
     assert np.allclose(camera_from(str(f)).K, cam.K)
     with pytest.raises(ValueError, match="calib="):
         camera_from("")
+    for bad in ("207.85;nan", "200;201;120;x", str(tmp_path / "absent.yaml")):
+        with pytest.raises(ValueError, match="neither a calibration file nor inline intrinsics"):
+            camera_from(bad)
