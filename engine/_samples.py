@@ -254,7 +254,9 @@ class ImuPacket(SamplePacket):
 @register_kind
 class PosePacket(SamplePacket):
     """Poses, world-from-camera: ``position`` in metres, ``orientation`` a
-    unit quaternion (x, y, z, w); optional velocities in the world frame."""
+    unit quaternion (x, y, z, w); optional velocities (linear in the world
+    frame, angular in the camera frame) and ``lost`` (a tracker's flag: the
+    row is a prediction, not a measurement)."""
 
     kind = Kind.POSES
     fields = _fields(
@@ -262,6 +264,8 @@ class PosePacket(SamplePacket):
         orientation=Field("f8", (4,), "", names=("qx", "qy", "qz", "qw"), doc="world-from-camera rotation"),
         linear_velocity=Field("f8", (3,), "m/s", optional=True, names=("vx", "vy", "vz"), doc="world frame"),
         angular_velocity=Field("f8", (3,), "rad/s", optional=True, names=("wx", "wy", "wz"), doc="camera frame"),
+        lost=Field("bool", (), "", optional=True,
+                   doc="tracking lost: this pose is a prediction, not a measurement"),
     )
 
 

@@ -16,8 +16,8 @@ FLAT_KINDS = (Kind.IMU, Kind.POSES, Kind.TRIGGERS, Kind.ANGULAR_VELOCITY, Kind.T
 
 
 def _values(dtype: np.dtype, shape: tuple[int, ...], finite: bool) -> Any:
-    if dtype.kind == "i":
-        return hnp.arrays(dtype, shape)  # the whole int64 range
+    if dtype.kind in "ib":
+        return hnp.arrays(dtype, shape)  # the whole int64 range; flags
     elements = st.floats(width=dtype.itemsize * 8, allow_nan=not finite, allow_infinity=not finite)
     return hnp.arrays(dtype, shape, elements=elements)
 

@@ -75,6 +75,23 @@ def test_tum_text_is_the_format(tmp_path: Path) -> None:
                                           "1403636579.763556 3.0 0.0 -0.0 0.5 0.5 0.5 0.5"]
 
 
+def test_tum_leaves_out_lost_rows_and_counts_them_csv_keeps_them(tmp_path: Path) -> None:
+    """A tracker's ``lost`` rows are predictions: TUM (which has no column
+    for the flag) leaves them out and counts them as not written; CSV keeps
+    every row with the flag."""
+    q = np.tile([0, 0, 0, 1.0], (4, 1))
+    pkt = PosePacket([1, 2, 3, 4], position=np.arange(12.0).reshape(4, 3), orientation=q,
+                     lost=np.array([False, True, True, False]))
+    sink = TumSink(str(tmp_path / "a.tum"))
+    write_all(sink, [pkt.take(np.arange(2)), pkt.take(np.arange(2, 4))])
+    assert sink.not_written == {"poses": 2} and sink.rows == 2
+    kept = pkt.take(np.array([0, 3]))
+    assert_streams_equal([PosePacket(kept.t, position=kept.position, orientation=kept.orientation)],
+                         _read(tmp_path / "a.tum"), "tum")
+    write_all(CsvSink(str(tmp_path / "a.csv")), [pkt])
+    assert_streams_equal([pkt], _read(tmp_path / "a.csv"), "csv")
+
+
 def test_csv_text_is_the_format(tmp_path: Path) -> None:
     pkt = TrackPacket([10, 10, 25], id=[1, 2, -(1 << 63)], x=[0.5, 1.0, np.nan], y=[2.0, np.inf, 3.25],
                       age=np.array([7, 8, 9], np.int32))
