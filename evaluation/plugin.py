@@ -27,6 +27,8 @@ SUITES = {
            "(Pearson/SSIM, AbsRel), failure maps",
     "tracker": "angular velocity and ego-motion: speed, latency, RMS error against simulator truth and IMU, "
                "the model ladder's confusion matrix",
+    "pose": "6-DoF tracking against a known photometric map: ATE, RPE, position RMSE as % of path, rotation "
+            "median against simulator truth and slider_depth, events/s and pose updates/s; failure maps",
     "calibrate": "tectum calibrate against a simulated blinking board: focal, principal point, k1 and RMS errors "
                  "with noise and flicker; failure map (noise, views, tilt, blink frequency vs jitter)",
     "simulate": "simulator generation speed (Mev/s at 346x260)",

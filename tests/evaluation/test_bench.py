@@ -38,7 +38,8 @@ def test_builtin_suites_are_registered_without_importing_them():
     code = ("import sys, tectum; s = tectum.get_registry().bench_suites; print(sorted(s));"
             "print(sorted(m for m in sys.modules if m.startswith('tectum.evaluation.suites.')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert out.splitlines() == [str(sorted(["engine", "io", "filters", "flow", "map", "tracker", "simulate", "net", "calibrate", "scale"])), "[]"]
+    assert out.splitlines() == [str(sorted(["engine", "io", "filters", "flow", "map", "tracker", "simulate", "net", "calibrate", "scale",
+                                              "pose"])), "[]"]
 
 
 class Tiny:
