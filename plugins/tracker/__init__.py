@@ -3,7 +3,8 @@ contrast maximisation (``tracker.angular_velocity``) and ego-motion with a
 model ladder that picks the simplest adequate motion model
 (``tracker.ego_motion``); moving objects as event clusters
 (``tracker.clusters``) and blinking LED markers with the pose of their body
-(``tracker.led_markers``)."""
+(``tracker.led_markers``); the 6-DoF pose by aligning event images to
+semi-dense maps (``tracker.edge_align``, EVO's tracker)."""
 
 from __future__ import annotations
 
@@ -11,11 +12,13 @@ from tectum.hookspecs import hookimpl
 
 from .angular_velocity import AngularVelocity
 from .clusters import Clusters
+from .edge_align import EdgeAlign
 from .ego_motion import EgoMotion, MotionModelPacket
 from .features import FeatureTracker
 from .led_markers import LedMarkers
 
-__all__: list[str] = ["AngularVelocity", "EgoMotion", "MotionModelPacket", "FeatureTracker", "Clusters", "LedMarkers"]
+__all__: list[str] = ["AngularVelocity", "EgoMotion", "MotionModelPacket", "FeatureTracker", "Clusters", "LedMarkers",
+                     "EdgeAlign"]
 
 
 @hookimpl
@@ -25,6 +28,7 @@ def tectum_register_operators(registry) -> None:  # type: ignore[no-untyped-def]
     registry.add_operator(FeatureTracker)
     registry.add_operator(Clusters)
     registry.add_operator(LedMarkers)
+    registry.add_operator(EdgeAlign)
 
 
 @hookimpl

@@ -1,0 +1,534 @@
+"""``tracker.edge_align``: the camera's 6-DoF pose by aligning an image of
+recent events to a semi-dense 3-D map, the tracker of EVO (Rebecq,
+Horstschaefer, Gallego, Scaramuzza, "EVO: A Geometric Approach to
+Event-Based 6-DOF Parallel Tracking and Mapping in Real Time", RA-L 2017).
+
+Events fire on edges; a semi-dense map (``map.emvs``: depth on the
+edges of a reference view) holds the same edges in 3-D. Seen from the
+right pose, the map's points land on the edges of the event image. Per
+step of ``step_events`` events:
+
+1. the event image of the last ``window_events`` events (undistorted
+   positions, one bilinear vote each), blurred by a Gaussian of σ
+   ``sigma_px`` px and scaled so its brightest 0.5 % of pixels are 1
+   (clipped there);
+2. the map's points (3-D, world) are projected with the pose predicted by
+   constant velocity from the last two steps;
+3. the pose moves so the points land on bright pixels: Levenberg-Marquardt
+   on SE(3) with analytic Jacobians (the image gradient is computed once per
+   image, the points are reprojected per iteration) of ``Σ ρ(1 - E(u))``,
+   ρ Huber at ``huber``, coarse to fine over ``levels`` blurs (σ doubling
+   per coarser level: a wider basin first). EVO states its alignment as an
+   inverse-compositional image alignment of the event image against the
+   map's projection; this is the forward (Gauss-Newton on the points)
+   form of the same objective, which needs no depth per template pixel.
+
+The pose fits the window's middle event; the output is stamped at its last
+event (µs), moved there by the estimated velocity.
+
+Maps (port ``maps``, :class:`~tectum.MapPacket` rows with ``depth`` m NaN
+unknown, ``K`` and ``pose`` world-from-camera) become their back-projected
+points in the world (at most ``max_points``, thinned evenly); a step uses
+the latest map stamped at or before its last event (EVO aligns to the
+latest map). A map whose size differs from the events' sensor, or whose
+intrinsics differ from the calibration's by more than 1 %, is an error.
+
+Bootstrap: the first map needs poses. With ``bootstrap_us`` > 0 the
+given poses (port ``poses``, e.g. a stretch of ground truth or an IMU
+integration) from their first one for ``bootstrap_us`` µs are the output,
+as they are (the mapper builds the first map from them); after that the
+tracker runs alone and ignores that port. With ``plane_depth`` > 0 m and
+no bootstrap poses, the first window's event edges are taken as a
+fronto-parallel plane at that depth in front of the first camera (the world
+frame is that camera's, the scale is set by ``plane_depth``): a planar
+scene's bootstrap.
+
+Lost: a step with fewer than ``min_points`` map points in view, or whose
+aligned points land on edges (E ≥ 0.5) for less than ``min_overlap`` of
+them, is lost: its row holds the last good pose, zero velocities and
+``lost`` true (never a confident guess), counted in ``counts``. While
+lost, each step tries to relocalise from the last good pose with one
+coarser level, and resumes when the overlap reaches
+``relocalise_overlap``.
+
+Output (:class:`~tectum.PosePacket`): ``position`` (m), ``orientation``
+(x, y, z, w, world-from-camera), ``linear_velocity`` (m/s, world),
+``angular_velocity`` (rad/s, camera frame) and ``lost``.
+
+Cost per step: one vote per window event, then per level a Gaussian blur
+and a gradient of the image (H x W) and at most ``max_iter`` passes over the
+map's points in view. Memory: the window's events (24 bytes each), the
+map's points (24 bytes each), four H x W float64 images.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+from scipy.ndimage import gaussian_filter
+
+from tectum import EventPacket, Kind, MapPacket, Operator, Packet, Port, PosePacket
+from tectum.camera import Camera, camera_from, interpolate_poses, quat_to_rot, rot_to_quat, se3_exp, se3_log
+
+from ._edge_align import align, consistent, gradients, normalise, vote_events
+
+__all__ = ["EdgeAlign", "map_points"]
+
+#: Fraction of pixels at the top of the event image that saturate at 1.
+TOP_FRACTION = 0.005
+#: Map points nearer than this to a camera are not used, m.
+MIN_DEPTH_M = 0.05
+
+
+def map_points(depth: np.ndarray, K: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """The known pixels of a depth map (H, W, m, NaN unknown) seen with
+    intrinsics ``K`` (3x3 px) from ``pose`` (tx ty tz qx qy qz qw,
+    world-from-camera) as world points (N, 3), m, in row-major order."""
+    v, u = np.nonzero(np.isfinite(depth) & (depth > 0))
+    Z = depth[v, u].astype(np.float64)
+    pc = np.stack([(u - K[0, 2]) / K[0, 0] * Z, (v - K[1, 2]) / K[1, 1] * Z, Z], axis=1)
+    R = np.asarray(quat_to_rot(np.asarray(pose[3:7], np.float64)))
+    return np.ascontiguousarray(pc @ R.T + np.asarray(pose[:3], np.float64))
+
+
+class EdgeAlign(Operator):
+    """6-DoF camera tracking against semi-dense maps by event-image
+    alignment (EVO's tracker, see the module).
+
+    Parameters
+    ----------
+    calib:
+        Calibration file (UZH calib.txt, OpenCV YAML/JSON, ROS camera_info)
+        or inline ``fx;fy;cx;cy[;k1;k2;p1;p2;k3]`` (px); defaults to the
+        calibration beside the source recording. Required.
+    bootstrap_us:
+        Output the poses of port ``poses`` for this long from the first one,
+        µs (0: none).
+    plane_depth:
+        Without bootstrap poses: the first window's edges as a plane this far
+        in front of the first camera, m (0: off).
+    window_events:
+        Events per event image.
+    step_events:
+        Events between poses.
+    sigma_px:
+        Blur of the finest level, px.
+    levels:
+        Blur levels, coarse (σ doubling) to fine.
+    max_iter:
+        Levenberg-Marquardt iterations per level.
+    huber:
+        Huber threshold of the residual ``1 - E`` (in [0, 1]).
+    max_points:
+        A map with more known pixels is thinned evenly to this many points.
+    min_points:
+        Fewer map points in view: lost.
+    min_overlap:
+        Fewer aligned points on an edge (E ≥ 0.5) than this fraction: lost.
+    relocalise_overlap:
+        Overlap needed to resume after a loss.
+    min_neighbours:
+        A map pixel is used when at least this many known pixels within 3 px
+        have an inverse depth within ``neighbour_tol`` of its own (0: all).
+    neighbour_tol:
+        Relative inverse-depth tolerance of that test.
+    prior_rad:
+        σ of the rotation about the constant-velocity prediction, per step,
+        rad (a prior counted like one map point).
+    prior_m:
+        σ of the position about the prediction, per step, m.
+    velocity_gain:
+        Each step moves the velocity estimate this fraction of the way to
+        the step's own (1: the last step's motion; 0: no velocity).
+    """
+
+    name = "tracker.edge_align"
+    inputs = {
+        "events": Port(Kind.EVENTS, doc="the events to track with"),
+        "maps": Port(Kind.MAPS, doc="semi-dense depth maps (map.emvs) to align to; the latest is used"),
+        "poses": Port(Kind.POSES, required=False,
+                      doc="bootstrap poses (world-from-camera), output as they are for bootstrap_us µs"),
+    }
+    produces = (Kind.POSES,)
+    heavy = True
+
+    def __init__(self, calib: str = "", bootstrap_us: int = 0, plane_depth: float = 0.0, window_events: int = 4000,
+                 step_events: int = 1000, sigma_px: float = 1.0, levels: int = 2, max_iter: int = 10,
+                 huber: float = 0.5, max_points: int = 6000, min_points: int = 60, min_overlap: float = 0.25,
+                 relocalise_overlap: float = 0.35, min_neighbours: int = 8, neighbour_tol: float = 0.03,
+                 prior_rad: float = 0.01, prior_m: float = 0.01, velocity_gain: float = 0.3) -> None:
+        if bootstrap_us < 0 or not plane_depth >= 0:
+            raise ValueError(f"tracker.edge_align: need bootstrap_us >= 0 and plane_depth >= 0 m, got {bootstrap_us}, "
+                             f"{plane_depth}")
+        if window_events < 10 or not 1 <= step_events <= window_events:
+            raise ValueError(f"tracker.edge_align: need window_events >= 10 and 1 <= step_events <= window_events, "
+                             f"got {window_events}, {step_events}")
+        if not sigma_px > 0 or levels < 1 or max_iter < 1 or not huber > 0:
+            raise ValueError("tracker.edge_align: need sigma_px > 0, levels >= 1, max_iter >= 1 and huber > 0")
+        if min_points < 6 or max_points < min_points:
+            raise ValueError(f"tracker.edge_align: need 6 <= min_points <= max_points, got {min_points}, {max_points}")
+        if not 0 <= min_overlap <= relocalise_overlap <= 1:
+            raise ValueError(f"tracker.edge_align: need 0 <= min_overlap <= relocalise_overlap <= 1, got "
+                             f"{min_overlap}, {relocalise_overlap}")
+        if not calib:
+            raise ValueError("tracker.edge_align needs the camera intrinsics: give calib= (a calibration file or "
+                             "inline 'fx;fy;cx;cy[;k1;k2;p1;p2;k3]' px), or put a calib.txt beside the recording")
+        self.camera: Camera = camera_from(calib)
+        self.cam = np.array([self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy])
+        self.bootstrap_us, self.plane_depth = int(bootstrap_us), float(plane_depth)
+        self.window_events, self.step_events = int(window_events), int(step_events)
+        self.sigma_px, self.levels = float(sigma_px), int(levels)
+        self.max_iter, self.huber = int(max_iter), float(huber)
+        self.max_points, self.min_points = int(max_points), int(min_points)
+        self.min_overlap, self.relocalise_overlap = float(min_overlap), float(relocalise_overlap)
+        if not 0 <= min_neighbours <= 48 or not neighbour_tol > 0:
+            raise ValueError(f"tracker.edge_align: need 0 <= min_neighbours <= 48 and neighbour_tol > 0, got "
+                             f"{min_neighbours}, {neighbour_tol}")
+        self.min_neighbours, self.neighbour_tol = int(min_neighbours), float(neighbour_tol)
+        if not (prior_rad > 0 and prior_m > 0 and 0 <= velocity_gain <= 1):
+            raise ValueError(f"tracker.edge_align: need prior_rad > 0, prior_m > 0 and 0 <= velocity_gain <= 1, got "
+                             f"{prior_rad}, {prior_m}, {velocity_gain}")
+        self._prior = np.array([prior_rad ** -2] * 3 + [prior_m ** -2] * 3)
+        self.velocity_gain = float(velocity_gain)
+        self.counts = {"steps": 0, "tracked": 0, "bootstrap_poses": 0, "bootstrap_steps": 0, "maps": 0,
+                       "lost_no_map": 0, "lost_few_points": 0, "lost_overlap": 0, "relocalised": 0}
+        #: (cost, points in view, overlap, iterations) of the last alignment (for diagnostics)
+        self.last_info = np.zeros(4)
+        self._sensor: tuple[int, int] | None = None
+        self._table = np.empty((0, 0, 2))
+        self._img = np.empty((0, 0))
+        self._gx = np.empty((0, 0))
+        self._gy = np.empty((0, 0))
+        # buffered events: times (µs) and undistorted positions (px)
+        self._t = np.empty(0, np.int64)
+        self._xu = np.empty(0)
+        self._yu = np.empty(0)
+        self._next_end = self.window_events  # buffer index one past the next step's last event
+        # maps waiting for their time, and the current one: (stamp µs, points (N, 3) world m)
+        self._maps: list[tuple[int, np.ndarray]] = []
+        self._points: np.ndarray | None = None
+        self._shapes: list[tuple[int, tuple[int, ...]]] = []  # map sizes to check once the sensor is known
+        # bootstrap poses
+        self._boot_end: int | None = None  # µs: the first given pose + bootstrap_us
+        self._bt = np.empty(0, np.int64)
+        self._bp = np.empty((0, 3))
+        self._bq = np.empty((0, 4))
+        # the state: camera-from-world at the last good step's middle time, its twist (ω, v) per s
+        self._R: np.ndarray | None = None
+        self._tr = np.zeros(3)
+        self._t_mid = 0
+        self._xi = np.zeros(6)
+        self._has_velocity = False
+        self._lost = False
+        self._mark: int | None = None  # start of the next output packet's interval, µs
+
+    def warmup(self) -> None:
+        twin = EdgeAlign(calib="40;40;23.5;17.5", window_events=200, step_events=100, min_points=6)
+        twin.process_ports(self.conformance_stream())
+        twin.finish()
+
+    #: For the conformance check: a 48x36 sensor, small windows.
+    conformance_params = {"calib": "40;40;23.5;17.5", "window_events": 200, "step_events": 100, "min_points": 6,
+                          "bootstrap_us": 5_000}
+
+    @staticmethod
+    def conformance_stream() -> dict[str, Packet]:
+        """Events of points seen by a camera sliding sideways, its poses at
+        1 kHz and a map of the points at the start (for the conformance check)."""
+        return _points_scene(duration_us=40_000, sensor=(48, 36), f=40.0)
+
+    # -- input ----------------------------------------------------------------------------
+    def process_ports(self, ports: Mapping[str, Packet]) -> list[Packet]:
+        rows: list[tuple[int, np.ndarray, np.ndarray, np.ndarray, bool]] = []
+        first = next(iter(ports.values()))
+        if self._mark is None:
+            self._mark = first.t_start
+        maps = ports.get("maps")
+        if maps is not None and len(maps):
+            self._add_maps(maps)  # type: ignore[arg-type]
+        poses = ports.get("poses")
+        if poses is not None and len(poses):
+            rows += self._add_poses(poses)  # type: ignore[arg-type]
+        ev = ports.get("events")
+        if ev is not None and len(ev):
+            self._add_events(ev)  # type: ignore[arg-type]
+            rows += self._steps()
+        return self._emit(rows, max(p.t_end for p in ports.values()))
+
+    def _add_maps(self, maps: MapPacket) -> None:
+        if "depth" not in maps.column_names or "K" not in maps.column_names or "pose" not in maps.column_names:
+            raise ValueError(f"tracker.edge_align: maps on port 'maps' need depth, K and pose; got columns "
+                             f"{list(maps.column_names)}")
+        for i in range(len(maps)):
+            t = int(maps.t[i])
+            depth, K, pose = maps.depth[i], np.asarray(maps.K[i], np.float64), np.asarray(maps.pose[i], np.float64)
+            if not (np.isfinite(K).all() and np.isfinite(pose).all()):
+                raise ValueError(f"tracker.edge_align: the map at t={t} µs has a K or pose that is not finite")
+            mine = np.array([self.camera.fx, self.camera.fy, self.camera.cx, self.camera.cy])
+            theirs = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]])
+            if np.any(np.abs(theirs - mine) > 0.01 * max(self.camera.fx, 1.0)):
+                raise ValueError(f"tracker.edge_align: the map at t={t} µs has intrinsics fx, fy, cx, cy = "
+                                 f"{theirs.round(3).tolist()} px, the calibration {mine.round(3).tolist()} px")
+            self._check_size(depth.shape, t)
+            if self._sensor is None:
+                self._shapes.append((t, depth.shape))
+            if self.min_neighbours:
+                d = np.nan_to_num(np.asarray(depth, np.float64), nan=0.0)
+                keep = np.zeros(d.shape, bool)
+                consistent(d, 3, self.neighbour_tol, self.min_neighbours, keep)
+                depth = np.where(keep, d, np.nan)
+            pts = map_points(depth, K, pose)
+            if len(pts) > self.max_points:
+                pts = np.ascontiguousarray(pts[np.linspace(0, len(pts) - 1, self.max_points).astype(np.int64)])
+            self._maps.append((t, pts))
+
+    def _check_size(self, shape: tuple[int, ...], t: int) -> None:
+        if self._sensor is not None and tuple(shape) != (self._sensor[1], self._sensor[0]):
+            raise ValueError(f"tracker.edge_align: the map at t={t} µs is {shape[1]}x{shape[0]} px, the events "
+                             f"{self._sensor[0]}x{self._sensor[1]} px")
+
+    def _add_poses(self, poses: PosePacket) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray, bool]]:
+        """Keep the bootstrap poses; return them as output rows."""
+        if not self.bootstrap_us:
+            return []
+        if self._boot_end is None:
+            self._boot_end = int(poses.t[0]) + self.bootstrap_us
+        k = int(np.searchsorted(poses.t, self._boot_end, side="left"))
+        if not k:
+            return []
+        pos, q = np.asarray(poses.position[:k], np.float64), np.asarray(poses.orientation[:k], np.float64)
+        if not (np.isfinite(pos).all() and np.isfinite(q).all()):
+            raise ValueError("tracker.edge_align: a bootstrap pose on port 'poses' is not finite")
+        q = q / np.linalg.norm(q, axis=1, keepdims=True)
+        self._bt = np.concatenate([self._bt, poses.t[:k]])
+        self._bp = np.concatenate([self._bp, pos])
+        self._bq = np.concatenate([self._bq, q])
+        self.counts["bootstrap_poses"] += k
+        zero = np.zeros(6)
+        return [(int(poses.t[i]), pos[i], q[i], zero, False) for i in range(k)]
+
+    def _add_events(self, ev: EventPacket) -> None:
+        if self._sensor is None:
+            self._start(ev.sensor)
+        elif ev.sensor != self._sensor:
+            raise ValueError(f"tracker.edge_align: the sensor changed from {self._sensor} to {ev.sensor}")
+        xy = self._table[ev.y, ev.x]
+        self._t = np.concatenate([self._t, ev.t])
+        self._xu = np.concatenate([self._xu, xy[:, 0]])
+        self._yu = np.concatenate([self._yu, xy[:, 1]])
+
+    def _start(self, sensor: tuple[int, int]) -> None:
+        w, h = sensor
+        size = self.camera.size
+        if size is not None and tuple(size) != (w, h):
+            raise ValueError(f"tracker.edge_align: the calibration is for {size[0]}x{size[1]} px, the events for "
+                             f"{w}x{h}")
+        self._sensor = (w, h)
+        for t, shape in self._shapes:  # maps that came before the events
+            self._check_size(shape, t)
+        self._shapes = []
+        u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+        und = self.camera.undistort_points(np.stack([u.ravel(), v.ravel()], axis=1))
+        und[~np.isfinite(und).all(axis=1)] = -1e6  # no inverse: never votes
+        self._table = np.ascontiguousarray(und.reshape(h, w, 2))
+        self._img, self._gx, self._gy = np.zeros((h, w)), np.zeros((h, w)), np.zeros((h, w))
+
+    # -- steps ------------------------------------------------------------------------------
+    def _steps(self) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray, bool]]:
+        rows = []
+        while len(self._t) >= self._next_end:
+            b = self._next_end
+            a = b - self.window_events
+            row = self._step(a, b)
+            if row is not None:
+                rows.append(row)
+            self._next_end += self.step_events
+        k = self._next_end - self.window_events
+        if k > 0:
+            self._t, self._xu, self._yu = self._t[k:], self._xu[k:], self._yu[k:]
+            self._next_end -= k
+        return rows
+
+    def _image(self, a: int, b: int, sigma: float) -> None:
+        """The normalised, blurred event image of events ``[a, b)`` and its gradients."""
+        img = self._img
+        img[:] = 0.0
+        vote_events(self._xu[a:b], self._yu[a:b], img)
+        img[:] = gaussian_filter(img, sigma, mode="constant", truncate=3.0)
+        flat = img.ravel()
+        k = max(1, int(TOP_FRACTION * flat.size))
+        top = float(np.partition(flat, flat.size - k)[flat.size - k])
+        normalise(img, top if top > 0 else 1.0)
+        gradients(img, self._gx, self._gy)
+
+    def _step(self, a: int, b: int) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, bool] | None:
+        self.counts["steps"] += 1
+        t_last = int(self._t[b - 1])
+        t_mid = int(self._t[(a + b - 1) // 2])
+        while self._maps and self._maps[0][0] <= t_last:  # the latest map stamped by now
+            self._points = self._maps.pop(0)[1]
+            self.counts["maps"] += 1
+        if self._R is None and not self._begin(a, b, t_mid, t_last):
+            return None
+        assert self._R is not None
+        if self._points is None:
+            self.counts["lost_no_map"] += 1
+            return self._lost_row(t_last)
+        dt = (t_mid - self._t_mid) * 1e-6
+        if self._lost:  # relocalise from the last good pose, one level coarser
+            R, tr, levels = self._R.copy(), self._tr.copy(), self.levels + 1
+        else:
+            R, tr = self._predict(dt)
+            levels = self.levels
+        info = np.zeros(4)
+        Rp, tp = R.copy(), tr.copy()
+        prior = self._prior * (0.0 if self._lost else 1.0)
+        for lvl in range(levels - 1, -1, -1):
+            self._image(a, b, self.sigma_px * 2.0 ** lvl)
+            align(self._points, R, tr, Rp, tp, self.cam, self._img, self._gx, self._gy, self.huber, 1.0, MIN_DEPTH_M,
+                  self.max_iter, 1e-6, prior, info)
+        self.last_info = info
+        if info[1] < self.min_points:
+            self.counts["lost_few_points"] += 1
+            return self._lost_row(t_last, lose=True)
+        if info[2] < (self.relocalise_overlap if self._lost else self.min_overlap):
+            self.counts["lost_overlap"] += 1
+            return self._lost_row(t_last, lose=True)
+        if self._lost:
+            self.counts["relocalised"] += 1
+            self._has_velocity = False
+        self._set_state(R, tr, t_mid)
+        self.counts["tracked"] += 1
+        return self._row(t_last)
+
+    def _begin(self, a: int, b: int, t_mid: int, t_last: int) -> bool:
+        """Start tracking at this step when the bootstrap allows; False: not yet."""
+        if self.bootstrap_us:
+            if self._boot_end is None or t_last < self._boot_end or not self._bt.size:
+                self.counts["bootstrap_steps"] += 1
+                return False
+            # the last bootstrap pose and the twist over the bootstrap's last 10 ms
+            R1, t1 = self._bootstrap_pose(int(self._bt[-1]))
+            t0 = max(int(self._bt[0]), int(self._bt[-1]) - 10_000)
+            self._set_state(R1, t1, int(self._bt[-1]))
+            if t0 < int(self._bt[-1]):
+                R0, p0 = self._bootstrap_pose(t0)
+                self._xi = _twist(R0, p0, R1, t1, (int(self._bt[-1]) - t0) * 1e-6)
+                self._has_velocity = True
+            return True
+        if self.plane_depth > 0:
+            self._image(a, b, self.sigma_px)
+            v, u = np.nonzero(self._img >= 0.5)
+            Z = self.plane_depth
+            pts = np.stack([(u - self.cam[2]) / self.cam[0] * Z, (v - self.cam[3]) / self.cam[1] * Z,
+                            np.full(len(u), Z)], axis=1)
+            if len(pts) > self.max_points:
+                pts = pts[np.linspace(0, len(pts) - 1, self.max_points).astype(np.int64)]
+            self._points = np.ascontiguousarray(pts)
+            self._set_state(np.eye(3), np.zeros(3), t_mid)
+            return True
+        self.counts["bootstrap_steps"] += 1
+        return False
+
+    def _bootstrap_pose(self, t: int) -> tuple[np.ndarray, np.ndarray]:
+        """Camera-from-world at ``t`` µs from the bootstrap poses."""
+        p, q, _ = interpolate_poses(np.array([t], np.int64), self._bt, self._bp, self._bq)
+        R_wc = np.asarray(quat_to_rot(q[0]))
+        return R_wc.T, -(R_wc.T @ p[0])
+
+    def _predict(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """Camera-from-world ``dt`` s after the last good step, at constant velocity."""
+        assert self._R is not None
+        if not self._has_velocity:
+            return self._R.copy(), self._tr.copy()
+        # world-from-camera moves by exp(ξ dt) on the right, so camera-from-world by exp(-ξ dt) on the left
+        dR, dtr = se3_exp(-self._xi * dt)
+        return dR @ self._R, dR @ self._tr + dtr
+
+    def _set_state(self, R: np.ndarray, tr: np.ndarray, t_mid: int) -> None:
+        if self._R is not None and not self._lost and t_mid > self._t_mid:
+            xi = _twist(self._R, self._tr, R, tr, (t_mid - self._t_mid) * 1e-6)
+            self._xi = xi if not self._has_velocity else self._xi + self.velocity_gain * (xi - self._xi)
+            self._has_velocity = True
+        self._R, self._tr, self._t_mid = R.copy(), tr.copy(), t_mid
+        self._lost = False
+
+    def _row(self, t_last: int) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, bool]:
+        R, tr = self._predict((t_last - self._t_mid) * 1e-6)
+        R_wc = R.T
+        return (t_last, -(R_wc @ tr), np.asarray(rot_to_quat(R_wc)), self._xi.copy(), False)
+
+    def _lost_row(self, t_last: int, lose: bool = False) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, bool]:
+        assert self._R is not None
+        if lose:
+            self._lost = True
+            self._has_velocity = False
+            self._xi = np.zeros(6)
+        R_wc = self._R.T
+        return (t_last, -(R_wc @ self._tr), np.asarray(rot_to_quat(R_wc)), np.zeros(6), True)
+
+    def _emit(self, rows: list[tuple[int, np.ndarray, np.ndarray, np.ndarray, bool]], watermark: int) -> list[Packet]:
+        assert self._mark is not None
+        if not rows:
+            return []
+        t = np.array([r[0] for r in rows], np.int64)
+        xi = np.array([r[3] for r in rows]).reshape(-1, 6)
+        R_wc = np.asarray(quat_to_rot(np.array([r[2] for r in rows]).reshape(-1, 4))).reshape(-1, 3, 3)
+        out = PosePacket(t, position=np.array([r[1] for r in rows]).reshape(-1, 3),
+                         orientation=np.array([r[2] for r in rows]).reshape(-1, 4),
+                         linear_velocity=np.einsum("nij,nj->ni", R_wc, xi[:, 3:]), angular_velocity=xi[:, :3],
+                         lost=np.array([r[4] for r in rows], bool), t_start=self._mark,
+                         t_end=max(watermark, int(t[-1]) + 1))
+        self._mark = out.t_end
+        return [out]
+
+
+def _twist(R0: np.ndarray, t0: np.ndarray, R1: np.ndarray, t1: np.ndarray, dt: float) -> np.ndarray:
+    """The body twist (ω, v) per s (camera frame) taking camera-from-world
+    ``(R0, t0)`` to ``(R1, t1)`` in ``dt`` s: world-from-camera
+    ``T1 = T0 exp(ξ dt)``."""
+    # T0^-1 T1 with T = world-from-camera = (R^T, -R^T t)
+    R_rel = R0 @ R1.T
+    t_rel = R0 @ (-(R1.T @ t1)) + t0
+    return np.asarray(se3_log(R_rel, t_rel)) / max(dt, 1e-9)
+
+
+def _points_scene(duration_us: int, sensor: tuple[int, int], f: float, speed: float = 0.5, n_points: int = 60,
+                  period_us: int = 100, seed: int = 0) -> dict[str, Packet]:
+    """Events of ``n_points`` world points 1-3 m away (one event per visible
+    point every ``period_us`` at its rounded projection) seen by a pinhole
+    camera (focal ``f`` px, centred) sliding along x at ``speed`` m/s; its
+    poses at 1 kHz and a map of the points from the first pose. For the
+    conformance check and tests."""
+    rng = np.random.default_rng(seed)
+    w, h = sensor
+    cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
+    Z = rng.uniform(1.0, 3.0, n_points)
+    X = (rng.uniform(0.05, 0.95, n_points) * w - cx) / f * Z
+    Y = (rng.uniform(0.05, 0.95, n_points) * h - cy) / f * Z
+    ts = np.arange(0, duration_us, period_us, dtype=np.int64)
+    t_all, x_all, y_all = [], [], []
+    for t in ts:
+        u = np.round(f * (X - speed * t * 1e-6) / Z + cx)
+        v = np.round(f * Y / Z + cy)
+        ok = (u >= 0) & (v >= 0) & (u <= w - 1) & (v <= h - 1)
+        t_all.append(np.full(int(ok.sum()), t))
+        x_all.append(u[ok])
+        y_all.append(v[ok])
+    t_ev = np.concatenate(t_all)
+    ev = EventPacket.from_arrays(t_ev, np.concatenate(x_all), np.concatenate(y_all), np.ones(len(t_ev), np.int8),
+                                 sensor=sensor, t_start=0, t_end=duration_us)
+    tp = np.arange(0, duration_us + 1, 1000, dtype=np.int64)
+    pos = np.zeros((len(tp), 3))
+    pos[:, 0] = speed * tp * 1e-6
+    poses = PosePacket(tp, position=pos, orientation=np.tile([0, 0, 0, 1.0], (len(tp), 1)), t_start=0,
+                       t_end=duration_us + 1)
+    depth = np.full((h, w), np.nan, np.float32)
+    u0 = np.round(f * X / Z + cx).astype(np.int64)
+    v0 = np.round(f * Y / Z + cy).astype(np.int64)
+    depth[v0, u0] = Z
+    K = np.array([[f, 0, cx], [0, f, cy], [0, 0, 1.0]])
+    maps = MapPacket(np.array([0], np.int64), depth=depth[None], K=K[None],
+                     pose=np.array([[0, 0, 0, 0, 0, 0, 1.0]]), t_start=0, t_end=duration_us + 1)
+    return {"events": ev, "maps": maps, "poses": poses}
