@@ -79,3 +79,89 @@ def test_streams_longer_than_the_int32_span(dt_us):
     out = np.concatenate([q.t for q in feed(BackgroundActivity(dt_us=dt_us), pieces)])
     exp = reference(ev, dt_us)
     assert 0 < exp.sum() < n and np.array_equal(out, ev.t[exp])
+
+
+SPAN = 2**30  # µs: how far the int32 state's origin may lag behind a packet's end
+
+
+def _across_the_span(t0: int, dt_us: int, sensor: tuple[int, int], spans: float, seed: int):
+    """Events at random pixels every 0..2 dt_us µs (capped at 2^26 µs) from ``t0`` over ``spans`` x 2^30 µs, plus,
+    at each origin ``b`` the filter takes (the first packet's start, then each ``b + 2^30``), events at
+    ``b + 2^30 - 1``, ``b + 2^30``, ``b + 2^30 + 1`` and two neighbours exactly ``dt_us`` apart across it;
+    and the packet cuts that end one packet exactly 2^30 µs after the origin (no move) and the next one
+    µs past it (the origin moves to that packet's start, ``b + 2^30``)."""
+    from tectum import EventPacket
+
+    rng = np.random.default_rng(seed)
+    w, h = sensor
+    gap = min(2 * dt_us, 2**26)
+    n = int(spans * SPAN / (gap / 2))
+    t = [t0 + np.cumsum(rng.integers(0, gap, n))]
+    x, y = [rng.integers(0, w, n)], [rng.integers(0, h, n)]
+    cuts = [t0]
+    b = t0
+    while b + SPAN < t0 + spans * SPAN:
+        e = b + SPAN
+        t.append(np.array([e - dt_us, e - 1, e, e, e + 1]))
+        x.append(np.array([1, 0, 2, *rng.integers(0, w, 2)]))
+        y.append(np.array([1, 0, 1, *rng.integers(0, h, 2)]))
+        cuts += [e - 1, e, e + 1]
+        b = e
+    tt, xx, yy = np.concatenate(t), np.concatenate(x), np.concatenate(y)
+    inside = tt >= t0
+    order = np.argsort(tt[inside], kind="stable")
+    tt, xx, yy = tt[inside][order], xx[inside][order], yy[inside][order]
+    ev = EventPacket.from_arrays(tt, xx, yy, rng.choice([-1, 1], len(tt)), sensor=sensor,
+                                 t_start=t0, t_end=int(tt[-1]) + 1)
+    return ev, [*cuts, ev.t_end]
+
+
+@pytest.mark.parametrize("dt_us, sensor", [(1_000_000, (4, 3)), (2**32, (40, 30))])  # int32 state; int64
+@pytest.mark.parametrize("packets", ["span", "one", "random"])
+def test_output_around_each_move_of_the_origin(dt_us, sensor, packets):
+    """Forty minutes of sparse events starting far from 0, cut into packets
+    that end exactly on and one µs past each 2^30 µs span of the int32 state
+    (or one packet, which the filter takes in parts, or random cuts): every
+    event kept or dropped as the slow reference says, including those whose
+    deciding neighbour fired before the origin moved (exactly dt_us before,
+    too). With a dt_us beyond 2^31 µs (int64 state) a pixel that never fired
+    stays "never"."""
+    ev, cuts = _across_the_span(10**12 + 12_345, dt_us, sensor, 2.3, seed=5)
+    if packets == "one":
+        cuts = [ev.t_start, ev.t_end]
+    elif packets == "random":
+        rng = np.random.default_rng(6)
+        cuts = [ev.t_start, *np.sort(rng.integers(ev.t_start, ev.t_end, 9)).tolist(), ev.t_end]
+    pieces = [ev.slice_time(a, b) for a, b in zip(cuts, cuts[1:])]
+    out = feed(BackgroundActivity(dt_us=dt_us), pieces)
+    exp = reference(ev, dt_us)
+    assert 0 < exp.sum() < len(ev)
+    assert np.array_equal(np.concatenate([q.t for q in out]), ev.t[exp])
+    assert np.array_equal(np.concatenate([q.x for q in out]), ev.x[exp])
+
+
+def test_the_origin_moves_on_when_a_packet_ends_past_2_30_us():
+    """The int32 state's origin (``base``, µs) is the first packet's start
+    and moves to a packet's start once that packet ends more than 2^30 µs
+    after it: not earlier (each move is a pass over the whole state), not
+    later (relative times must fit in int32)."""
+    from tectum import EventPacket
+
+    t0 = 10**12 + 3
+    op = BackgroundActivity(dt_us=500)
+    for a, b, base in [(t0, t0 + 10, t0), (t0 + SPAN - 5, t0 + SPAN, t0), (t0 + SPAN, t0 + SPAN + 1, t0 + SPAN),
+                       (t0 + 2 * SPAN - 3, t0 + 2 * SPAN, t0 + SPAN),
+                       (t0 + 2 * SPAN, t0 + 2 * SPAN + 2, t0 + 2 * SPAN)]:
+        op.process(EventPacket.from_arrays([b - 1], [1], [1], [1], sensor=(3, 3), t_start=a, t_end=b))
+        assert op.base == base, (a - t0, b - t0)
+
+
+@pytest.mark.parametrize("dt_us, dtype", [(0, np.int32), (2**29 - 1, np.int32), (2**29, np.int64)])
+def test_the_state_is_one_int32_per_pixel_below_2_29_us(dt_us, dtype):
+    """The memory the class promises: one int32 per pixel plus a one-pixel
+    border, (W + 2) x (H + 2) of them; int64 from a dt_us of 2^29 µs."""
+    from tectum import EventPacket
+
+    op = BackgroundActivity(dt_us=dt_us)
+    op.process(EventPacket.from_arrays([5], [1], [2], [1], sensor=(7, 4)))
+    assert op.last is not None and op.last.dtype == dtype and op.last.shape == (1, 6, 9)
