@@ -1,0 +1,163 @@
+"""tracker.edge_align: the analytic gradient against finite differences,
+tracking after a bootstrap on a scene of known points, the bootstrap rows
+are the given poses, a wrong map or none gives lost rows (never confident
+garbage), relocalisation once the right map comes, and bad input."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+import pytest
+from scipy.ndimage import gaussian_filter
+
+from tectum import MapPacket, Packet, PosePacket, concat
+from tectum.camera import se3_exp
+from tectum.plugins.tracker import EdgeAlign
+from tectum.plugins.tracker._edge_align import _system, gradients
+from tectum.plugins.tracker.edge_align import _points_scene
+from tectum.testing import feed_ports
+
+SENSOR = (240, 180)
+F = 200.0
+CALIB = f"{F};{F};{(SENSOR[0] - 1) / 2};{(SENSOR[1] - 1) / 2}"
+SPEED = 0.5  # m/s along x
+BOOT = 20_000  # µs
+KW = {"window_events": 1500, "step_events": 500, "min_neighbours": 0}
+
+
+@lru_cache(maxsize=2)
+def _scene(seed: int = 0) -> dict[str, Packet]:
+    return _points_scene(duration_us=200_000, sensor=SENSOR, f=F, speed=SPEED, n_points=150, seed=seed)
+
+
+def _track(streams: dict[str, Packet | list[Packet]], **kw: object) -> tuple[PosePacket, EdgeAlign]:
+    op = EdgeAlign(calib=CALIB, bootstrap_us=BOOT, **{**KW, **kw})  # type: ignore[arg-type]
+    out = feed_ports(op, {k: v if isinstance(v, list) else [v] for k, v in streams.items()})
+    est = concat([q for q in out if isinstance(q, PosePacket)])
+    assert isinstance(est, PosePacket)
+    return est, op
+
+
+def _errors(est: PosePacket) -> np.ndarray:
+    """Position errors (m) of the rows against the camera sliding along x."""
+    true = np.zeros((len(est), 3))
+    true[:, 0] = SPEED * est.t * 1e-6
+    return np.linalg.norm(est.position - true, axis=1)
+
+
+def test_gradient_matches_finite_differences():
+    rng = np.random.default_rng(1)
+    h, w = 60, 80
+    E = gaussian_filter(rng.random((h, w)), 3.0)
+    E = (E - E.min()) / (E.max() - E.min())
+    gx, gy = np.empty_like(E), np.empty_like(E)
+    gradients(E, gx, gy)
+    pts = np.column_stack([rng.uniform(-0.5, 0.5, 200), rng.uniform(-0.4, 0.4, 200), rng.uniform(1.5, 2.5, 200)])
+    cam = np.array([60.0, 60.0, 39.5, 29.5])
+    R, t = np.eye(3), np.array([0.01, -0.02, 0.0])
+    H, g = np.empty((6, 6)), np.empty(6)
+    cost, n, _ = _system(pts, R, t, cam, E, gx, gy, 10.0, 5.0, 0.05, H, g)  # huber 10: all quadratic
+    eps = 1e-6
+    num = np.empty(6)
+    for j in range(6):
+        d = np.zeros(6)
+        d[j] = eps
+        Rd, td = se3_exp(d)
+        cp, n_p, _ = _system(pts, Rd @ R, Rd @ t + td, cam, E, gx, gy, 10.0, 5.0, 0.05, H.copy(), np.empty(6))
+        d[j] = -eps
+        Rd, td = se3_exp(d)
+        cm, n_m, _ = _system(pts, Rd @ R, Rd @ t + td, cam, E, gx, gy, 10.0, 5.0, 0.05, H.copy(), np.empty(6))
+        assert n_p == n_m == n
+        num[j] = (cp - cm) * n / (2 * eps)
+    # the kernel's image gradient is the bilinear image of central differences, not the derivative of the
+    # bilinear image: close (to 5 % of the largest component), not equal
+    np.testing.assert_allclose(g, num, rtol=0.05, atol=0.05 * np.abs(num).max())
+
+
+def test_tracks_after_bootstrap():
+    s = _scene()
+    est, op = _track({"events": s["events"], "maps": s["maps"], "poses": s["poses"]})
+    after = est.t >= BOOT
+    assert op.counts["tracked"] == after.sum() > 300 and not est.lost.any()
+    e = _errors(est)[after]
+    path = SPEED * (est.t[-1] - BOOT) * 1e-6  # 9 cm
+    assert e[-1] <= 0.05 * path, (e[-1], path)
+    assert e.max() <= 0.005
+    # the velocity is the camera's (0.5 m/s along x) within 20 % once settled
+    v = est.linear_velocity[after][len(e) // 2:]
+    assert np.median(v[:, 0]) == pytest.approx(SPEED, rel=0.2)
+
+
+def test_bootstrap_rows_are_the_given_poses():
+    s = _scene()
+    est, op = _track({"events": s["events"], "maps": s["maps"], "poses": s["poses"]})
+    given = s["poses"]
+    assert isinstance(given, PosePacket)
+    k = int(np.searchsorted(given.t, BOOT))
+    boot = est.t < BOOT
+    assert op.counts["bootstrap_poses"] == boot.sum() == k
+    np.testing.assert_array_equal(est.t[boot], given.t[:k])
+    np.testing.assert_allclose(est.position[boot], given.position[:k])
+    np.testing.assert_allclose(est.orientation[boot], given.orientation[:k])
+    assert not est.lost[boot].any()
+
+
+def _wrong_map() -> MapPacket:
+    m = _scene(seed=7)["maps"]  # the points of another scene
+    assert isinstance(m, MapPacket)
+    return m
+
+
+def test_wrong_map_gives_lost_rows_not_garbage():
+    s = _scene()
+    est, op = _track({"events": s["events"], "maps": _wrong_map(), "poses": s["poses"]})
+    after = est.t >= BOOT
+    assert est.lost[after].mean() >= 0.9, op.counts
+    assert op.counts["lost_overlap"] + op.counts["lost_few_points"] == est.lost.sum()
+    # whatever is not flagged lost is still right
+    assert (_errors(est)[after & ~est.lost] <= 0.005).all()
+    lost = est.take(np.flatnonzero(est.lost))
+    assert isinstance(lost, PosePacket)
+    assert (lost.linear_velocity == 0).all() and (lost.angular_velocity == 0).all()
+
+
+def test_no_map_gives_lost_rows():
+    s = _scene()
+    empty = MapPacket.empty(0, 200_001)
+    est, op = _track({"events": s["events"], "maps": empty, "poses": s["poses"]})
+    after = est.t >= BOOT
+    assert est.lost[after].all() and op.counts["lost_no_map"] == after.sum()
+
+
+def test_relocalises_when_the_right_map_comes():
+    s = _scene()
+    right = s["maps"]
+    assert isinstance(right, MapPacket)
+    late = MapPacket(np.array([60_000], np.int64), depth=right.depth, K=right.K, pose=right.pose, t_start=60_000,
+                     t_end=200_001)
+    wrong = _wrong_map()
+    maps = [MapPacket(wrong.t, depth=wrong.depth, K=wrong.K, pose=wrong.pose, t_start=0, t_end=60_000), late]
+    est, op = _track({"events": s["events"], "maps": maps, "poses": s["poses"]})
+    assert op.counts["relocalised"] >= 1 and op.counts["lost_overlap"] >= 1
+    tail = est.t >= 100_000
+    assert not est.lost[tail].any()
+    assert _errors(est)[tail].max() <= 0.005
+
+
+def test_bad_input_is_refused():
+    s = _scene()
+    m = s["maps"]
+    assert isinstance(m, MapPacket)
+    with pytest.raises(ValueError, match="calib"):
+        EdgeAlign()
+    small = MapPacket(m.t, depth=m.depth[:, :40, :60], K=m.K, pose=m.pose, t_start=m.t_start, t_end=m.t_end)
+    with pytest.raises(ValueError, match="60x40 px, the events 240x180"):
+        _track({"events": s["events"], "maps": small, "poses": s["poses"]})
+    K2 = m.K.copy()
+    K2[:, 0, 0] *= 1.2
+    other = MapPacket(m.t, depth=m.depth, K=K2, pose=m.pose, t_start=m.t_start, t_end=m.t_end)
+    with pytest.raises(ValueError, match="intrinsics"):
+        _track({"events": s["events"], "maps": other, "poses": s["poses"]})
+    with pytest.raises(ValueError, match="window_events"):
+        EdgeAlign(calib=CALIB, window_events=100, step_events=200)
