@@ -74,10 +74,6 @@ class Windowed(Operator):
     def _frame(self, t0: int, t1: int) -> np.ndarray:
         raise NotImplementedError
 
-    def _reserve(self, n: int) -> None:
-        """Told, before a packet is sliced, that it completes ``n`` time
-        windows (a subclass may prepare their frames at once)."""
-
     def _stack(self, images: list[np.ndarray]) -> np.ndarray:
         """The frames of one packet as one (N, ...) array."""
         return images[0][None] if len(images) == 1 else np.stack(images)
@@ -91,8 +87,6 @@ class Windowed(Operator):
             self._end = packet.t_start + (self.window_us or 0)
         frames: list[tuple[int, np.ndarray]] = []
         if self.count is None:
-            if self._end <= packet.t_end:
-                self._reserve((packet.t_end - self._end) // int(self.window_us) + 1)  # type: ignore[arg-type]
             self._by_time(packet, frames)
         else:
             self._by_count(packet, frames)

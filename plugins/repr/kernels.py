@@ -14,7 +14,7 @@ from numba import njit
 __all__ = [
     "NEVER", "histogram_kernel", "signed_kernel", "count_kernel", "sae_kernel",
     "time_surface_kernel", "decay_kernel", "surface_kernel", "voxel_kernel", "last_polarity_kernel",
-    "render_polarity_kernel",
+    "render_polarity_kernel", "windows_kernel", "HISTOGRAM", "SIGNED", "COUNT",
 ]
 
 #: SAE value of a pixel that never fired (µs).
@@ -145,3 +145,77 @@ def surface_kernel(v, base, t_ref, tau_us, out):  # type: ignore[no-untyped-def]
     o = out.ravel()
     for j in range(vv.shape[0]):
         o[j] = np.float32(vv[j] * c)
+
+
+#: :func:`windows_kernel` modes: per-polarity histogram (2 channels), signed sum, count
+HISTOGRAM, SIGNED, COUNT = 0, 1, 2
+
+
+@njit(cache=True, nogil=True)
+def _add_events(mode, width, vmin, vmax, x, y, p, img, touched, n):  # type: ignore[no-untyped-def]
+    """Events into the flat image ``img``, each value clipped to ``[vmin,
+    vmax]`` (no clipping when that is the full int32 range); records the indices that leave zero in ``touched[n:]`` and
+    returns the new count (``n < 0``: no record; -1 too when ``touched``
+    fills up). Indices are unsigned and the loops run over whole arrays
+    (slices): a signed index costs a negative-index check per access."""
+    chans = np.uint64(2 if mode == HISTOGRAM else 1)
+    two = np.uint64(mode == HISTOGRAM)
+    signed = np.int64(mode == SIGNED)
+    w = np.uint64(width)
+    clip = vmin > -2147483648 or vmax < 2147483647
+    start = 0
+    if n >= 0:
+        cap = touched.shape[0]
+        for e in range(x.shape[0]):
+            pe = np.int64(p[e])
+            idx = (np.uint64(y[e]) * w + np.uint64(x[e])) * chans + np.uint64(pe > 0) * two
+            old = np.int64(img[idx])
+            if old == 0:
+                if n == cap:
+                    n, start = -1, e
+                    break
+                touched[n] = idx
+                n += 1
+            new = old + 1 + signed * (pe - 1)
+            img[idx] = min(max(new, vmin), vmax) if clip else new
+        else:
+            return n
+    xs, ys, ps = x[start:], y[start:], p[start:]
+    for e in range(xs.shape[0]):
+        pe = np.int64(ps[e])
+        idx = (np.uint64(ys[e]) * w + np.uint64(xs[e])) * chans + np.uint64(pe > 0) * two
+        new = np.int64(img[idx]) + 1 + signed * (pe - 1)
+        img[idx] = min(max(new, vmin), vmax) if clip else new
+    return n
+
+
+@njit(cache=True, nogil=True)
+def windows_kernel(mode, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames):  # type: ignore[no-untyped-def]
+    """One packet's events into consecutive windows of a per-window image.
+
+    ``mode`` (:data:`HISTOGRAM`: ``+1`` at ``(y W + x) 2 + (p > 0)``;
+    :data:`SIGNED`: ``+p`` at ``y W + x``; :data:`COUNT`: ``+1`` there),
+    ``width`` W (px), values saturate at ``vmin`` and ``vmax``. ``state``
+    (S,) is the flat image of the window in progress, non-zero only at
+    ``touched[:n_touched[0]]`` (-1: anywhere); ``frames`` (N S,) the flat
+    images of the ``N = len(splits)`` windows this packet completes, zero on
+    entry. Window ``k`` gets events ``[splits[k - 1], splits[k])`` (window
+    0 also what ``state`` held; ``state`` is zeroed where it was touched);
+    events from ``splits[-1]`` on go into ``state``."""
+    s_size = state.shape[0]
+    n_win = splits.shape[0]
+    if n_win > 0:
+        m = n_touched[0]
+        for j in range(m if m >= 0 else s_size):
+            i = touched[j] if m >= 0 else j
+            if state[i] != 0:  # a signed sum may list a pixel twice (it went back to zero)
+                frames[i] = state[i]
+                state[i] = 0
+        n_touched[0] = 0
+    lo = 0
+    for k in range(n_win):
+        hi = splits[k]
+        _add_events(mode, width, vmin, vmax, x[lo:hi], y[lo:hi], p[lo:hi], frames[k * s_size:(k + 1) * s_size],
+                    touched, -1)
+        lo = hi
+    n_touched[0] = _add_events(mode, width, vmin, vmax, x[lo:], y[lo:], p[lo:], state, touched, n_touched[0])

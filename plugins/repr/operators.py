@@ -6,7 +6,11 @@ rules shared by all). Parameters: ``window_us`` (µs) or ``count`` (events),
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+
+from tectum import EventPacket
 
 from . import functional as F
 from . import kernels as K
@@ -16,91 +20,133 @@ __all__ = ["EventFrame", "Accumulate", "CountImage", "TimeSurface", "Sae", "Voxe
 
 
 class _Image(Windowed):
-    """A per-window image that starts at zero and is reset after each frame."""
+    """A per-window image that starts at zero. One kernel call per packet
+    accumulates every window the packet completes into its own frame of one
+    fresh block (the packet's images, no copy); the window in progress
+    lives in a private state image that remembers where it was touched.
+    ``dtype``: an integer numpy dtype; values saturate at its limits."""
 
     shape_tail: tuple[int, ...] = ()
-    dtype: type = np.int32
+    mode: int = K.COUNT
+
+    def __init__(self, window_us: int | None = None, count: int | None = None, partial: bool = True,
+                 dtype: str | type = "int32") -> None:
+        self._init_window(window_us, count, partial)
+        try:
+            self.dtype = np.dtype(dtype)
+        except TypeError:
+            raise ValueError(f"dtype must be an integer numpy dtype, got {dtype!r}") from None
+        if self.dtype.kind not in "iu" or self.dtype.itemsize > 4:
+            raise ValueError(f"dtype must be an integer numpy dtype of at most 32 bits, got {self.dtype}")
+        if self.mode == K.SIGNED and self.dtype.kind == "u":
+            raise ValueError(f"a signed sum needs a signed dtype, got {self.dtype}")
+        info = np.iinfo(self.dtype)
+        self._limits = (int(info.min), int(info.max))
 
     def _start(self, sensor: tuple[int, int]) -> None:
         self.state: np.ndarray = np.zeros((sensor[1], sensor[0], *self.shape_tail), self.dtype)
-        self._block: np.ndarray | None = None  # frames of the packet being sliced, and the window after
-        self._slot = 0  # the block's next free frame
+        self._flat = self.state.reshape(-1)
+        self._touched = np.empty(self._flat.shape[0], np.int64)  # state indices that left zero
+        self._n_touched = np.zeros(1, np.int64)
+        self._pending: np.ndarray | None = None  # the frames of the packet being sliced
 
-    def _reserve(self, n: int) -> None:
-        """A packet that completes ``n`` >= 2 windows gets one zeroed block
-        of ``n + 1`` frames: each window accumulates in its own slice, which
-        becomes its frame, so the packet's frames are the block itself
-        (no copy when they are stacked, and a page of a sparse frame is only
-        touched where events land). The window in progress moves in."""
-        if n < 2:
+    def _by_time(self, pk: EventPacket, frames: list[tuple[int, np.ndarray]]) -> None:
+        w = int(self.window_us)  # type: ignore[arg-type]
+        n_win = (pk.t_end - self._end) // w + 1 if self._end <= pk.t_end else 0
+        ends = self._end + w * np.arange(n_win, dtype=np.int64)
+        splits = np.searchsorted(pk.t, ends, side="left") if n_win and len(pk) else np.zeros(n_win, np.int64)
+        self._end += n_win * w
+        self._run(pk, splits, ends - 1, frames)
+
+    def _by_count(self, pk: EventPacket, frames: list[tuple[int, np.ndarray]]) -> None:
+        c, n = int(self.count), len(pk)  # type: ignore[arg-type]
+        splits = np.arange(c - self._n, n + 1, c, dtype=np.int64)
+        rest = int(splits[-1]) if len(splits) else 0  # the first event of the window left open
+        if rest < n and (len(splits) or self._n == 0):
+            self._first = int(pk.t[rest])
+        self._run(pk, splits, pk.t[splits - 1], frames)
+
+    def _run(self, pk: EventPacket, splits: np.ndarray, stamps: np.ndarray,
+             frames: list[tuple[int, np.ndarray]]) -> None:
+        """Windows ending at event indices ``splits`` (stamped ``stamps``, µs)
+        from the packet's events; the rest stays in the state."""
+        n_win, n = len(splits), len(pk)
+        self._n = n - int(splits[-1]) if n_win else self._n + n
+        if not (n_win or n):
             return
-        block = np.zeros((n + 1, *self.state.shape), self.state.dtype)
-        if self._n:
-            block[0] = self.state
-        self.state, self._block, self._slot = block[0], block, 1
+        images = np.zeros((n_win, *self.state.shape), self.dtype)
+        self._kernel(pk.x, pk.y, pk.p, splits, images)
+        if n_win:
+            self._pending = images
+            frames.extend(zip(stamps.tolist(), images))
+
+    def _kernel(self, x: np.ndarray, y: np.ndarray, p: np.ndarray, splits: np.ndarray, images: np.ndarray) -> None:
+        K.windows_kernel(self.mode, self.state.shape[1], *self._limits, x, y, p, splits, self._flat, self._touched,
+                         self._n_touched, images.reshape(-1))
 
     def _frame(self, t0: int, t1: int) -> np.ndarray:
-        out = self.state  # the accumulator becomes the frame; a fresh one takes over
-        if self._block is not None and self._slot < len(self._block):
-            self.state = self._block[self._slot]
-            self._slot += 1
-        else:
-            self._block = None
-            self.state = np.zeros(out.shape, out.dtype)  # calloc: cheaper than zeros_like's fill
-        return out
+        """The window in progress as a new image (the state is zeroed)."""
+        out = np.zeros((1, *self.state.shape), self.dtype)
+        self._kernel(_NO_XY, _NO_XY, _NO_P, np.zeros(1, np.int64), out)
+        return out[0]
 
     def _stack(self, images: list[np.ndarray]) -> np.ndarray:
-        b = self._block
-        if b is not None and len(images) < len(b) and all(im.ctypes.data == b[i].ctypes.data
-                                                         for i, im in enumerate(images)):
-            return b[:len(images)]  # the block's first frames, in order: no copy
+        pending, self._pending = self._pending, None
+        if pending is not None and len(pending) == len(images):
+            return pending  # the block's frames, in order: no copy
         return super()._stack(images)
+
+    def describe(self) -> dict[str, Any]:
+        return {**super().describe(), "dtype": str(self.dtype)}
+
+
+_NO_XY, _NO_P = np.empty(0, np.uint16), np.empty(0, np.int8)
 
 
 class EventFrame(_Image):
-    """Histogram per polarity: (H, W, 2) int32 counts per window, channel 0
-    OFF, 1 ON. State: 8 x W x H bytes."""
+    """Histogram per polarity: (H, W, 2) counts per window, channel 0 OFF,
+    1 ON; ``dtype`` int32 (default), or ``uint8``/``int16``/... for frames
+    4x/2x smaller whose counts saturate at the dtype's maximum. State: one
+    frame (8 x W x H bytes in int32) plus 16 bytes per pixel touched."""
 
     name = "repr.event_frame"
     shape_tail = (2,)
-
-    def _add(self, t, x, y, p) -> None:  # type: ignore[no-untyped-def]
-        K.histogram_kernel(x, y, p, self.state)
+    mode = K.HISTOGRAM
 
 
 class Accumulate(_Image):
-    """Signed accumulation: (H, W) int32 sum of polarities per window.
-    State: 4 x W x H bytes."""
+    """Signed accumulation: (H, W) sum of polarities per window, ``dtype``
+    int32 (default) or a smaller signed one (saturating). State: 4 x W x H
+    bytes in int32."""
 
     name = "repr.accumulate"
-
-    def _add(self, t, x, y, p) -> None:  # type: ignore[no-untyped-def]
-        K.signed_kernel(x, y, p, self.state)
+    mode = K.SIGNED
 
 
 class CountImage(_Image):
-    """Event count image: (H, W) int32 events per pixel per window.
-    State: 4 x W x H bytes."""
+    """Event count image: (H, W) events per pixel per window, ``dtype``
+    int32 (default) or a smaller one (``uint8``: 1 byte per pixel, counts
+    saturate at 255). State: 4 x W x H bytes in int32."""
 
     name = "repr.count"
-
-    def _add(self, t, x, y, p) -> None:  # type: ignore[no-untyped-def]
-        K.count_kernel(x, y, self.state)
+    mode = K.COUNT
 
 
-class Color(_Image):
+class Color(Windowed):
     """Polarity colour rendering: RGB (H, W, 3) uint8 per window, each pixel
     in the colour of its latest event's polarity (``on``/``off``, hex
     ``#rrggbb``) or ``background``. State: W x H bytes."""
 
     name = "repr.color"
-    dtype = np.int8
 
     def __init__(self, window_us: int | None = None, count: int | None = None, partial: bool = True,
                  on: str = "#ffffff", off: str = "#3c78ff", background: str = "#000000") -> None:
         self._init_window(window_us, count, partial)
         self.colors = (on, off, background)
         F.render_polarity(np.zeros((1, 1), np.int8), *self.colors)  # validate now
+
+    def _start(self, sensor: tuple[int, int]) -> None:
+        self.state = np.zeros((sensor[1], sensor[0]), np.int8)
 
     def _add(self, t, x, y, p) -> None:  # type: ignore[no-untyped-def]
         K.last_polarity_kernel(x, y, p, self.state)

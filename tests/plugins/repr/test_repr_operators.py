@@ -20,6 +20,7 @@ ALL = [
     lambda **w: R.EventFrame(**w), lambda **w: R.Accumulate(**w), lambda **w: R.CountImage(**w),
     lambda **w: R.TimeSurface(tau_us=5000.0, **w), lambda **w: R.Sae(**w), lambda **w: R.VoxelGrid(bins=3, **w),
     lambda **w: R.Color(**w),
+    lambda **w: R.EventFrame(dtype="uint8", **w), lambda **w: R.Accumulate(dtype="int8", **w),
 ]
 
 
@@ -78,7 +79,46 @@ def test_time_surface_persists_across_windows(ev):
         assert np.allclose(ts, exp, atol=1e-6)
 
 
+def _hot(n_hot: int):
+    """``n_hot`` events on pixel (3, 2), ON but for every third, among a
+    few others, over 20 ms on a 16x10 sensor."""
+    from tectum import EventPacket
+
+    rng = np.random.default_rng(1)
+    n = n_hot + 40
+    x = np.r_[np.full(n_hot, 3), rng.integers(0, 16, 40)]
+    y = np.r_[np.full(n_hot, 2), rng.integers(0, 10, 40)]
+    p = np.r_[np.where(np.arange(n_hot) % 3, 1, -1), rng.choice([-1, 1], 40)]
+    order = rng.permutation(n)
+    return EventPacket.from_arrays(np.sort(rng.integers(0, 20_000, n)), x[order], y[order], p[order], sensor=(16, 10))
+
+
+@pytest.mark.parametrize("make, dtype, n_hot", [(R.EventFrame, "uint8", 3000), (R.EventFrame, "int16", 70_000),
+                                                (R.CountImage, "uint8", 3000), (R.Accumulate, "int8", 3000)])
+def test_small_dtypes_saturate(make, dtype, n_hot):
+    """Each event moves its pixel towards the dtype's limit and stops there
+    (a signed sum comes back from it), in event order: a slow reference."""
+    ev = _hot(n_hot)  # one window: every event before 20 ms
+    out = concat(feed(make(window_us=25_000, dtype=dtype), list(ev.batches(997))))
+    lo, hi = np.iinfo(dtype).min, np.iinfo(dtype).max
+    ref = np.zeros(out.images.shape[1:], np.int64)
+    stops = 0  # events the limit stopped
+    for x, y, p in zip(ev.x.tolist(), ev.y.tolist(), ev.p.tolist()):
+        at = (y, x, int(p > 0)) if make is R.EventFrame else (y, x)
+        v = ref[at] + (p if make is R.Accumulate else 1)
+        stops += not lo <= v <= hi
+        ref[at] = min(max(v, lo), hi)
+    assert out.images.dtype == np.dtype(dtype) and len(out) == 1
+    assert np.array_equal(out.images[0], ref)
+    assert stops > 100
+
+
 def test_parameters_validated():
+    for bad in ("float32", "int64", "nonsense"):
+        with pytest.raises(ValueError, match="dtype"):
+            R.EventFrame(dtype=bad)
+    with pytest.raises(ValueError, match="signed"):
+        R.Accumulate(dtype="uint8")
     with pytest.raises(ValueError):
         R.EventFrame(window_us=10, count=10)
     with pytest.raises(ValueError):
