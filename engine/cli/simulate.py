@@ -34,6 +34,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--window-us", type=int, default=10_000, help="µs per packet")
     p.add_argument("--fps", type=float, default=0.0, help="frame rate of a video / image folder (default: the "
                    "container's; an images.txt gives its own timestamps)")
+    p.add_argument("--map", metavar="FILE", help="also write the scene's photometric map (log intensity, depth, K, "
+                   "pose at --map-time) to FILE.npz, as tracker.pose_6dof's map= reads it")
+    p.add_argument("--map-time", type=parse_duration, default=0, metavar="T",
+                   help="the time the map is seen at, e.g. 0s, 50ms (default 0)")
     p.add_argument("--set", action="append", default=[], metavar="K=V",
                    help="override a sensor-model parameter (e.g. shot_noise_hz=2), repeatable")
 
@@ -62,6 +66,15 @@ def main(args: argparse.Namespace) -> int:
             return 2
         k, v = kv.split("=", 1)
         model[k.strip()] = float(v)
+    if args.map:
+        from tectum.sources.simulate.photomap import write_scene_map
+
+        try:
+            write_scene_map(args.map, args.scene, args.map_time, sensor=args.sensor, seed=args.seed,
+                            preset=args.preset, **model)
+        except (ValueError, OSError) as e:
+            print(f"tectum simulate: --map {args.map}: {e}", file=sys.stderr)
+            return 2
     keep_cols = args.out is None or args.out.lower().endswith(".npz")
     src = SimulateSource(f"simulate:{args.scene}", duration_us=args.duration, seed=args.seed, preset=args.preset,
                          sensor=args.sensor, window_us=args.window_us, truth_columns=keep_cols,
@@ -84,4 +97,6 @@ def main(args: argparse.Namespace) -> int:
         truth_path = args.out + ".truth.npz"
         src.truth.save(truth_path)
         print(f"events -> {args.out}\ntruth  -> {truth_path}")
+    if args.map:
+        print(f"map    -> {args.map}")
     return 0

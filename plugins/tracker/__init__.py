@@ -4,7 +4,8 @@ model ladder that picks the simplest adequate motion model
 (``tracker.ego_motion``); moving objects as event clusters
 (``tracker.clusters``) and blinking LED markers with the pose of their body
 (``tracker.led_markers``); the 6-DoF pose by aligning event images to
-semi-dense maps (``tracker.edge_align``, EVO's tracker)."""
+semi-dense maps (``tracker.edge_align``, EVO's tracker) and against a known
+photometric map with the generative event model (``tracker.pose_6dof``)."""
 
 from __future__ import annotations
 
@@ -16,9 +17,10 @@ from .edge_align import EdgeAlign
 from .ego_motion import EgoMotion, MotionModelPacket
 from .features import FeatureTracker
 from .led_markers import LedMarkers
+from .pose_6dof import Pose6Dof
 
 __all__: list[str] = ["AngularVelocity", "EgoMotion", "MotionModelPacket", "FeatureTracker", "Clusters", "LedMarkers",
-                     "EdgeAlign"]
+                     "EdgeAlign", "Pose6Dof"]
 
 
 @hookimpl
@@ -29,6 +31,7 @@ def tectum_register_operators(registry) -> None:  # type: ignore[no-untyped-def]
     registry.add_operator(Clusters)
     registry.add_operator(LedMarkers)
     registry.add_operator(EdgeAlign)
+    registry.add_operator(Pose6Dof)
 
 
 @hookimpl

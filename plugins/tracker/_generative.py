@@ -1,0 +1,360 @@
+"""Numba kernels of ``tracker.pose_6dof``: the generative event model
+against a photometric map (Gallego et al., TPAMI 2018; Bryner et al., ICRA
+2019), one batch of events at a time.
+
+**Model.** A pixel fires when its log intensity has changed by the contrast
+``C`` since its last event, so the events of a batch, accumulated with
+their polarity, sample the brightness increment over the batch:
+``ΔL_obs(u) = C Σ_k p_k`` at pixel ``u`` (blurred by a Gaussian of σ px,
+:func:`splat`). The map predicts that increment: a map point ``P`` (world,
+m) with log intensity ``L_map(m)`` seen at pixel ``m`` of the map lands at
+``u1 = π(T1⁻¹ P)`` at the batch's end (pose ``T1``, world-from-camera) and
+at ``u0`` at its start (``T0``). The pixel ``u1`` saw at ``T0`` the map
+point ``m' ≈ m + A (u1 - u0)``, ``A = (∂u/∂m)⁻¹`` the local map-to-image
+warp at ``T0`` (the surface taken fronto-parallel to the map's view around
+``m``), so the predicted increment at ``u1`` is
+``ΔL_pred = L_map(m) - L_map(m')``: to first order the papers'
+``-∇L · u̇ Δt`` (brightness gradient dotted with the motion), without the
+linearisation, so a batch may span several pixels of motion.
+
+**Estimation.** ``T0`` is the previous batch's estimate; ``T1 = T1 exp(δ)``
+(δ = (ω, v), camera frame) minimises a robust sum over the map's points of
+``r = ΔL_obs(u1) - ΔL_pred`` by Gauss-Newton with analytic Jacobians
+``∂r/∂δ = (∇ΔL_obs(u1) + Aᵀ ∇L_map(m'))ᵀ ∂u1/∂δ``,
+``∂u1/∂δ = ∂π/∂X [ [X]ₓ  -I ]``, a Huber weight per point (scale from the
+median absolute residual: the inlier/outlier mixture made robust), and a
+small Levenberg damping. The fit's quality is the correlation of observed
+and predicted increments over the points in view
+(``Σ obs·pred / sqrt(Σ obs² Σ pred²)``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from tectum._rigid import se3_exp_kernel
+
+__all__ = ["event_weights", "splat", "splat_bilinear", "blur_and_gradients", "fit_batch"]
+
+
+@njit(cache=True, nogil=True)
+def splat(ux, uy, p, c, sigma, img):  # type: ignore[no-untyped-def]
+    """Add ``c * p_k`` to ``img`` (H, W) around each event's position
+    ``(ux_k, uy_k)`` (px, float) with a normalised Gaussian of ``sigma`` px
+    (separable, cut at 3σ)."""
+    H, W = img.shape
+    r = int(math.ceil(3.0 * sigma))
+    n = 2 * r + 1
+    wx = np.empty(n)
+    wy = np.empty(n)
+    inv = 1.0 / (2.0 * sigma * sigma)
+    for k in range(ux.shape[0]):
+        x0 = int(math.floor(ux[k])) - r
+        y0 = int(math.floor(uy[k])) - r
+        sx = 0.0
+        sy = 0.0
+        for i in range(n):
+            dx = x0 + i - ux[k]
+            dy = y0 + i - uy[k]
+            wx[i] = math.exp(-dx * dx * inv)
+            wy[i] = math.exp(-dy * dy * inv)
+            sx += wx[i]
+            sy += wy[i]
+        a = c * p[k] / (sx * sy)
+        for j in range(n):
+            y = y0 + j
+            if y < 0 or y >= H:
+                continue
+            b = a * wy[j]
+            for i in range(n):
+                x = x0 + i
+                if 0 <= x < W:
+                    img[y, x] += b * wx[i]
+
+
+@njit(cache=True, nogil=True)
+def event_weights(x, y, p, c, last, out):  # type: ignore[no-untyped-def]
+    """Each event's share of the brightness increment, in order: ``c p``
+    plus ``c/2 (p - p_prev)``, ``p_prev`` the polarity of the pixel's
+    previous event (0 before its first; ``last`` (H, W) int8 keeps them
+    and is updated). The second term models the change still below the
+    threshold at a batch's end: after an event of polarity ``p`` a pixel
+    whose brightness keeps moving holds on average ``c/2`` more, unseen; the
+    sum over a window telescopes to ``c/2 (p_last(end) - p_last(start))``,
+    so the increments of a window are not biased towards a lag of half a
+    threshold."""
+    h = 0.5 * c
+    for k in range(x.shape[0]):
+        q = last[y[k], x[k]]
+        out[k] = c * p[k] + h * (p[k] - q)
+        last[y[k], x[k]] = p[k]
+
+
+@njit(cache=True, nogil=True)
+def splat_bilinear(ux, uy, p, c, img):  # type: ignore[no-untyped-def]
+    """Add ``c * p_k`` to ``img`` (H, W) at each event's position (px,
+    float), split bilinearly over the 4 nearest pixels."""
+    H, W = img.shape
+    for k in range(ux.shape[0]):
+        x0 = int(math.floor(ux[k]))
+        y0 = int(math.floor(uy[k]))
+        fx = ux[k] - x0
+        fy = uy[k] - y0
+        a = c * p[k]
+        for j in range(2):
+            y = y0 + j
+            if y < 0 or y >= H:
+                continue
+            wy = fy if j else 1.0 - fy
+            for i in range(2):
+                x = x0 + i
+                if 0 <= x < W:
+                    img[y, x] += a * wy * (fx if i else 1.0 - fx)
+
+
+@njit(cache=True, nogil=True)
+def _bilinear(img, x, y):  # type: ignore[no-untyped-def]
+    """Value and gradient (central differences of the bilinear
+    interpolant's cells) of ``img`` at ``(x, y)`` px; the caller keeps
+    ``1 <= x < W - 2`` and ``1 <= y < H - 2``."""
+    x0 = int(x)
+    y0 = int(y)
+    fx = x - x0
+    fy = y - y0
+    a = img[y0, x0]
+    b = img[y0, x0 + 1]
+    c = img[y0 + 1, x0]
+    d = img[y0 + 1, x0 + 1]
+    v = (1 - fy) * ((1 - fx) * a + fx * b) + fy * ((1 - fx) * c + fx * d)
+    gx = (1 - fy) * (b - a) + fy * (d - c)
+    gy = (1 - fx) * (c - a) + fx * (d - b)
+    return v, gx, gy
+
+
+@njit(cache=True, nogil=True)
+def blur_and_gradients(img, sigma, out):  # type: ignore[no-untyped-def]
+    """``out[0]`` the Gaussian blur (σ px, edges replicated) of ``img``,
+    ``out[1]``, ``out[2]`` its x and y central differences (px⁻¹)."""
+    H, W = img.shape
+    r = int(math.ceil(3.0 * sigma))
+    k = np.empty(2 * r + 1)
+    s = 0.0
+    for i in range(2 * r + 1):
+        d = i - r
+        k[i] = math.exp(-d * d / (2.0 * sigma * sigma))
+        s += k[i]
+    k /= s
+    tmp = np.empty((H, W))
+    for y in range(H):
+        for x in range(W):
+            acc = 0.0
+            for i in range(2 * r + 1):
+                xx = min(max(x + i - r, 0), W - 1)
+                acc += k[i] * img[y, xx]
+            tmp[y, x] = acc
+    b = out[0]
+    for y in range(H):
+        for x in range(W):
+            acc = 0.0
+            for i in range(2 * r + 1):
+                yy = min(max(y + i - r, 0), H - 1)
+                acc += k[i] * tmp[yy, x]
+            b[y, x] = acc
+    for y in range(H):
+        for x in range(W):
+            out[1, y, x] = 0.5 * (b[y, min(x + 1, W - 1)] - b[y, max(x - 1, 0)])
+            out[2, y, x] = 0.5 * (b[min(y + 1, H - 1), x] - b[max(y - 1, 0), x])
+
+
+@njit(cache=True, nogil=True)
+def _residuals(P, Xr, Lm, obs_img, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy, with_jac, res, obs, jac, ok, disp):  # type: ignore[no-untyped-def]
+    """Per map point: residual ``r``, the observed increment ``obs`` (and
+    with ``with_jac`` the residual's 6 Jacobian entries); ``ok`` false where the point is out of view (either pose), or
+    its ``m'`` off the map. Returns the number of points in view."""
+    H, W = obs_img.shape
+    Hm, Wm = map_img.shape
+    n_ok = 0
+    for i in range(P.shape[0]):
+        ok[i] = False
+        px, py, pz = P[i, 0] - t1[0], P[i, 1] - t1[1], P[i, 2] - t1[2]
+        X = R1[0, 0] * px + R1[1, 0] * py + R1[2, 0] * pz
+        Y = R1[0, 1] * px + R1[1, 1] * py + R1[2, 1] * pz
+        Z = R1[0, 2] * px + R1[1, 2] * py + R1[2, 2] * pz
+        if Z <= 1e-6:
+            continue
+        u1 = fx * X / Z + cx
+        v1 = fy * Y / Z + cy
+        if not (1.0 <= u1 < W - 2.0 and 1.0 <= v1 < H - 2.0):
+            continue
+        qx, qy, qz = P[i, 0] - t0[0], P[i, 1] - t0[1], P[i, 2] - t0[2]
+        X0 = R0[0, 0] * qx + R0[1, 0] * qy + R0[2, 0] * qz
+        Y0 = R0[0, 1] * qx + R0[1, 1] * qy + R0[2, 1] * qz
+        Z0 = R0[0, 2] * qx + R0[1, 2] * qy + R0[2, 2] * qz
+        if Z0 <= 1e-6:
+            continue
+        u0 = fx * X0 / Z0 + cx
+        v0 = fy * Y0 / Z0 + cy
+        # du/dm at T0: dpi/dX0 . R_0r . d [1/fx 0; 0 1/fy; 0 0]
+        d = Xr[i, 2]
+        c0x = R_0r[0, 0] * d / fx
+        c0y = R_0r[1, 0] * d / fx
+        c0z = R_0r[2, 0] * d / fx
+        c1x = R_0r[0, 1] * d / fy
+        c1y = R_0r[1, 1] * d / fy
+        c1z = R_0r[2, 1] * d / fy
+        iz = 1.0 / Z0
+        a00 = fx * iz * (c0x - X0 * iz * c0z)
+        a10 = fy * iz * (c0y - Y0 * iz * c0z)
+        a01 = fx * iz * (c1x - X0 * iz * c1z)
+        a11 = fy * iz * (c1y - Y0 * iz * c1z)
+        det = a00 * a11 - a01 * a10
+        if abs(det) < 1e-9:
+            continue
+        # A = inverse of [[a00, a01], [a10, a11]]
+        b00, b01, b10, b11 = a11 / det, -a01 / det, -a10 / det, a00 / det
+        du, dv = u1 - u0, v1 - v0
+        mx = Xr[i, 0] + b00 * du + b01 * dv
+        my = Xr[i, 1] + b10 * du + b11 * dv
+        if not (1.0 <= mx < Wm - 2.0 and 1.0 <= my < Hm - 2.0):
+            continue
+        lm2, gmx, gmy = _bilinear(map_img, mx, my)
+        e, gex, gey = _bilinear(obs_img, u1, v1)
+        res[i] = e - (Lm[i] - lm2)
+        obs[i] = e
+        disp[i] = math.sqrt(du * du + dv * dv)
+        ok[i] = True
+        n_ok += 1
+        if with_jac:
+            # dr/du1 = grad obs + A^T grad map(m')
+            gu = gex + b00 * gmx + b10 * gmy
+            gv = gey + b01 * gmx + b11 * gmy
+            izz = 1.0 / Z
+            jx0 = fx * izz
+            jx2 = -fx * X * izz * izz
+            jy1 = fy * izz
+            jy2 = -fy * Y * izz * izz
+            # dX/d(omega) = [X]x = [[0, -Z, Y], [Z, 0, -X], [-Y, X, 0]], dX/dv = -I
+            du_w0 = jx2 * (-Y)
+            du_w1 = jx0 * (-Z) + jx2 * X
+            du_w2 = jx0 * Y
+            dv_w0 = jy1 * Z + jy2 * (-Y)
+            dv_w1 = jy2 * X
+            dv_w2 = jy1 * (-X)
+            jac[i, 0] = gu * du_w0 + gv * dv_w0
+            jac[i, 1] = gu * du_w1 + gv * dv_w1
+            jac[i, 2] = gu * du_w2 + gv * dv_w2
+            jac[i, 3] = -gu * jx0
+            jac[i, 4] = -gv * jy1
+            jac[i, 5] = -(gu * jx2 + gv * jy2)
+    return n_ok
+
+
+@njit(cache=True, nogil=True)
+def _rel(R0, t0, R_wr, out):  # type: ignore[no-untyped-def]
+    """``R_0r = R0ᵀ R_wr`` (the map's view in the camera frame at T0)."""
+    for a in range(3):
+        for b in range(3):
+            out[a, b] = R0[0, a] * R_wr[0, b] + R0[1, a] * R_wr[1, b] + R0[2, a] * R_wr[2, b]
+
+
+@njit(cache=True, nogil=True)
+def fit_batch(P, Xr, Lm, obs_img, map_img, R0, t0, R1, t1, R_wr, fx, fy, cx, cy, iters, huber_k, damping,
+              prior, stats):  # type: ignore[no-untyped-def]
+    """Refine ``(R1, t1)`` in place (see the module). ``P`` (M, 3) world
+    points, ``Xr`` (M, 3) their map pixel (x, y) and depth (m), ``Lm`` (M,)
+    their map log intensity (blurred as ``map_img``). ``prior`` (6,): the
+    inverse variances (rad⁻², m⁻²) of a Gaussian prior on the change from
+    the starting ``(R1, t1)`` (the prediction), in units of the robust
+    residual variance; zeros for none. ``stats`` gets
+    ``[points in view, correlation, rms residual, iterations, last step,
+    median displacement (px) of the points in view from T0 to T1]``."""
+    M = P.shape[0]
+    res = np.zeros(M)
+    obs = np.zeros(M)
+    disp = np.zeros(M)
+    jac = np.zeros((M, 6))
+    ok = np.zeros(M, np.bool_)
+    R_0r = np.empty((3, 3))
+    _rel(R0, t0, R_wr, R_0r)
+    H = np.empty((6, 6))
+    g = np.empty(6)
+    dR = np.empty((3, 3))
+    dt = np.empty(3)
+    step = 0.0
+    it = 0
+    s = 1.0
+    absr = np.empty(M)
+    dev = np.zeros(6)  # the change from the starting pose so far (sum of the steps)
+    for it in range(iters):
+        n_ok = _residuals(P, Xr, Lm, obs_img, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy, True, res, obs, jac, ok,
+                          disp)
+        if n_ok < 12:
+            break
+        if it == 0:  # robust scale: 1.4826 x median |r| over the points in view, at the start
+            k = 0
+            for i in range(M):
+                if ok[i]:
+                    absr[k] = abs(res[i])
+                    k += 1
+            s = max(1.4826 * np.median(absr[:k]), 1e-6)
+        thr = huber_k * s
+        H[:, :] = 0.0
+        g[:] = 0.0
+        for i in range(M):
+            if not ok[i]:
+                continue
+            r = res[i]
+            w = 1.0 if abs(r) <= thr else thr / abs(r)
+            for a in range(6):
+                ja = w * jac[i, a]
+                g[a] += ja * r
+                for b in range(a, 6):
+                    H[a, b] += ja * jac[i, b]
+        for a in range(6):
+            for b in range(a):
+                H[a, b] = H[b, a]
+        tr = 0.0
+        for a in range(6):
+            tr += H[a, a]
+        if tr <= 0.0:
+            break
+        for a in range(6):
+            H[a, a] += damping * H[a, a] + 1e-9 * tr + prior[a] * s * s
+            g[a] += prior[a] * s * s * dev[a]
+        delta = -np.linalg.solve(H, g)
+        dev += delta
+        se3_exp_kernel(delta, dR, dt)
+        # T1 <- T1 exp(delta)
+        nt = R1 @ dt + t1
+        R1[:, :] = R1 @ dR
+        t1[:] = nt
+        step = math.sqrt((delta * delta).sum())
+        if step < 1e-5:  # rad and m: a few thousandths of a pixel
+            break
+    n_ok = _residuals(P, Xr, Lm, obs_img, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy, False, res, obs, jac, ok, disp)
+    k = 0
+    for i in range(M):
+        if ok[i]:
+            absr[k] = disp[i]
+            k += 1
+    stats[5] = np.median(absr[:k]) if k else 0.0
+    so = 0.0
+    sp = 0.0
+    sop = 0.0
+    rr = 0.0
+    for i in range(M):
+        if ok[i]:
+            e = obs[i]
+            pred = e - res[i]
+            so += e * e
+            sp += pred * pred
+            sop += e * pred
+            rr += res[i] * res[i]
+    stats[0] = n_ok
+    stats[1] = sop / math.sqrt(so * sp) if so > 0 and sp > 0 else 0.0
+    stats[2] = math.sqrt(rr / n_ok) if n_ok else math.inf
+    stats[3] = it + 1
+    stats[4] = step

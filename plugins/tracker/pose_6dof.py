@@ -1,0 +1,405 @@
+"""``tracker.pose_6dof``: the camera's 6-DoF pose from events against a
+known photometric map, with the generative event model (Gallego et al.,
+"Event-based, 6-DOF camera tracking from photometric depth maps", TPAMI
+2018; Bryner et al., "Event-based, direct camera tracking from a
+photometric 3D map using nonlinear optimization", ICRA 2019).
+
+**Map.** ``map=FILE.npz`` (``image`` log intensity, ``depth`` m with NaN
+unknown, ``K``, ``pose`` tx ty tz qx qy qz qw world-from-camera; see
+:mod:`._photomap`; ``tectum simulate SCENE out.npz --map map.npz`` makes one
+of a simulated scene), or the first map on the ``maps`` port (a
+:class:`~tectum.MapPacket` with image, depth, K and pose; a later map
+replaces it). The map's size and intrinsics must be the sensor's (and the
+calibration's, when ``calib=`` is given or found beside the recording: then
+the events are undistorted onto the map's pinhole ``K``); a mismatch is an
+error before the first pose.
+
+**Start.** At the map's pose, unless ``init=tx;ty;tz;qx;qy;qz;qw`` gives
+one, or the ``poses`` port does (the pose at the first event's time,
+interpolated; later poses on the port are not used).
+
+**Tracking** (kernels and the model in :mod:`._generative`). The events are
+cut into batches of ``batch_events`` (fewer when ``batch_us`` µs pass
+first), by the events alone, so the output does not depend on how the
+stream is packed. Per batch: the pose at its last event is predicted at
+constant velocity from the two previous ones, then refined by Gauss-Newton
+on the robust difference between the observed brightness increments
+(``contrast`` × the polarity sum, blurred by σ) and those the map predicts
+between the previous pose and this one, coarse to fine over ``sigmas`` px.
+
+**Output.** One :class:`~tectum.PosePacket` row per batch, at its last
+event: ``position`` m, ``orientation`` (x, y, z, w), ``linear_velocity``
+(m/s, world), ``angular_velocity`` (rad/s, camera frame), ``lost``, and
+``fit`` (the correlation of observed and predicted increments, 0..1).
+
+**Lost.** A batch whose fit is below ``min_fit`` (or with fewer than
+``min_points`` map points in view) is not trusted: its row carries the last
+good pose (the prediction, zero velocity) with ``lost`` true, never a
+confident guess. The next batches try to relocalise from the last good pose
+with a wider blur (``sigmas`` with ``4 × sigmas[0]`` in front); tracking
+resumes when a fit reaches ``recover_fit``. ``counts`` holds ``batches``,
+``lost``, ``relocalised`` and ``skipped_before_map``.
+
+Cost per batch: a Gaussian splat per event and level (a (6σ+1)² window),
+then per iteration a projection, two bilinear samples and a 6x6 update per
+map point (at most ``max_points``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from tectum import EventPacket, Kind, MapPacket, Operator, Packet, Port, PosePacket
+from tectum.camera import Camera, camera_from, interpolate_poses, quat_to_rot, rot_to_quat, se3_exp, se3_log
+
+from ._generative import blur_and_gradients, event_weights, fit_batch, splat, splat_bilinear
+from ._photomap import PhotoMap, check_map, load_map, map_from_packet
+
+__all__ = ["Pose6Dof"]
+
+
+class _Level:
+    """The map at one blur: image and the points' values (σ px)."""
+
+    def __init__(self, image: np.ndarray, sigma: float, mx: np.ndarray, my: np.ndarray) -> None:
+        out = np.empty((3, *image.shape))
+        blur_and_gradients(image, sigma, out)
+        self.sigma = sigma
+        self.image = np.ascontiguousarray(out[0])
+        self.Lm = np.ascontiguousarray(self.image[my, mx])
+        self.grad = np.hypot(out[1], out[2])
+
+
+class Pose6Dof(Operator):
+    """6-DoF camera pose from events against a known photometric map
+    (generative event model).
+
+    Parameters
+    ----------
+    map:
+        Map file (``.npz``: image, depth, K, pose); or connect a ``maps`` port.
+    init:
+        Initial pose ``tx;ty;tz;qx;qy;qz;qw`` (m, quaternion, world-from-camera);
+        default the ``poses`` port's, else the map's.
+    calib:
+        Calibration (file or ``fx;fy;cx;cy[;k1;k2;p1;p2;k3]``); when given
+        (or found beside the recording) its intrinsics must be the map's,
+        and the events are undistorted.
+    contrast:
+        Contrast threshold ``C`` (log intensity per event).
+    batch_events:
+        Events per pose update.
+    batch_us:
+        Longest time a batch spans, µs.
+    sigmas:
+        Blur of the coarse-to-fine levels, px (``2;1``: two levels).
+    iterations:
+        Gauss-Newton iterations per level.
+    max_points:
+        Map points used (the strongest-gradient pixels with depth, spread
+        over the map).
+    min_gradient:
+        Smallest log-intensity gradient of a map point, per px.
+    huber:
+        Huber threshold in robust standard deviations of the residual.
+    min_fit:
+        Below this fit a batch is lost.
+    recover_fit:
+        Fit that ends a loss.
+    min_points:
+        Fewest map points in view for a trusted pose.
+    """
+
+    name = "tracker.pose_6dof"
+    inputs = {
+        "events": Port(Kind.EVENTS, doc="the events"),
+        "poses": Port(Kind.POSES, required=False, doc="the initial pose (at the first event; later ones unused)"),
+        "maps": Port(Kind.MAPS, required=False, doc="the photometric map (image, depth, K, pose), instead of map="),
+    }
+    produces = (Kind.POSES,)
+    heavy = True
+
+    def __init__(self, map: str = "", init: tuple[float, ...] = (), calib: str = "", contrast: float = 0.2,
+                 batch_events: int = 1500, batch_us: int = 20_000, sigmas: tuple[float, ...] = (1.0,),
+                 iterations: int = 4, max_points: int = 2000, min_gradient: float = 0.02, huber: float = 1.345,
+                 min_fit: float = 0.35, recover_fit: float = 0.5, min_points: int = 100,
+                 keyframe_px: float = 8.0, smooth_rad: float = 2e-3, smooth_m: float = 2e-3) -> None:
+        where = "tracker.pose_6dof"
+        if not contrast > 0:
+            raise ValueError(f"{where}: contrast must be > 0 (log intensity per event), got {contrast}")
+        if batch_events < 16 or batch_us < 1:
+            raise ValueError(f"{where}: need batch_events >= 16 and batch_us >= 1, got {batch_events}, {batch_us}")
+        if not sigmas or any(not (0.3 <= s <= 16) for s in sigmas):
+            raise ValueError(f"{where}: sigmas must be blurs in [0.3, 16] px, got {list(sigmas)}")
+        if iterations < 1 or max_points < 16 or min_points < 12:
+            raise ValueError(f"{where}: need iterations >= 1, max_points >= 16, min_points >= 12")
+        if not 0 <= min_fit <= recover_fit <= 1:
+            raise ValueError(f"{where}: need 0 <= min_fit <= recover_fit <= 1, got {min_fit}, {recover_fit}")
+        if init and len(init) != 7:
+            raise ValueError(f"{where}: init must be 7 numbers tx;ty;tz;qx;qy;qz;qw, got {len(init)}")
+        self.camera: Camera | None = camera_from(calib) if calib else None
+        self.contrast, self.batch_events, self.batch_us = float(contrast), int(batch_events), int(batch_us)
+        self.sigmas = tuple(float(s) for s in sigmas)
+        self.iterations, self.max_points, self.min_gradient = int(iterations), int(max_points), float(min_gradient)
+        self.huber, self.min_fit, self.recover_fit = float(huber), float(min_fit), float(recover_fit)
+        self.min_points = int(min_points)
+        if not keyframe_px > 0:
+            raise ValueError(f"{where}: keyframe_px must be > 0, got {keyframe_px}")
+        self.keyframe_px = float(keyframe_px)
+        if not (smooth_rad >= 0 and smooth_m >= 0):
+            raise ValueError(f"{where}: smooth_rad and smooth_m must be >= 0 (0: no prior)")
+        inv = [1.0 / (v * v) if v > 0 else 0.0 for v in (smooth_rad, smooth_m)]
+        self._prior = np.array([inv[0]] * 3 + [inv[1]] * 3)
+        self.init: tuple[np.ndarray, np.ndarray] | None = None
+        if init:
+            m = check_map(np.zeros((8, 8)), np.ones((8, 8)), np.eye(3), init, f"{where} init")
+            self.init = (np.asarray(quat_to_rot(m.orientation)), m.position)
+        self.map: PhotoMap | None = None
+        self._levels: list[_Level] = []
+        if map:
+            self._set_map(load_map(map))
+        self.counts = {"batches": 0, "lost": 0, "relocalised": 0, "skipped_before_map": 0}
+        self._sensor: tuple[int, int] | None = None
+        self._lut: np.ndarray | None = None  # (H, W, 2) undistorted pixel of each sensor pixel
+        # events waiting for their batch to close: t (µs), undistorted x, y (px), polarity
+        self._t = np.empty(0, np.int64)
+        self._x = np.empty(0)
+        self._y = np.empty(0)
+        self._p = np.empty(0, np.int8)
+        self._ix = np.empty(0, np.uint16)  # sensor pixel of each waiting event
+        self._iy = np.empty(0, np.uint16)
+        self._last: np.ndarray | None = None  # (H, W) int8 polarity of each pixel's last event
+        self._mark = -(1 << 62)
+        # state: the last good pose (R, t) and its time (µs); the body twist per µs of the last good batch
+        self._pose: tuple[np.ndarray, np.ndarray, int] | None = None
+        self._twist = np.zeros(6)
+        self._lost = False
+        self._init_poses: PosePacket | None = None
+        # the reference view (R, t) the increments count from, and the events since, accumulated: unblurred
+        # (bilinear) and blurred at each tracking level
+        self._ref: tuple[np.ndarray, np.ndarray] | None = None
+        self._raw: np.ndarray | None = None
+        self._obs: list[np.ndarray] = []
+
+    #: For the conformance check: a few small batches.
+    conformance_params = {"batch_events": 200, "max_points": 400, "min_points": 20, "iterations": 3}
+
+    @staticmethod
+    def conformance_stream() -> dict[str, Packet]:
+        """A 48x36 camera moving before a textured plane: events and the
+        scene's map at t = 0 on the ``maps`` port."""
+        from tectum.sources.simulate import simulate
+        from tectum.sources.simulate.photomap import scene_map
+
+        ev, _ = simulate("plane_6dof", 40_000, sensor="48x36")
+        m = scene_map("plane_6dof", 0, sensor="48x36")
+        maps = MapPacket(np.array([0], np.int64), image=m["image"][None], depth=m["depth"][None], K=m["K"][None],
+                         pose=m["pose"][None], t_start=0, t_end=1)
+        return {"events": ev.without_columns(*ev.columns), "maps": maps}
+
+    def warmup(self) -> None:
+        img = np.zeros((8, 8))
+        splat(np.array([3.5]), np.array([3.5]), np.array([1.0]), 0.2, 1.0, img)
+        out = np.empty((3, 8, 8))
+        blur_and_gradients(img, 1.0, out)
+        P = np.array([[0.0, 0.0, 1.0]] * 16)
+        Xr = np.array([[3.5, 3.5, 1.0]] * 16)
+        fit_batch(P, Xr, np.zeros(16), img, img, np.eye(3), np.zeros(3), np.eye(3), np.zeros(3), np.eye(3), 4.0,
+                  4.0, 3.5, 3.5, 1, 1.345, 1e-3, np.zeros(6), np.zeros(6))
+        splat_bilinear(np.array([3.5]), np.array([3.5]), np.array([1.0]), 0.2, img)
+        event_weights(np.zeros(1, np.uint16), np.zeros(1, np.uint16), np.ones(1, np.int8), 0.2,
+                      np.zeros((1, 1), np.int8), np.empty(1))
+
+    # -- the map ----------------------------------------------------------------------
+    def _set_map(self, m: PhotoMap) -> None:
+        if self.camera is not None:
+            self._check_intrinsics(m, self.camera)
+        if self._sensor is not None and m.size != self._sensor:
+            raise ValueError(f"tracker.pose_6dof: the map is {m.size[0]}x{m.size[1]} px, the events "
+                             f"{self._sensor[0]}x{self._sensor[1]} px")
+        fine = _Level(m.image, self.sigmas[-1], np.zeros(1, np.int64), np.zeros(1, np.int64))
+        ok = np.isfinite(m.depth) & (fine.grad >= self.min_gradient)
+        ok[:3, :] = ok[-3:, :] = False
+        ok[:, :3] = ok[:, -3:] = False
+        my, mx = np.nonzero(ok)
+        if len(mx) < self.min_points:
+            raise ValueError(f"tracker.pose_6dof: the map has {len(mx)} pixels with depth and a gradient >= "
+                             f"{self.min_gradient}/px, fewer than min_points={self.min_points}: nothing to track")
+        if len(mx) > self.max_points:  # spread over the map: every k-th in raster order
+            keep = np.linspace(0, len(mx) - 1, self.max_points).round().astype(np.int64)
+            mx, my = mx[keep], my[keep]
+        K = m.K
+        d = m.depth[my, mx]
+        Xc = np.stack([(mx - K[0, 2]) / K[0, 0] * d, (my - K[1, 2]) / K[1, 1] * d, d], axis=1)
+        R_wr = np.asarray(quat_to_rot(m.orientation))
+        self._P = np.ascontiguousarray(Xc @ R_wr.T + m.position)
+        self._Xr = np.ascontiguousarray(np.stack([mx.astype(np.float64), my.astype(np.float64), d], axis=1))
+        self._R_wr = R_wr
+        self._K = m.K
+        sig = (4.0 * self.sigmas[0], *self.sigmas)
+        self._levels = [_Level(m.image, s, mx, my) for s in sig]
+        self.map = m
+
+    @staticmethod
+    def _check_intrinsics(m: PhotoMap, cam: Camera) -> None:
+        k = np.array([cam.fx, cam.fy, cam.cx, cam.cy])
+        km = np.array([m.K[0, 0], m.K[1, 1], m.K[0, 2], m.K[1, 2]])
+        if not np.allclose(k, km, rtol=1e-3, atol=0.05):
+            raise ValueError(f"tracker.pose_6dof: the map's intrinsics fx, fy, cx, cy = {km.round(3).tolist()} are "
+                             f"not the calibration's {k.round(3).tolist()}")
+        if cam.size is not None and tuple(cam.size) != m.size:
+            raise ValueError(f"tracker.pose_6dof: the map is {m.size[0]}x{m.size[1]} px, the calibration "
+                             f"{cam.size[0]}x{cam.size[1]} px")
+
+    # -- input -------------------------------------------------------------------------
+    def process_ports(self, ports: Mapping[str, Packet]) -> list[Packet]:
+        maps = ports.get("maps")
+        if maps is not None and len(maps):
+            assert isinstance(maps, MapPacket)
+            self._set_map(map_from_packet(maps, len(maps) - 1))
+        poses = ports.get("poses")
+        if poses is not None and len(poses) and self._pose is None:
+            assert isinstance(poses, PosePacket)
+            self._init_poses = poses if self._init_poses is None else self._init_poses
+        ev = ports.get("events")
+        if ev is None:
+            return []
+        assert isinstance(ev, EventPacket)
+        self._mark = max(self._mark, ev.t_end)
+        if len(ev):
+            self._add_events(ev)
+        return self._advance(final=False)
+
+    def finish(self) -> list[Packet]:
+        return self._advance(final=True)
+
+    def _add_events(self, ev: EventPacket) -> None:
+        if self._sensor is None:
+            self._start(ev.sensor)
+        elif ev.sensor != self._sensor:
+            raise ValueError(f"tracker.pose_6dof: the sensor changed from {self._sensor} to {ev.sensor}")
+        if self.map is None:
+            self.counts["skipped_before_map"] += len(ev)
+            return
+        assert self._lut is not None
+        xy = self._lut[ev.y, ev.x]
+        self._t = np.concatenate([self._t, ev.t])
+        self._x = np.concatenate([self._x, xy[:, 0]])
+        self._y = np.concatenate([self._y, xy[:, 1]])
+        self._p = np.concatenate([self._p, ev.p])
+        self._ix = np.concatenate([self._ix, ev.x])
+        self._iy = np.concatenate([self._iy, ev.y])
+
+    def _start(self, sensor: tuple[int, int]) -> None:
+        w, h = sensor
+        if self.map is not None and self.map.size != (w, h):
+            raise ValueError(f"tracker.pose_6dof: the map is {self.map.size[0]}x{self.map.size[1]} px, the events "
+                             f"{w}x{h} px: a map must be seen by the sensor that gives the events")
+        if self.camera is not None and self.camera.size is not None and tuple(self.camera.size) != (w, h):
+            raise ValueError(f"tracker.pose_6dof: the calibration is for {self.camera.size[0]}x"
+                             f"{self.camera.size[1]} px, the events for {w}x{h}")
+        self._sensor = (w, h)
+        v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+        pix = np.stack([u.ravel(), v.ravel()], axis=1)
+        if self.camera is not None and self.camera.D is not None and np.any(self.camera.D):
+            pix = self.camera.undistort_points(pix)
+        self._lut = np.ascontiguousarray(pix.reshape(h, w, 2))
+        self._last = np.zeros((h, w), np.int8)
+
+    # -- batches -----------------------------------------------------------------------
+    def _advance(self, final: bool) -> list[Packet]:
+        t, n, a = self._t, len(self._t), 0
+        rows: list[tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool, float]] = []
+        while a < n:
+            b = min(a + self.batch_events, int(np.searchsorted(t, t[a] + self.batch_us, side="left")))
+            if b >= n and a + self.batch_events > n and not final and self._mark < t[a] + self.batch_us:
+                break  # open: more events may join it
+            b = min(b, n)
+            rows.append(self._batch(a, b))
+            a = b
+        if a:
+            self._t, self._x, self._y, self._p = self._t[a:], self._x[a:], self._y[a:], self._p[a:]
+            self._ix, self._iy = self._ix[a:], self._iy[a:]
+        if not rows:
+            return []
+        ts = np.array([r[0] for r in rows], np.int64)
+        return [PosePacket(ts, position=np.array([r[1] for r in rows]), orientation=np.array([r[2] for r in rows]),
+                           linear_velocity=np.array([r[3] for r in rows]),
+                           angular_velocity=np.array([r[4] for r in rows]), lost=np.array([r[5] for r in rows]),
+                           fit=np.array([r[6] for r in rows]), t_start=int(ts[0]), t_end=int(ts[-1]) + 1)]
+
+    def _initial(self, t0: int) -> tuple[np.ndarray, np.ndarray]:
+        if self.init is not None:
+            return self.init[0].copy(), self.init[1].copy()
+        if self._init_poses is not None:
+            ps = self._init_poses
+            tq = min(max(t0, int(ps.t[0])), int(ps.t[-1]))
+            p, q, _ = interpolate_poses(np.array([tq], np.int64), ps.t, ps.position, ps.orientation)
+            return np.asarray(quat_to_rot(q[0])), p[0]
+        assert self.map is not None
+        return np.asarray(quat_to_rot(self.map.orientation)), self.map.position.copy()
+
+    def _batch(self, a: int, b: int) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool, float]:
+        """Fit the batch of events ``[a, b)``: its row (time, position,
+        orientation, linear and angular velocity, lost, fit)."""
+        t_end = int(self._t[b - 1])
+        if self._pose is None:
+            R, p = self._initial(int(self._t[a]))
+            self._pose = (R, p, int(self._t[a]))
+            self._new_reference(R, p)
+        assert self._ref is not None and self._raw is not None
+        self.counts["batches"] += 1
+        x, y = self._x[a:b], self._y[a:b]
+        wgt = np.empty(b - a)
+        event_weights(self._ix[a:b], self._iy[a:b], self._p[a:b], self.contrast, self._last, wgt)
+        splat_bilinear(x, y, wgt, 1.0, self._raw)
+        for lv, img in zip(self._levels[1:], self._obs):
+            splat(x, y, wgt, 1.0, lv.sigma, img)
+        Rp, tp, tprev = self._pose
+        dt = max(t_end - tprev, 1)
+        if self._lost:  # relocalise from the last good pose, coarse to fine
+            R1, t1 = Rp.copy(), tp.copy()
+            coarse = np.empty((3, *self._raw.shape))
+            blur_and_gradients(self._raw, self._levels[0].sigma, coarse)
+            levels = [(self._levels[0], np.ascontiguousarray(coarse[0])), *zip(self._levels[1:], self._obs)]
+        else:  # constant velocity
+            dR, dp = se3_exp(self._twist * dt)
+            R1, t1 = Rp @ dR, Rp @ dp + tp
+            levels = list(zip(self._levels[1:], self._obs))
+        R1, t1 = np.ascontiguousarray(R1), np.ascontiguousarray(t1)
+        Ra, ta = self._ref
+        K = self._K
+        stats = np.zeros(6)
+        prior = np.zeros(6) if self._lost else self._prior
+        for lv, img in levels:
+            fit_batch(self._P, self._Xr, lv.Lm, img, lv.image, Ra, ta, R1, t1, self._R_wr, K[0, 0], K[1, 1], K[0, 2],
+                      K[1, 2], self.iterations, self.huber, 1e-3, prior, stats)
+        fit = float(stats[1])
+        good = stats[0] >= self.min_points and fit >= (self.recover_fit if self._lost else self.min_fit) \
+            and bool(np.isfinite(t1).all())
+        if not good:
+            self.counts["lost"] += 1
+            self._lost = True
+            self._pose = (Rp, tp, t_end)
+            self._twist = np.zeros(6)
+            return t_end, tp.copy(), rot_to_quat(Rp), np.zeros(3), np.zeros(3), True, fit
+        if self._lost:
+            self.counts["relocalised"] += 1
+        xi = se3_log(Rp.T @ R1, Rp.T @ (t1 - tp))
+        self._twist = np.zeros(6) if self._lost else xi / dt
+        self._lost = False
+        self._pose = (R1, t1, t_end)
+        if stats[5] > self.keyframe_px:
+            self._new_reference(R1, t1)
+        return t_end, t1, rot_to_quat(R1), (t1 - tp) / (dt * 1e-6), xi[:3] / (dt * 1e-6), False, fit
+
+    def _new_reference(self, R: np.ndarray, t: np.ndarray) -> None:
+        """The increments count from here: the reference pose is ``(R, t)``
+        and the accumulated event images start again at zero."""
+        assert self._sensor is not None
+        w, h = self._sensor
+        self._ref = (np.ascontiguousarray(R), np.ascontiguousarray(t))
+        self._raw = np.zeros((h, w))
+        self._obs = [np.zeros((h, w)) for _ in self._levels[1:]]
