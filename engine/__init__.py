@@ -11,6 +11,9 @@ from ._boundary import Repair as Repair
 from ._edge import Edge as Edge
 from ._embed import Stepper as Stepper
 from ._embed import ThreadedPipeline as ThreadedPipeline
+from ._macro import Delayed as Delayed
+from ._macro import Expansion as Expansion
+from ._macro import Macro as Macro
 from ._operator import Operator as Operator
 from ._operator import Port as Port
 from ._operator import Sink as Sink

@@ -37,6 +37,11 @@ class Edge:
     def __len__(self) -> int:
         return len(self._q)
 
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` was called (queued items may remain)."""
+        return self._closed
+
     def has_room(self, n: int) -> bool:
         """True when ``n`` items can be sent without waiting."""
         return self.policy != "block" or len(self._q) + n <= self.capacity
@@ -70,6 +75,22 @@ class Edge:
             q.append(item)
         if self._readers:
             self._readers.unpark()
+
+    def put_all(self, items: Sequence[Any]) -> None:
+        """Put several items whatever the capacity (a feedback loop's own
+        task must never wait on its own edge; see :meth:`wait_room`)."""
+        if self._closed:
+            raise trio.ClosedResourceError("edge is closed")
+        self._q.extend(items)
+        if self._readers:
+            self._readers.unpark()
+
+    async def wait_room(self) -> None:
+        """Wait until the edge holds fewer than ``capacity`` items (or is closed)."""
+        while len(self._q) >= self.capacity and not self._closed:
+            if self._readers:
+                self._readers.unpark()
+            await self._writers.park()
 
     async def receive_all(self) -> list[Any]:
         """Everything queued (waits for at least one item); raises

@@ -54,6 +54,7 @@ class Stepper:
             s.bind_stats(self.graph.stats)
             s.open()
         self._sources = [n.id for n in plan.of_role("source")]
+        self._ended: set[str] = set()
         self._closed = False
 
     @property
@@ -87,8 +88,17 @@ class Stepper:
         return self._route(self.graph.push(self._source(into), packet))
 
     def end(self, into: str | None = None) -> dict[str, list[Packet]]:
-        """End the stream of source ``into``: operators flush."""
-        return self._route(self.graph.end(self._source(into)))
+        """End the stream of source ``into``: operators flush. Once every
+        source has ended, a feedback loop that cannot finish raises
+        :class:`TectumError` saying where it stopped."""
+        sid = self._source(into)
+        out = self._route(self.graph.end(sid))
+        self._ended.add(sid)
+        if len(self._ended) == len(self._sources):
+            why = self.graph.stalled()
+            if why:
+                raise TectumError(why)
+        return out
 
     def close(self) -> None:
         """Close the sinks (commit files)."""

@@ -17,6 +17,7 @@ interval, so an operator never sees a kind run ahead of another.
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Hashable, Iterable, Mapping, Sequence
 from time import perf_counter_ns
 from typing import Any, Generic, TypeVar
@@ -28,7 +29,7 @@ from ._stats import NodeStats, Stats
 from ._stream import concat, empty_like, merge
 from .errors import NodeError, TectumError
 
-__all__ = ["Graph", "END", "PortJoin", "Merger"]
+__all__ = ["Graph", "END", "PortJoin", "DelayedJoin", "Merger"]
 
 
 class _End:
@@ -41,7 +42,7 @@ END: Any = _End()
 Delivery = tuple[str, Any]  # (sink id, "tap:" + id or "offload:" + id; packet, port batch or END)
 Batch = dict[str, Packet]  # one packet per port
 K = TypeVar("K", bound=Hashable)
-_OP, _SINK, _MERGE, _PORT = 0, 1, 2, 3
+_OP, _SINK, _MERGE, _PORT, _FEEDBACK = 0, 1, 2, 3, 4
 
 
 class PortJoin(Generic[K]):
@@ -79,6 +80,16 @@ class PortJoin(Generic[K]):
 
     def end(self, port: K) -> list[dict[K, Packet]]:
         self.ended[port] = True
+        return self._release()
+
+    def advance(self, port: K, t: int) -> list[dict[K, Packet]]:
+        """Nothing more will come on ``port`` before ``t`` (µs): its
+        watermark moves there without a packet (a feedback loop's producer
+        that emitted nothing, see :meth:`Operator.output_mark`)."""
+        mark = self.marks[port]
+        if self.ended[port] or (mark is not None and t <= mark):
+            return []
+        self.marks[port] = t
         return self._release()
 
     @property
@@ -149,6 +160,127 @@ class PortJoin(Generic[K]):
         return _reinterval(pieces[0] if len(pieces) == 1 else concat(pieces), t0, t1)
 
 
+class DelayedJoin(PortJoin[str]):
+    """A :class:`PortJoin` with delayed ports (``delays``: port to µs).
+
+    A packet pushed on a delayed port is shifted by its delay (samples and
+    interval). A delayed port's stream starts ``delay`` after the node's
+    other ports': once each of those has a watermark, the delayed port's is
+    set to their earliest start plus its delay, and anything it holds before
+    that is dropped (counted in :attr:`dropped`). ``feedback`` ports close a
+    loop (their producer needs this node's output): they do not keep the
+    node open; once every other port has ended at ``E``, the node takes the
+    feedback ports up to ``E`` and is :attr:`complete` (what comes later on
+    them is dropped)."""
+
+    def __init__(self, ports: Iterable[str], delays: Mapping[str, int], feedback: Iterable[str]) -> None:
+        super().__init__(ports)
+        self.delays = dict(delays)
+        self.feedback = frozenset(feedback)
+        self.counted = tuple(p for p in self.ports if p not in self.feedback)
+        self.primed = False
+        self.starts: dict[str, int] = {}  # delayed port -> where its stream starts, once primed
+        self.closed = False
+        self.dropped = 0
+
+    def push(self, port: str, pkt: Packet) -> list[dict[str, Packet]]:
+        if self.closed:
+            self.dropped += pkt.t.shape[0]
+            return []
+        d = self.delays.get(port)
+        if not d:
+            return super().push(port, pkt)
+        pkt = _shifted(pkt, d)
+        first = self.starts.get(port)
+        if first is not None and pkt.t_start < first:  # before the port's start: dropped
+            if pkt.t_end <= first:
+                self.dropped += pkt.t.shape[0]
+                return []
+            a, pkt = pkt.split_at(first)
+            self.dropped += a.t.shape[0]
+        return super().push(port, pkt)
+
+    def advance(self, port: str, t: int) -> list[dict[str, Packet]]:
+        return [] if self.closed else super().advance(port, t + self.delays.get(port, 0))
+
+    def end(self, port: str) -> list[dict[str, Packet]]:
+        return [] if self.closed else super().end(port)
+
+    def end_mark(self) -> int | None:
+        """Once every port but the feedback ones has ended: where the last of them stopped."""
+        return max((m for p in self.counted if (m := self.marks[p]) is not None), default=None)
+
+    @property
+    def complete(self) -> bool:
+        """Every port but the feedback ones has ended and all is released up to where they stopped."""
+        if not all(self.ended[p] for p in self.counted):
+            return False
+        e = self.end_mark()
+        return e is None or (self.released is not None and self.released >= e)
+
+    def close(self) -> None:
+        """The node has taken all it will: drop what is held, refuse what comes."""
+        self.closed = True
+        for p in self.ports:
+            self.dropped += sum(q.t.shape[0] for q in self.pending[p])
+            self.pending[p] = []
+
+    def _watermark(self) -> int | None:
+        if all(self.ended[p] for p in self.counted):
+            e = self.end_mark()
+            fb = [self.marks[p] for p in self.feedback if not self.ended[p]]
+            if e is None or any(m is None for m in fb):
+                return None
+            return min([e, *(m for m in fb if m is not None)])
+        return super()._watermark()
+
+    def _release(self) -> list[dict[str, Packet]]:
+        if not self.primed:
+            self._prime()
+        return super()._release()
+
+    def _prime(self) -> None:
+        plain = [p for p in self.ports if p not in self.delays]
+        if any(not self.ended[p] and self.marks[p] is None for p in plain):
+            return
+        starts = [q.t_start for p in plain for q in self.pending[p]]
+        if not starts:
+            return
+        start = min(starts)
+        for p, d in self.delays.items():
+            m = self.starts[p] = start + d
+            keep: list[Packet] = []
+            for q in self.pending[p]:
+                if q.t_end <= m:
+                    self.dropped += q.t.shape[0]
+                elif q.t_start < m:
+                    a, b = q.split_at(m)
+                    self.dropped += a.t.shape[0]
+                    keep.append(b)
+                else:
+                    keep.append(q)
+            self.pending[p] = keep
+            mark = self.marks[p]
+            if mark is None or mark < m:
+                self.marks[p] = m
+        self.primed = True
+
+    def waiting(self) -> str:
+        """Which feedback port holds the node back, and where it is (for a stall's message)."""
+        e = self.end_mark()
+        late = [(p, self.marks[p]) for p in sorted(self.feedback) if not self.ended[p]]
+        held = ", ".join(f"port {p!r} at {m} µs" for p, m in late)
+        return f"its other inputs reach {e} µs, {held or 'no feedback port'}"
+
+
+def _shifted(pkt: Packet, d: int) -> Packet:
+    """``pkt`` ``d`` µs later: samples and interval."""
+    if isinstance(pkt, EventPacket):
+        return EventPacket._trusted(pkt.t + d, pkt.x, pkt.y, pkt.p, pkt.sensor, pkt.t_start + d, pkt.t_end + d,
+                                    pkt.columns)
+    return pkt._trusted(pkt.t + d, pkt.data, pkt.t_start + d, pkt.t_end + d)  # type: ignore[attr-defined]
+
+
 def _reinterval(pkt: Packet, t0: int, t1: int) -> Packet:
     """``pkt``'s samples with the interval ``[t0, t1)``, which holds them (no check)."""
     if isinstance(pkt, EventPacket):
@@ -207,7 +339,8 @@ class Merger:
 class _Node:
     """A node's wiring for the hot path (one attribute load per field)."""
 
-    __slots__ = ("id", "op", "consumes", "st", "routes", "tapped", "join", "ports", "offload", "ticks")
+    __slots__ = ("id", "op", "consumes", "st", "routes", "tapped", "join", "ports", "offload", "ticks",
+                 "advances", "settles", "feedback_from", "feedback_ports", "done")
 
     def __init__(self, nid: str) -> None:
         self.id = nid
@@ -220,6 +353,13 @@ class _Node:
         self.ports: Mapping[str, str] = {}
         self.offload = False
         self.ticks = False
+        # feedback loops: the ports of this node's loop children it feeds (moved on by output_mark),
+        # whether it has feedback ports (it completes through its join), their producers, done or not
+        self.advances: tuple[tuple[_Node, str], ...] = ()
+        self.settles = False
+        self.feedback_from: frozenset[str] = frozenset()
+        self.feedback_ports: frozenset[str] = frozenset()
+        self.done = False
 
 
 class Graph:
@@ -249,9 +389,14 @@ class Graph:
             self.stats.node(nid)
             if node.role == "operator":
                 self.ops[nid] = node.instantiate()
-            if node.role != "source":
-                self.open_inputs[nid] = len(node.inputs)
+            if node.role != "source":  # a feedback port's producer does not keep the node open
+                fb = {node.ports[q] for q in node.feedback}
+                self.open_inputs[nid] = len([i for i in node.inputs if i not in fb])
         self.offloaded = frozenset(n for n in self.ops if offload and self.plan.nodes[n].offload)
+        self._ended: set[str] = set()
+        # what crosses a feedback edge waits here until the current push is done, so that no
+        # operator is called again while its own outputs are still on their way (FIFO: in order)
+        self._deferred: deque[tuple[_Node, str, Any]] = deque()
         self._wire()
         for op in self.ops.values():
             op.warmup()
@@ -272,12 +417,16 @@ class Graph:
         """Emit ``pkt`` as the output of ``node_id`` (a source, usually)."""
         out: list[Delivery] = []
         self._emit(self._recs[node_id], pkt, out)
+        if self._deferred:
+            self._drain(out)
         return out
 
     def end(self, node_id: str) -> list[Delivery]:
         """``node_id``'s stream has ended: flush and propagate end of stream."""
         out: list[Delivery] = []
         self._end(node_id, out)
+        if self._deferred:
+            self._drain(out)
         return out
 
     def call(self, node_id: str, item: Packet | Batch) -> list[Packet]:
@@ -289,13 +438,42 @@ class Graph:
         """End of stream for operator ``node_id``: its ``finish()`` output."""
         return self._finish(self._recs[node_id])
 
-    def forward(self, node_id: str, outputs: Sequence[Packet], *, ended: bool = False) -> list[Delivery]:
-        """Hand an offloaded operator's outputs on (and, with ``ended``, its end of stream)."""
+    def call_marked(self, node_id: str, item: Packet | Batch) -> tuple[list[Packet], int | None]:
+        """:meth:`call`, and for a node on a feedback loop its output mark
+        after the call (:meth:`Operator.output_mark`; None elsewhere), for
+        :meth:`forward`."""
+        rec = self._recs[node_id]
+        res = self._call(rec, item)
+        return res, (self._output_mark(rec, item) if rec.advances else None)
+
+    def forward(self, node_id: str, outputs: Sequence[Packet], *, ended: bool = False,
+                mark: int | None = None) -> list[Delivery]:
+        """Hand an offloaded operator's outputs on (and, with ``ended``, its
+        end of stream; with ``mark``, its output mark from :meth:`call_marked`)."""
         out: list[Delivery] = []
-        self._forward(self._recs[node_id], outputs, out)
+        rec = self._recs[node_id]
+        self._forward(rec, outputs, out)
+        if mark is not None:
+            self._advance(rec, mark, out)
         if ended:
             self._end(node_id, out)
+        if self._deferred:
+            self._drain(out)
         return out
+
+    def stalled(self) -> str | None:
+        """Once every source has ended and no work is left: why a feedback
+        loop has not finished (its nodes wait on each other), or None."""
+        for loop in self.plan.loops:
+            stuck = [n for n in loop if n not in self._ended]
+            if not stuck:
+                continue
+            why = "; ".join(f"node {n!r} waits: {self._recs[n].join.waiting()}"  # type: ignore[union-attr]
+                            for n in stuck if self._recs[n].settles and not self._recs[n].done)
+            return (f"the feedback loop {' -> '.join(loop)} stopped before the end of its input ({why or 'no data'})"
+                    ": a node on it emits later than the loop's delay allows (see Operator.output_mark); raise "
+                    "delay_us")
+        return None
 
     # -- internals ----------------------------------------------------------------
     # The hot path: plain calls over routes precomputed in _wire(); kinds are
@@ -314,7 +492,10 @@ class Graph:
             rec.ticks = op is not None and type(op).on_tick is not Operator.on_tick
             if op is not None and node.ports:
                 rec.ports = node.ports
-                rec.join = PortJoin(node.ports)
+                rec.join = DelayedJoin(node.ports, node.delays, node.feedback) if node.delays else PortJoin(node.ports)
+                rec.settles = bool(node.feedback)
+                rec.feedback_from = frozenset(node.ports[q] for q in node.feedback)
+                rec.feedback_ports = node.feedback
             elif op is not None and len(node.inputs) > 1:
                 rec.join = Merger([plan.nodes[i].provides for i in node.inputs], op.consumes)
         for nid, rec in recs.items():
@@ -327,12 +508,17 @@ class Graph:
                 elif crec.ports:
                     for port, up in crec.ports.items():
                         if up == nid:
-                            routes.append((_PORT, crec, (port, crec.op.inputs[port].kind)))  # type: ignore[union-attr,index]
+                            how = _FEEDBACK if port in node.feedback else _PORT
+                            routes.append((how, crec, (port, crec.op.inputs[port].kind)))  # type: ignore[union-attr,index]
                 elif isinstance(crec.join, Merger):
                     routes.append((_MERGE, crec, node.inputs.index(nid)))
                 else:
                     routes.append((_OP, crec, None))
             rec.routes = tuple(routes)
+        for loop in plan.loops:  # inside a loop, each node moves its children's ports on by its output mark
+            for nid in loop:
+                recs[nid].advances = tuple((recs[c], q) for c in plan.nodes[nid].children if c in loop
+                                           for q, up in recs[c].ports.items() if up == nid)
         self._recs = recs
 
     def joinable(self, node_id: str) -> bool:
@@ -368,6 +554,9 @@ class Graph:
                     raise NodeError(child.id, e) from e
                 for q in merged:
                     self._run(child, q, out)
+            elif how == _FEEDBACK:
+                if pkt.kind == extra[1]:
+                    self._deferred.append((child, extra[0], pkt))
             elif pkt.kind == extra[1]:  # a port
                 try:
                     batches = child.join.push(extra[0], pkt)
@@ -375,6 +564,8 @@ class Graph:
                     raise NodeError(child.id, e) from e
                 for b in batches:
                     self._dispatch(child, b, out)
+                if child.settles:
+                    self._settle(child, out)
 
     def _run(self, rec: _Node, pkt: Packet, out: list[Delivery]) -> None:
         # The hot path of one-input operators (event by event: once per
@@ -408,6 +599,68 @@ class Graph:
             out.append(("offload:" + rec.id, item))
             return
         self._forward(rec, self._call(rec, item), out)
+        if rec.advances:
+            self._advance(rec, self._output_mark(rec, item), out)
+
+    def _output_mark(self, rec: _Node, item: Packet | Batch) -> int:
+        mark = next(iter(item.values())).t_end if isinstance(item, dict) else item.t_end
+        try:
+            return int(rec.op.output_mark(mark))  # type: ignore[union-attr]
+        except Exception as e:
+            raise NodeError(rec.id, e) from e
+
+    def _advance(self, rec: _Node, mark: int, out: list[Delivery]) -> None:
+        """``rec`` will emit nothing more before ``mark``: its loop children's ports move there."""
+        for child, port in rec.advances:
+            if child.done:
+                continue
+            if child.settles and port in child.feedback_ports:
+                self._deferred.append((child, port, mark))
+                continue
+            try:
+                batches = child.join.advance(port, mark)  # type: ignore[union-attr]
+            except Exception as e:
+                raise NodeError(child.id, e) from e
+            for b in batches:
+                self._dispatch(child, b, out)
+            if child.settles:
+                self._settle(child, out)
+
+    def _drain(self, out: list[Delivery]) -> None:
+        """Deliver what waits on feedback edges: packets, output marks, ends."""
+        q = self._deferred
+        while q:
+            child, port, x = q.popleft()
+            if child.done:
+                continue
+            join: Any = child.join
+            try:
+                if x is END:
+                    batches = join.end(port)
+                elif isinstance(x, int):
+                    batches = join.advance(port, x)
+                else:
+                    batches = join.push(port, x)
+            except Exception as e:
+                raise NodeError(child.id, e) from e
+            for b in batches:
+                self._dispatch(child, b, out)
+            self._settle(child, out)
+
+    def _settle(self, rec: _Node, out: list[Delivery]) -> None:
+        """A node with feedback ports ends once its other inputs have ended
+        and its join has released up to where they stopped."""
+        join = rec.join
+        if rec.done or self.open_inputs[rec.id] or not join.complete:  # type: ignore[union-attr]
+            return
+        rec.done = True
+        join.close()  # type: ignore[union-attr]
+        rec.st.counters["feedback_dropped"] = join.dropped  # type: ignore[union-attr]
+        if rec.offload:
+            out.append(("offload:" + rec.id, END))  # the offload task finishes it
+            return
+        self._forward(rec, self._finish(rec), out)
+        self._end(rec.id, out)
 
     def _call(self, rec: _Node, item: Packet | Batch) -> list[Packet]:
         st = rec.st
@@ -450,16 +703,22 @@ class Graph:
             self._emit(rec, q, out)
 
     def _end(self, nid: str, out: list[Delivery]) -> None:
+        self._ended.add(nid)
         if nid in self.taps:
             out.append(("tap:" + nid, END))
         for child in self.plan.nodes[nid].children:
             node = self.plan.nodes[child]
+            crec = self._recs[child]
+            if nid in crec.feedback_from:  # after what is still on its way
+                self._deferred.extend((crec, q, END) for q in node.feedback if node.ports[q] == nid)
+                continue
             self.open_inputs[child] -= 1
             if node.role == "sink":
                 if self.open_inputs[child] == 0:
                     out.append((child, END))
                 continue
-            crec = self._recs[child]
+            if crec.done:
+                continue
             try:
                 if isinstance(crec.join, Merger):
                     for q in crec.join.end(node.inputs.index(nid)):
@@ -473,7 +732,9 @@ class Graph:
                 raise
             except Exception as e:
                 raise NodeError(child, e) from e
-            if self.open_inputs[child] == 0:
+            if crec.settles:
+                self._settle(crec, out)
+            elif self.open_inputs[child] == 0:
                 if crec.offload:
                     out.append(("offload:" + child, END))  # the offload task finishes it
                     continue

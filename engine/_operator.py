@@ -91,6 +91,17 @@ class Operator:
         """End of stream: return whatever is still buffered (default none)."""
         return ()
 
+    def output_mark(self, watermark: int) -> int:
+        """On a feedback loop (see :meth:`tectum.Pipeline.delayed`): the time
+        (µs) before which this operator will emit nothing more, now that its
+        input has passed ``watermark``. The default, ``watermark``, holds
+        for operators whose outputs follow their input (each packet within
+        the interval of the input that made it); one whose output lags (a
+        map stamped with the last event it used) returns how far it lags.
+        The engine moves the loop's downstream watermarks there, so the loop
+        advances while the operator emits nothing."""
+        return watermark
+
     def memory_us(self) -> int | None:
         """How far back in event time this operator's state reaches, in µs:
         what it emits once its input has passed any time ``a`` depends only

@@ -15,16 +15,17 @@ from __future__ import annotations
 import os
 import tomllib
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Any, Literal
 
+from ._macro import Delayed, Expansion, MacroOutputs
 from ._operator import Operator, Port, Sink, Source, coerce_param, component_params
 from ._packet import Kind, accepts
 from ._registry import Registry, get_registry
 from .errors import PipelineError, RegistryError
 
-__all__ = ["Pipeline", "NodeSpec", "Plan", "PlanNode", "BatchPolicy", "EdgePolicy"]
+__all__ = ["Pipeline", "NodeSpec", "Plan", "PlanNode", "BatchPolicy", "EdgePolicy", "Delayed"]
 
 Role = Literal["source", "operator", "sink"]
 EdgePolicy = Literal["block", "keep_latest", "drop"]
@@ -66,7 +67,9 @@ class NodeSpec:
     given directly through the Python API instead. ``ports`` wires named
     input ports (port name to node id); ``offload`` runs an operator in a
     worker thread behind an edge of ``buffer`` packets (None: the operator's
-    own ``heavy`` default)."""
+    own ``heavy`` default). ``delays`` gives the ports whose edge is delayed
+    (port name to µs); ``part_of`` names the macro node a node was expanded
+    from."""
 
     id: str
     role: Role
@@ -79,6 +82,8 @@ class NodeSpec:
     repair: int | None = None
     ports: Mapping[str, str] = field(default_factory=lambda: MappingProxyType({}))
     offload: bool | None = None
+    delays: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
+    part_of: str = ""
 
 
 class Pipeline:
@@ -142,8 +147,18 @@ class Pipeline:
         return self._add(NodeSpec(id or self._auto_id("source" if comp else name), "source", name,
                                   MappingProxyType(dict(params)), (), component=comp, repair=repair))
 
-    def op(self, name: str | Operator, input: str | Sequence[str] | Mapping[str, str] | None = None, *,
-           id: str | None = None, offload: bool | None = None, buffer: int = 64, **params: Any) -> str:
+    @staticmethod
+    def delayed(node: str, delay_us: int) -> Delayed:
+        """Node ``node``'s output ``delay_us`` µs late, as a named port's
+        input: ``p.op("x", events=cam, maps=p.delayed(m, delay_us=2000))``.
+        Every packet crossing the edge has its samples' times and interval
+        shifted by ``delay_us``; the port's stream starts ``delay_us`` after
+        the node's other inputs (nothing arrives on it before). A cycle needs
+        one such edge (a feedback loop)."""
+        return Delayed(node, delay_us)
+
+    def op(self, name: str | Operator, input: str | Sequence[str] | Mapping[str, str | Delayed] | None = None,
+           *, id: str | None = None, offload: bool | None = None, buffer: int = 64, **params: Any) -> str:
         """Add an operator by registry name (``filter.refractory``) or instance.
 
         ``input`` is one node id, or several to merge by timestamp. An
@@ -153,24 +168,30 @@ class Pipeline:
         input provides it. ``offload=True`` runs the operator in a worker
         thread behind an edge of ``buffer`` packets (the default for
         operators that declare themselves heavy), so sources and sinks keep
-        pace while it works."""
+        pace while it works. A port's input may be :meth:`delayed`. ``name``
+        may also be a registered macro (several nodes, see :meth:`explain`)."""
         comp = name if isinstance(name, Operator) else None
         nm = comp.name if comp is not None else str(name)
-        ports: dict[str, str] = {}
+        given: dict[str, Any] = {k: params.pop(k) for k in list(params) if isinstance(params[k], Delayed)}
         if input is None:
             inputs: tuple[str, ...] = ()
         elif isinstance(input, str):
             inputs = (input,)
         elif isinstance(input, Mapping):
-            ports = {str(k): str(v) for k, v in input.items()}
+            given = {**{str(k): v for k, v in input.items()}, **given}
             inputs = ()
         else:
+            if any(isinstance(i, Delayed) for i in input):
+                raise PipelineError(f"operator {id or nm!r}: a delayed edge goes into a named port "
+                                    "(port=p.delayed(node, delay_us)), not a plain input")
             inputs = tuple(input)
         if buffer < 1:
             raise PipelineError("buffer must be >= 1 packet")
+        ports = {k: v.node if isinstance(v, Delayed) else str(v) for k, v in given.items()}
+        delays = {k: v.delay_us for k, v in given.items() if isinstance(v, Delayed)}
         return self._add(NodeSpec(id or self._auto_id(nm or "op", "operator"), "operator", nm,
                                   MappingProxyType(dict(params)), inputs, buffer=buffer, component=comp,
-                                  ports=MappingProxyType(ports), offload=offload))
+                                  ports=MappingProxyType(ports), offload=offload, delays=MappingProxyType(delays)))
 
     def sink(self, arg: str | Sink, input: str, *, id: str | None = None,
              policy: EdgePolicy = "block", buffer: int = 64, **params: Any) -> str:
@@ -208,7 +229,8 @@ class Pipeline:
             id = "rf"
             name = "filter.refractory"
             input = "cam"         # or a list, merged by timestamp,
-                                  # or named ports: { events = "cam", poses = "gt" }
+                                  # or named ports: { events = "cam", poses = "gt" },
+                                  # a delayed one: { maps = { from = "m", delay_us = 2000 } }
             params = { period_us = 1000 }
             offload = false       # true: run in a worker thread
             [[sink]]
@@ -248,7 +270,11 @@ class Pipeline:
             check_keys(d, {"id", "name", "input", "params", "offload", "buffer"}, w)
             if "name" not in d or "input" not in d:
                 raise PipelineError(f"{w}: needs 'name' and 'input'")
-            p.op(d["name"], d["input"], id=d.get("id"), offload=d.get("offload"), buffer=d.get("buffer", 64),
+            inp = d["input"]
+            if isinstance(inp, Mapping):
+                inp = {k: _delayed_from(v, f"{w}: port {k!r}") if isinstance(v, Mapping) else v
+                       for k, v in inp.items()}
+            p.op(d["name"], inp, id=d.get("id"), offload=d.get("offload"), buffer=d.get("buffer", 64),
                  **d.get("params", {}))
         for i, d in enumerate(data.get("sink", [])):
             w = where("sink", i, d)
@@ -263,13 +289,31 @@ class Pipeline:
         """Check the DAG and resolve it; raises :class:`PipelineError`."""
         return _validate(self, registry or get_registry())
 
+    def explain(self, registry: Registry | None = None) -> str:
+        """The validated pipeline as text, macros expanded: its nodes (with
+        operator names and parameters), its edges (with ports and delays)
+        and its feedback loops. Nothing is opened or run."""
+        return self.validate(registry).explain()
+
+
+def _delayed_from(d: Mapping[str, Any], where: str) -> Delayed:
+    """A delayed port input of a pipeline file: ``{ from = "m", delay_us = 2000 }``."""
+    if set(d) != {"from", "delay_us"}:
+        raise PipelineError(f"{where}: a delayed input is {{ from = NODE, delay_us = US }}, got keys {sorted(d)}")
+    try:
+        return Delayed(str(d["from"]), d["delay_us"])
+    except PipelineError as e:
+        raise PipelineError(f"{where}: {e}") from None
+
 
 @dataclass(frozen=True)
 class PlanNode:
     """A validated node: its class, converted parameters, inputs (node ids,
     each once), children, the kinds of stream it provides downstream, its
     wired ports (port name to node id, for operators with named ports) and
-    whether it runs offloaded."""
+    whether it runs offloaded; ``delays`` (port to µs) its delayed ports, of
+    which ``feedback`` are those closing a loop (their producer depends on
+    this node's output)."""
 
     spec: NodeSpec
     cls: type
@@ -279,6 +323,8 @@ class PlanNode:
     inputs: tuple[str, ...] = ()
     ports: Mapping[str, str] = field(default_factory=lambda: MappingProxyType({}))
     offload: bool = False
+    delays: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
+    feedback: frozenset[str] = frozenset()
 
     @property
     def id(self) -> str:
@@ -302,18 +348,24 @@ class PlanNode:
 
 @dataclass(frozen=True)
 class Plan:
-    """A validated pipeline: nodes in topological order."""
+    """A validated pipeline: nodes in topological order (of the edges that
+    close no loop); ``loops`` lists the node ids of each feedback loop."""
 
     nodes: Mapping[str, PlanNode]
     order: tuple[str, ...]
     batch: BatchPolicy
+    loops: tuple[tuple[str, ...], ...] = ()
 
     def of_role(self, role: Role) -> list[PlanNode]:
         return [self.nodes[n] for n in self.order if self.nodes[n].role == role]
 
+    def explain(self) -> str:
+        """See :meth:`Pipeline.explain`."""
+        return _explain(self)
+
 
 def _validate(p: Pipeline, reg: Registry) -> Plan:
-    specs = {s.id: s for s in p.nodes}
+    specs = {s.id: s for s in _expand_macros(p.nodes, reg)}
     if not any(s.role == "source" for s in specs.values()):
         raise PipelineError("the pipeline has no source")
     classes = {nid: _resolve(s, reg) for nid, s in specs.items()}
@@ -339,7 +391,6 @@ def _validate(p: Pipeline, reg: Registry) -> Plan:
             ports_of[nid] = ports
         params_of[nid] = params
         inputs_of[nid] = tuple(dict.fromkeys((*s.inputs, *given.values())))
-    children: dict[str, list[str]] = {i: [] for i in specs}
     for s in specs.values():
         inputs = inputs_of[s.id]
         if s.role == "source" and inputs:
@@ -359,9 +410,11 @@ def _validate(p: Pipeline, reg: Registry) -> Plan:
                 raise PipelineError(f"node {s.id!r} reads from unknown node {i!r} (known: {sorted(specs)})")
             if specs[i].role == "sink":
                 raise PipelineError(f"node {s.id!r} reads from sink {i!r}; sinks have no output")
-            children[i].append(s.id)
-    order = _toposort(specs, inputs_of)
+    loops, feedback = _loops(specs, inputs_of, ports_of, named)
+    order = _toposort(specs, {n: tuple(i for i in ins if (n, i) not in feedback) for n, ins in inputs_of.items()})
     nodes: dict[str, PlanNode] = {}
+    provides_of: dict[str, frozenset[Kind]] = {  # a loop's nodes (named ports) give what they declare
+        n: frozenset(getattr(specs[n].component or classes[n], "produces", ())) for loop in loops for n in loop}
     for nid in order:
         s = specs[nid]
         cls = classes[nid]
@@ -377,13 +430,14 @@ def _validate(p: Pipeline, reg: Registry) -> Plan:
         if s.role == "source":
             provides = frozenset(decl.produces if s.component is not None else decl.kinds_for(s.name, params))
         elif nid in named:
-            wired = _wire_ports(s, ports_of[nid], named[nid], s.inputs, nodes)
+            wired = _wire_ports(s, ports_of[nid], named[nid], s.inputs, provides_of)
             problem = decl.check_ports(frozenset(wired))
             if problem:
                 raise PipelineError(f"node {nid!r} ({s.name}): {problem}")
             provides = frozenset(decl.produces)
+            inputs = tuple(dict.fromkeys(wired.values()))  # a macro's part may leave some of its inputs unused
         else:
-            upstream = frozenset().union(*(nodes[i].provides for i in inputs))
+            upstream = frozenset().union(*(provides_of[i] for i in inputs))
             consumes = frozenset(decl.consumes)
             if not any(accepts(consumes, k) for k in upstream):
                 raise PipelineError(
@@ -394,9 +448,160 @@ def _validate(p: Pipeline, reg: Registry) -> Plan:
             if s.role == "sink" and s.component is None and hasattr(cls, "planned_params"):
                 params = cls.planned_params(params, upstream)  # e.g. which stream a file holds
         offload = s.role == "operator" and (bool(getattr(decl, "heavy", False)) if s.offload is None else s.offload)
-        nodes[nid] = PlanNode(s, cls, MappingProxyType(params), tuple(children[nid]), provides, inputs,
-                              MappingProxyType(wired), offload)
-    return Plan(MappingProxyType(nodes), tuple(order), p.batch)
+        provides_of[nid] = provides
+        fb = frozenset(q for q, up in wired.items() if (nid, up) in feedback)
+        nodes[nid] = PlanNode(s, cls, MappingProxyType(params), (), provides, inputs, MappingProxyType(wired),
+                              offload, MappingProxyType(dict(s.delays)), fb)
+    _check_macro_inputs(specs, nodes)
+    children: dict[str, list[str]] = {i: [] for i in order}
+    for nid in order:
+        for i in nodes[nid].inputs:
+            children[i].append(nid)
+    final = {nid: replace(n, children=tuple(children[nid])) for nid, n in nodes.items()}
+    return Plan(MappingProxyType(final), tuple(order), p.batch, loops)
+
+
+def _loops(specs: Mapping[str, NodeSpec], inputs_of: Mapping[str, tuple[str, ...]],
+           ports_of: Mapping[str, Mapping[str, Port]],
+           named: Mapping[str, Mapping[str, str]]) -> tuple[tuple[tuple[str, ...], ...], set[tuple[str, str]]]:
+    """The pipeline's feedback loops (strongly connected sets of nodes, in
+    declaration order) and its feedback edges ((consumer, producer): the
+    delayed edges inside a loop). Every cycle must hold a delayed edge."""
+    delayed = {(n, up) for n, s in specs.items() for q, up in named.get(n, {}).items() if q in s.delays}
+    for n, s in specs.items():
+        if s.delays and n not in ports_of:
+            raise PipelineError(f"node {n!r} ({s.name}): a delayed edge goes into a named port")
+        if s.delays and not [q for q in named[n] if q not in s.delays] + list(s.inputs):
+            raise PipelineError(f"node {n!r} ({s.name}): every input is delayed; a delayed port needs another, "
+                                "undelayed input to the node (whose stream starts the delayed one's)")
+    _toposort(specs, {n: tuple(i for i in ins if (n, i) not in delayed) for n, ins in inputs_of.items()},
+              loop_hint=True)
+    comps = _strongly_connected(list(specs), inputs_of)
+    loops: list[tuple[str, ...]] = []
+    feedback: set[tuple[str, str]] = set()
+    for comp in comps:
+        members = set(comp)
+        if len(comp) == 1 and comp[0] not in inputs_of[comp[0]]:
+            continue
+        loop = tuple(n for n in specs if n in members)
+        for n in loop:
+            if n not in ports_of:
+                raise PipelineError(
+                    f"node {n!r} ({specs[n].name}) is on the loop {' -> '.join(loop)}: nodes on a loop take "
+                    "their inputs on named ports")
+        loops.append(loop)
+        feedback |= {(n, up) for n, up in delayed if n in members and up in members}
+    return tuple(loops), feedback
+
+
+def _strongly_connected(ids: Sequence[str], inputs_of: Mapping[str, tuple[str, ...]]) -> list[list[str]]:
+    """Tarjan's strongly connected components of the input graph."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+
+    def visit(n: str) -> None:
+        index[n] = low[n] = len(index)
+        stack.append(n)
+        on.add(n)
+        for i in inputs_of[n]:
+            if i not in index:
+                visit(i)
+                low[n] = min(low[n], low[i])
+            elif i in on:
+                low[n] = min(low[n], index[i])
+        if low[n] == index[n]:
+            comp = []
+            while True:
+                m = stack.pop()
+                on.discard(m)
+                comp.append(m)
+                if m == n:
+                    break
+            out.append(comp)
+
+    for n in ids:
+        if n not in index:
+            visit(n)
+    return out
+
+
+def _expand_macros(specs: Sequence[NodeSpec], reg: Registry) -> list[NodeSpec]:
+    """``specs`` with each macro node replaced by its parts (``<id>.<part>``)
+    and a node ``<id>`` that hands on the outputs it names (macros may use
+    macros)."""
+    todo = list(specs)
+    depth = 0
+    while any(_is_macro(s, reg) for s in todo):
+        depth += 1
+        if depth > 8:
+            raise PipelineError("macros expand into macros more than 8 levels deep")
+        nxt: list[NodeSpec] = []
+        for s in todo:
+            nxt += _expand_one(s, reg) if _is_macro(s, reg) else [s]
+        todo = nxt
+    return todo
+
+
+def _is_macro(s: NodeSpec, reg: Registry) -> bool:
+    return s.role == "operator" and s.component is None and s.name in reg.macros
+
+
+def _expand_one(s: NodeSpec, reg: Registry) -> list[NodeSpec]:
+    cls = reg.macros[s.name].cls
+    where = f"node {s.id!r} ({s.name})"
+    named = dict(s.ports)
+    params = dict(s.params)
+    for k in list(params):
+        if k in cls.inputs:
+            named[k] = str(params.pop(k))
+    unknown = sorted(set(named) - set(cls.inputs))
+    if unknown:
+        raise PipelineError(f"{where} has no port(s) {unknown}; ports: {sorted(cls.inputs)}")
+    if s.delays:
+        raise PipelineError(f"{where}: a macro's ports take no delay (delay the edge inside it)")
+    if s.offload is not None:
+        raise PipelineError(f"{where}: offload= applies to its parts, not to a macro")
+    if not named and not s.inputs:
+        raise PipelineError(f"operator {s.id!r} has no input")
+    macro = cls(**_check_params(s, cls, params))
+    x = Expansion(s.id, named, s.inputs)
+    try:
+        macro.expand(x)
+    except (TypeError, ValueError) as e:
+        raise PipelineError(f"{where}: {e}") from e
+    if not x.outputs or any(o not in x.parts for o in x.outputs):
+        raise PipelineError(f"{where}: the macro names outputs {list(x.outputs)} among its parts {list(x.parts)}")
+    pid = {part: f"{s.id}.{part}" for part in x.parts}
+    nodes = []
+    for part in x.parts.values():
+        ports: dict[str, str] = {}
+        delays: dict[str, int] = {}
+        for q, v in part.ports.items():
+            if isinstance(v, Delayed):
+                ports[q], delays[q] = pid.get(v.node, v.node), v.delay_us
+            else:
+                ports[q] = pid.get(v, v)
+        nodes.append(NodeSpec(pid[part.part], "operator", part.name, MappingProxyType(part.params), part.inputs,
+                              buffer=part.buffer, ports=MappingProxyType(ports), offload=part.offload,
+                              delays=MappingProxyType(delays), part_of=s.id))
+    outputs = tuple(pid[o] for o in x.outputs)
+    nodes.append(NodeSpec(s.id, "operator", s.name, inputs=outputs, part_of=s.id,
+                          component=MacroOutputs(s.name, _check_params(s, cls, params), s.inputs)))
+    return nodes
+
+
+def _check_macro_inputs(specs: Mapping[str, NodeSpec], nodes: Mapping[str, PlanNode]) -> None:
+    """Each plain input of a macro node feeds one of its parts."""
+    for nid, s in specs.items():
+        if not isinstance(s.component, MacroOutputs):
+            continue
+        used = {i for n in nodes.values() if n.spec.part_of == nid and n.id != nid for i in n.inputs}
+        spare = [i for i in s.component.positional if i not in used]
+        if spare:
+            raise PipelineError(f"node {nid!r} ({s.name}): input(s) {spare} fill none of its parts' ports")
 
 
 #: Calibration files looked for beside a recording, in this order (the
@@ -442,7 +647,7 @@ def _ports_of(s: NodeSpec, cls: type) -> Mapping[str, Port] | None:
 
 
 def _wire_ports(s: NodeSpec, ports: Mapping[str, Port], given: Mapping[str, str], positional: Sequence[str],
-                nodes: Mapping[str, PlanNode]) -> dict[str, str]:
+                provides: Mapping[str, frozenset[Kind]]) -> dict[str, str]:
     """Port name -> upstream node id: the ports given by name, then the
     others filled by kind from the positional inputs where exactly one of
     them provides the port's kind (and no other port of that kind is open)."""
@@ -450,13 +655,13 @@ def _wire_ports(s: NodeSpec, ports: Mapping[str, Port], given: Mapping[str, str]
     wired = dict(given)
     for port, up in given.items():
         kind = ports[port].kind
-        if kind not in nodes[up].provides:
+        if kind not in provides[up]:
             raise PipelineError(f"{where}: port {port!r} takes {kind} but {up!r} provides only "
-                                f"{_kinds(nodes[up].provides)}")
+                                f"{_kinds(provides[up])}")
     for port, spec in ports.items():
         if port in wired:
             continue
-        candidates = [i for i in positional if spec.kind in nodes[i].provides]
+        candidates = [i for i in positional if spec.kind in provides[i]]
         same_kind = [q for q, ps in ports.items() if ps.kind == spec.kind and q not in given]
         if len(candidates) == 1 and len(same_kind) == 1:
             wired[port] = candidates[0]
@@ -470,7 +675,7 @@ def _wire_ports(s: NodeSpec, ports: Mapping[str, Port], given: Mapping[str, str]
         raise PipelineError(f"{where}: required port(s) {', '.join(f'{q!r} ({ports[q].kind})' for q in missing)} "
                             "not connected")
     unused = [i for i in positional if i not in wired.values()]
-    if unused:
+    if unused and not s.part_of:  # a macro's part takes what it can of the macro's inputs
         raise PipelineError(f"{where}: input(s) {unused} fill none of its ports "
                             f"({', '.join(f'{q}: {ps.kind}' for q, ps in ports.items())})")
     return wired
@@ -480,7 +685,8 @@ def _kinds(ks: frozenset[Kind]) -> str:
     return "{" + ", ".join(sorted(str(k) for k in ks)) + "}"
 
 
-def _toposort(specs: Mapping[str, NodeSpec], inputs_of: Mapping[str, tuple[str, ...]]) -> list[str]:
+def _toposort(specs: Mapping[str, NodeSpec], inputs_of: Mapping[str, tuple[str, ...]], *,
+              loop_hint: bool = False) -> list[str]:
     state: dict[str, int] = {}
     order: list[str] = []
 
@@ -489,8 +695,10 @@ def _toposort(specs: Mapping[str, NodeSpec], inputs_of: Mapping[str, tuple[str, 
         if st == 2:
             return
         if st == 1:
-            cyc = path[path.index(n):] + [n]
-            raise PipelineError(f"the pipeline has a cycle: {' -> '.join(cyc)}")
+            cyc = (path[path.index(n):] + [n])[::-1]  # in the direction data flow
+            hint = ("; a loop needs a delayed edge: give one of its inputs delay_us (Pipeline.delayed, or "
+                    "{ from = NODE, delay_us = US } in a file)") if loop_hint else ""
+            raise PipelineError(f"the pipeline has a cycle: {' -> '.join(cyc)}{hint}")
         state[n] = 1
         for i in inputs_of[n]:
             visit(i, path + [n])
@@ -538,3 +746,42 @@ def _check_params(s: NodeSpec, cls: type, params: Mapping[str, Any]) -> dict[str
     if missing:
         raise PipelineError(f"node {s.id!r} ({s.name}): missing parameter(s) {missing}")
     return out
+
+
+def _explain(plan: Plan) -> str:
+    """See :meth:`Pipeline.explain`."""
+
+    def value(v: Any) -> str:
+        return repr(v) if isinstance(v, str) else str(v)
+
+    rows: list[tuple[str, str, str]] = []
+    for nid in plan.order:
+        n = plan.nodes[nid]
+        comp = n.spec.component
+        if isinstance(comp, MacroOutputs):
+            what = f"{comp.macro} (macro: outputs of {', '.join(n.inputs)})"
+            params: Mapping[str, Any] = comp.params
+        else:
+            what = n.spec.name if n.role == "operator" else f"{n.role} {n.spec.name}"
+            params = n.params
+        extra = " ".join(f"{k}={value(v)}" for k, v in params.items())
+        if n.offload:
+            extra += (" " if extra else "") + "[offloaded]"
+        rows.append((nid, what, extra))
+    w0 = max(len(r[0]) for r in rows)
+    w1 = max(len(r[1]) for r in rows)
+    lines = ["nodes:"] + [f"  {a:<{w0}}  {b:<{w1}}  {c}".rstrip() for a, b, c in rows]
+    lines.append("edges:")
+    for nid in plan.order:
+        n = plan.nodes[nid]
+        by_port = {up: [q for q, u in n.ports.items() if u == up] for up in n.inputs}
+        for up in n.inputs:
+            for q in by_port[up] or [""]:
+                delay = n.delays.get(q)
+                lines.append(f"  {up} -> {nid}" + (f".{q}" if q else "")
+                             + (f"  delayed {delay} µs" if delay else "")
+                             + ("  (closes a loop)" if q in n.feedback else ""))
+    if plan.loops:
+        lines.append("loops:")
+        lines += [f"  {' -> '.join(loop)}" for loop in plan.loops]
+    return "\n".join(lines)

@@ -12,6 +12,7 @@ from typing import Any, Literal
 import pluggy
 
 from . import hookspecs
+from ._macro import Macro
 from ._operator import Operator, Sink, Source, component_params
 from ._packet import Packet, register_kind
 from .errors import DuplicateNameError, FormatError, RegistryError
@@ -21,7 +22,7 @@ __all__ = ["Registry", "RegistryView", "BenchSuite", "get_registry", "FAMILIES"]
 FAMILIES = ("filter", "flow", "lifetime", "map", "tracker", "repr")
 _OP_NAME = re.compile(r"^([a-z]+)\.([a-z][a-z0-9_]*)$")
 _COMP_NAME = re.compile(r"^[a-z][a-z0-9_.]*$")
-Role = Literal["operator", "source", "sink", "kind"]
+Role = Literal["operator", "source", "sink", "kind", "macro"]
 
 
 @dataclass
@@ -30,7 +31,7 @@ class Entry:
 
     role: Role
     name: str
-    cls: Any  # an Operator, Source, Sink or Packet subclass
+    cls: Any  # an Operator, Source, Sink, Macro or Packet subclass
     owner: str
 
 
@@ -48,9 +49,10 @@ class BenchSuite:
 
 @dataclass
 class Registry:
-    """Operators, sources, sinks and bench suites by name, each with its owning plugin."""
+    """Operators, sources, sinks, macros and bench suites by name, each with its owning plugin."""
 
     operators: dict[str, Entry] = field(default_factory=dict)
+    macros: dict[str, Entry] = field(default_factory=dict)  # pipeline macros (used as operators are)
     sources: dict[str, Entry] = field(default_factory=dict)
     sinks: dict[str, Entry] = field(default_factory=dict)
     bench_suites: dict[str, BenchSuite] = field(default_factory=dict)
@@ -58,20 +60,24 @@ class Registry:
     plugins: dict[str, str] = field(default_factory=dict)  # plugin name -> distribution/module
 
     def _table(self, role: Role) -> dict[str, Entry]:
-        return {"operator": self.operators, "source": self.sources, "sink": self.sinks}[role]
+        return {"operator": self.operators, "source": self.sources, "sink": self.sinks, "macro": self.macros}[role]
 
     def add(self, role: Role, cls: type, owner: str) -> None:
-        base = {"operator": Operator, "source": Source, "sink": Sink}[role]
+        base = {"operator": Operator, "source": Source, "sink": Sink, "macro": Macro}[role]
         if not (isinstance(cls, type) and issubclass(cls, base)):
             raise RegistryError(f"plugin {owner!r} registered {cls!r} as a {role}, "
                                 f"but it is not a {base.__name__} subclass")
         name: str = getattr(cls, "name", "")
-        if role == "operator":
+        if role in ("operator", "macro"):
             m = _OP_NAME.match(name or "")
             if not m or m.group(1) not in FAMILIES:
                 raise RegistryError(
-                    f"plugin {owner!r}: operator name {name!r} is not 'family.method' with family in {FAMILIES}"
+                    f"plugin {owner!r}: {role} name {name!r} is not 'family.method' with family in {FAMILIES}"
                 )
+            other = (self.macros if role == "operator" else self.operators).get(name)
+            if other is not None:
+                raise DuplicateNameError(f"{name!r} is registered as an operator and as a macro: by plugin "
+                                         f"{other.owner!r} and by plugin {owner!r}")
             ports = getattr(cls, "inputs", None) or {}
             clash = sorted(set(ports) & set(component_params(cls)))
             if clash:
@@ -196,6 +202,10 @@ class RegistryView:
     def add_sink(self, cls: type[Sink]) -> None:
         self._registry.add("sink", cls, self.owner)
 
+    def add_macro(self, cls: type[Macro]) -> None:
+        """Add a pipeline macro (see ``tectum_register_macros``)."""
+        self._registry.add("macro", cls, self.owner)
+
     def add_kind(self, cls: type[Packet]) -> None:
         """Add a kind of sample stream (see ``tectum_register_kinds``)."""
         try:
@@ -231,7 +241,7 @@ def build_registry(pm: pluggy.PluginManager) -> Registry:
     for name, plugin in pm.list_name_plugin():
         reg.plugins[name] = getattr(plugin, "__name__", repr(plugin))
     for hook in ("tectum_register_kinds", "tectum_register_sources", "tectum_register_sinks",
-                 "tectum_register_operators", "tectum_register_bench_suites"):
+                 "tectum_register_operators", "tectum_register_macros", "tectum_register_bench_suites"):
         caller = getattr(pm.hook, hook)
         for impl in caller.get_hookimpls():  # registration order
             impl.function(registry=RegistryView(reg, impl.plugin_name))

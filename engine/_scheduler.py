@@ -99,13 +99,14 @@ async def open_pipeline(
         edges["tap:" + t] = e
     for nid in graph.offloaded:
         edges["offload:" + nid] = Edge(plan.nodes[nid].spec.buffer, "block")
+    loops = {"offload:" + n: k for k, loop in enumerate(plan.loops) for n in loop if n in graph.offloaded}
     t_wall = time.perf_counter()
     failure: list[BaseException] = []
     try:
         async with trio.open_nursery() as nursery:
             scope = trio.CancelScope()
             running = RunningPipeline(plan, graph, tap_edges, scope)
-            nursery.start_soon(_main, plan, graph, edges, scope, failure)
+            nursery.start_soon(_main, plan, graph, edges, scope, failure, loops)
             yield running
     except BaseExceptionGroup as eg:
         err = _unwrap(eg)
@@ -140,7 +141,7 @@ def _unwrap(eg: BaseExceptionGroup) -> BaseException:
 
 
 async def _main(plan: Plan, graph: Graph, edges: dict[str, Edge], scope: trio.CancelScope,
-                failure: list[BaseException]) -> None:
+                failure: list[BaseException], loops: Mapping[str, int]) -> None:
     sinks = {n.id: n.instantiate() for n in plan.of_role("sink")}
     opened: list[str] = []
     ok = False
@@ -152,16 +153,17 @@ async def _main(plan: Plan, graph: Graph, edges: dict[str, Edge], scope: trio.Ca
             except Exception as e:
                 raise NodeError(sid, e) from e
             opened.append(sid)
-        outbox = _Outbox(edges)
+        outbox = _Outbox(edges, loops)
+        watch = _LoopWatch(graph, edges, outbox, len(plan.of_role("source"))) if plan.loops else None
         async with trio.open_nursery() as nursery:
             for sid, sink in sinks.items():
                 nursery.start_soon(_sink_task, sid, sink, edges[sid], graph.stats)
             with scope:
                 async with trio.open_nursery() as sources:
                     for nid in sorted(graph.offloaded):
-                        sources.start_soon(_offload_task, nid, graph, edges["offload:" + nid], outbox)
+                        sources.start_soon(_offload_task, nid, graph, edges["offload:" + nid], outbox, watch)
                     for node in plan.of_role("source"):
-                        sources.start_soon(_source_task, node, plan.batch, graph, outbox)
+                        sources.start_soon(_source_task, node, plan.batch, graph, outbox, watch)
             if scope.cancelled_caught:  # user cancel: end every edge so sinks drain
                 for edge in edges.values():
                     edge.close()
@@ -228,12 +230,19 @@ class _Outbox:
     taken in the order the deliveries were taken out of the outbox, so every
     edge receives its items in the order the graph produced them, whichever
     task pushed them; a task blocked on one full edge holds no other edge's
-    lock (no task waits on another in a cycle: the graph is a DAG)."""
+    lock (no task waits on another in a cycle: the graph is a DAG).
 
-    def __init__(self, edges: Mapping[str, Edge]) -> None:
+    The edges in front of offloaded nodes on a feedback loop (``loops``:
+    edge to loop number) are fed otherwise, since the loop's own tasks feed
+    them: those tasks never wait on them (they may overfill), and any other
+    task waits for room *before* it takes their items out of the outbox, so
+    nobody holds items while waiting and the order stays that of the graph."""
+
+    def __init__(self, edges: Mapping[str, Edge], loops: Mapping[str, int] | None = None) -> None:
         self.edges = edges
         self.pending: dict[str, list[Any]] = {}
         self._locks = {t: trio.StrictFIFOLock() for t in edges}
+        self.loops = dict(loops or {})
 
     def add(self, deliveries: list[Delivery], arrival: float) -> None:
         pending = self.pending
@@ -245,61 +254,131 @@ class _Outbox:
             else:
                 items.append(item)
 
-    async def flush(self) -> None:
+    async def flush(self, loop: int | None = None) -> None:
+        """Hand what is pending to the edges; ``loop``: the feedback loop of
+        the calling task's node, if any."""
+        if self.loops:
+            await self._flush_loops(loop)
+            return
+        await self._flush()
+
+    async def _flush_loops(self, loop: int | None) -> None:
+        pending, loops, edges = self.pending, self.loops, self.edges
+        while pending:
+            ready = next((t for t in pending if t in loops and (loops[t] == loop or edges[t].has_room(1))), None)
+            if ready is not None:  # no wait between taking the items out and putting them in
+                items = pending.pop(ready)
+                edge = edges[ready]
+                if items[-1] is _CLOSE:
+                    edge.put_all(items[:-1])
+                    edge.close()
+                else:
+                    edge.put_all(items)
+                continue
+            others = [t for t in pending if t not in loops]
+            if not others:  # only full loop edges: wait for room, holding nothing
+                await edges[next(iter(pending))].wait_room()
+                continue
+            target = next((t for t in others if edges[t].has_room(len(pending[t]))), others[0])
+            await self._send(target, pending.pop(target))
+
+    async def _flush(self) -> None:
         pending = self.pending
         while pending:
             # edges with room first: a full edge (a slow branch) does not hold back the others
             target = next((t for t, v in pending.items() if self.edges[t].has_room(len(v))), None)
             if target is None:
                 target = next(iter(pending))
-            items = pending.pop(target)
-            lock = self._locks[target]
-            try:
-                lock.acquire_nowait()
-            except trio.WouldBlock:
-                await lock.acquire()
-            try:
-                edge = self.edges[target]
-                if items[-1] is _CLOSE:
-                    await edge.send_all(items[:-1])
-                    edge.close()  # queued items are still drained by the receiver
-                else:
-                    await edge.send_all(items)
-            finally:
-                lock.release()
+            await self._send(target, pending.pop(target))
+
+    async def _send(self, target: str, items: list[Any]) -> None:
+        lock = self._locks[target]
+        try:
+            lock.acquire_nowait()
+        except trio.WouldBlock:
+            await lock.acquire()
+        try:
+            edge = self.edges[target]
+            if items[-1] is _CLOSE:
+                await edge.send_all(items[:-1])
+                edge.close()  # queued items are still drained by the receiver
+            else:
+                await edge.send_all(items)
+        finally:
+            lock.release()
 
 
 #: End of an edge's input, queued behind its last items.
 _CLOSE: Any = object()
 
 
-async def _offload_task(nid: str, graph: Graph, edge: Edge, out: _Outbox) -> None:
+async def _offload_task(nid: str, graph: Graph, edge: Edge, out: _Outbox, watch: _LoopWatch | None) -> None:
     """Run an offloaded operator: take what the graph delivered to its edge,
     call the operator in a worker thread (its kernels release the GIL), and
     push its outputs on from the trio thread. End of stream: ``finish()`` in
     the worker thread, then the end propagates below the node."""
-    finish, forward = graph.call_finish, graph.forward
+    finish, forward, call = graph.call_finish, graph.forward, graph.call_marked
+    loop = out.loops.get("offload:" + nid)
 
-    def call_all(items: list[tuple[Any, float]]) -> list[list[Packet]]:
-        return [graph.call(nid, item) for item, _ in items]
+    def call_all(items: list[tuple[Any, float]]) -> list[tuple[list[Packet], int | None]]:
+        return [call(nid, item) for item, _ in items]
 
     while True:
+        if watch is not None and not len(edge):
+            watch.idle()
         try:
             items = await edge.receive_all()
         except trio.EndOfChannel:
             break
+        if watch is not None:
+            watch.busy += 1
         # everything queued goes to the worker in one hand-over (a thread
         # round trip costs tens of µs: not one per packet)
         results = await trio.to_thread.run_sync(call_all, items)
-        for (_, arrival), res in zip(items, results):
-            out.add(forward(nid, res), arrival)
-        await out.flush()
+        for (_, arrival), (res, mark) in zip(items, results):
+            out.add(forward(nid, res, mark=mark), arrival)
+        await out.flush(loop)
+        if watch is not None:
+            watch.busy -= 1
     res = await trio.to_thread.run_sync(finish, nid)
     out.add(forward(nid, res, ended=True), trio.current_time())
-    await out.flush()
+    await out.flush(loop)
+    if watch is not None:
+        watch.ended(nid)
 
 
-async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox) -> None:
+class _LoopWatch:
+    """Finds a feedback loop that stalls (its nodes wait on each other's
+    output, the delay too short for how late one of them emits): once every
+    source has ended and no offloaded node has work left, a loop that has
+    not ended never will, and the run fails saying where it stopped."""
+
+    def __init__(self, graph: Graph, edges: Mapping[str, Edge], outbox: _Outbox, sources: int) -> None:
+        self.graph = graph
+        self.edges = {t[8:]: e for t, e in edges.items() if t.startswith("offload:")}
+        self.outbox = outbox
+        self.sources = sources
+        self.busy = 0
+
+    def source_ended(self) -> None:
+        self.sources -= 1
+        self.idle()
+
+    def ended(self, nid: str) -> None:
+        del self.edges[nid]
+        self.idle()
+
+    def idle(self) -> None:
+        # an offloaded node is still at work while its edge holds items or has closed (it is finishing)
+        if self.sources or self.busy or self.outbox.pending or any(len(e) or e.closed for e in self.edges.values()):
+            return
+        why = self.graph.stalled()
+        if why:
+            raise TectumError(why)
+
+
+async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox,
+                       watch: _LoopWatch | None = None) -> None:
     sid = node.id
     st = graph.stats.node(sid)
     guard = Guard(sid)
@@ -375,6 +454,8 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                 out.add(graph.push(sid, guard(pkt)), trio.current_time())
         out.add(graph.end(sid), trio.current_time())
         await out.flush()
+        if watch is not None:
+            watch.source_ended()
     except NodeError:
         raise
     except Exception as e:

@@ -2,7 +2,7 @@
 
 Plugins are found through the ``tectum`` entry-point group (built-ins go
 through the same group). Each hook receives a *registry* object and calls its
-``add_operator`` / ``add_source`` / ``add_sink`` / ``add_bench_suite`` methods; hooks run once, when
+``add_operator`` / ``add_source`` / ``add_sink`` / ``add_macro`` / ``add_bench_suite`` methods; hooks run once, when
 the registry is built, never per event. A name registered twice fails at
 start-up with both owners named.
 """
@@ -28,6 +28,17 @@ def tectum_register_operators(registry: RegistryView) -> None:
     Each class is a :class:`tectum.Operator` subclass whose ``name`` is
     ``family.method`` with family one of ``filter``, ``flow``, ``lifetime``,
     ``map``, ``tracker``, ``repr``.
+    """
+
+
+@hookspec
+def tectum_register_macros(registry: RegistryView) -> None:
+    """Register pipeline macros with ``registry.add_macro(cls)``.
+
+    ``cls`` is a :class:`tectum.Macro` subclass named ``family.method`` like
+    an operator (a name is an operator or a macro, not both): one name
+    that validation expands into several nodes and their wiring (see
+    :meth:`tectum.Macro.expand`). Macros are registered after operators.
     """
 
 

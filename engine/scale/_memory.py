@@ -41,11 +41,16 @@ class Warmup:
 def warmup_of(plan: Plan) -> Warmup:
     """The warm-up of a validated pipeline; raises :class:`NotShardable`
     naming the first operator that states no finite memory, with its reason."""
+    if plan.loops:
+        loop = plan.loops[0]
+        raise NotShardable(f"the feedback loop {' -> '.join(loop)} cannot be split in time: what it computes "
+                           "depends on everything before")
     reach: dict[str, int] = {}
     grid = 1
     for nid in plan.order:
         node = plan.nodes[nid]
-        before = max((reach[i] for i in node.inputs), default=0)
+        delay = {up: node.delays[q] for q, up in node.ports.items() if q in node.delays}
+        before = max((reach[i] + delay.get(i, 0) for i in node.inputs), default=0)
         if node.role != "operator":
             reach[nid] = before
             continue
