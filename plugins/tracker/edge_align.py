@@ -43,13 +43,19 @@ fronto-parallel plane at that depth in front of the first camera (the world
 frame is that camera's, the scale is set by ``plane_depth``): a planar
 scene's bootstrap.
 
-Lost: a step with fewer than ``min_points`` map points in view, or whose
-aligned points land on edges (E ≥ 0.5) for less than ``min_overlap`` of
-them, is lost: its row holds the last good pose, zero velocities and
-``lost`` true (never a confident guess), counted in ``counts``. While
-lost, each step tries to relocalise from the last good pose with one
-coarser level, and resumes when the overlap reaches
-``relocalise_overlap``.
+Lost: a step is lost when fewer than ``min_points`` map points are in
+view; when its aligned points land on edges (E ≥ 0.5) for less than
+``min_overlap`` of them, or for less than ``overlap_drop`` times the
+running overlap of the good steps on the same map (how much of a map lands
+on edges depends on the scene and the view: a relative test); or when the
+pose moved farther from the last good one than ``max_speed`` m/s and
+``max_rate`` rad/s allow (plus 2 cm, 0.02 rad). A lost row holds the last
+good pose, zero velocities and ``lost`` true (never a confident guess);
+each is counted in ``counts``. While lost, each step tries to relocalise
+from the last good pose with one coarser level and no motion prior, and
+resumes when the overlap is back to ``relocalise_overlap`` times the
+running overlap (twice ``min_overlap`` on a new map) and the jump is
+plausible.
 
 Output (:class:`~tectum.PosePacket`): ``position`` (m), ``orientation``
 (x, y, z, w, world-from-camera), ``linear_velocity`` (m/s, world),
@@ -69,7 +75,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 from tectum import EventPacket, Kind, MapPacket, Operator, Packet, Port, PosePacket
-from tectum.camera import Camera, camera_from, interpolate_poses, quat_to_rot, rot_to_quat, se3_exp, se3_log
+from tectum.camera import Camera, camera_from, interpolate_poses, quat_to_rot, rot_to_quat, se3_exp, se3_log, so3_log
 
 from ._edge_align import align, consistent, gradients, normalise, vote_events
 
@@ -126,8 +132,14 @@ class EdgeAlign(Operator):
         Fewer map points in view: lost.
     min_overlap:
         Fewer aligned points on an edge (E ≥ 0.5) than this fraction: lost.
+    overlap_drop:
+        An overlap below this fraction of the running overlap: lost.
     relocalise_overlap:
-        Overlap needed to resume after a loss.
+        Fraction of the running overlap needed to resume after a loss.
+    max_speed:
+        Fastest plausible camera speed, m/s.
+    max_rate:
+        Fastest plausible turn, rad/s.
     min_neighbours:
         A map pixel is used when at least this many known pixels within 3 px
         have an inverse depth within ``neighbour_tol`` of its own (0: all).
@@ -153,11 +165,13 @@ class EdgeAlign(Operator):
     produces = (Kind.POSES,)
     heavy = True
 
-    def __init__(self, calib: str = "", bootstrap_us: int = 0, plane_depth: float = 0.0, window_events: int = 4000,
-                 step_events: int = 1000, sigma_px: float = 1.0, levels: int = 2, max_iter: int = 10,
-                 huber: float = 0.5, max_points: int = 6000, min_points: int = 60, min_overlap: float = 0.25,
-                 relocalise_overlap: float = 0.35, min_neighbours: int = 8, neighbour_tol: float = 0.03,
-                 prior_rad: float = 0.01, prior_m: float = 0.01, velocity_gain: float = 0.3) -> None:
+    def __init__(self, calib: str = "", bootstrap_us: int = 0, plane_depth: float = 0.0, window_events: int = 12000,
+                 step_events: int = 3000, sigma_px: float = 1.0, levels: int = 2, max_iter: int = 10,
+                 huber: float = 0.5, max_points: int = 6000, min_points: int = 60, min_overlap: float = 0.1,
+                 overlap_drop: float = 0.5, relocalise_overlap: float = 0.8, max_speed: float = 10.0,
+                 max_rate: float = 20.0, min_neighbours: int = 8, neighbour_tol: float = 0.03,
+                 prior_rad: float = 0.01, prior_m: float = 0.01, velocity_gain: float = 0.3,
+                 binary: bool = False) -> None:
         if bootstrap_us < 0 or not plane_depth >= 0:
             raise ValueError(f"tracker.edge_align: need bootstrap_us >= 0 and plane_depth >= 0 m, got {bootstrap_us}, "
                              f"{plane_depth}")
@@ -168,9 +182,11 @@ class EdgeAlign(Operator):
             raise ValueError("tracker.edge_align: need sigma_px > 0, levels >= 1, max_iter >= 1 and huber > 0")
         if min_points < 6 or max_points < min_points:
             raise ValueError(f"tracker.edge_align: need 6 <= min_points <= max_points, got {min_points}, {max_points}")
-        if not 0 <= min_overlap <= relocalise_overlap <= 1:
-            raise ValueError(f"tracker.edge_align: need 0 <= min_overlap <= relocalise_overlap <= 1, got "
-                             f"{min_overlap}, {relocalise_overlap}")
+        if not (0 <= min_overlap <= 0.5 and 0 <= overlap_drop <= relocalise_overlap <= 1):
+            raise ValueError(f"tracker.edge_align: need 0 <= min_overlap <= 0.5 and 0 <= overlap_drop <= "
+                             f"relocalise_overlap <= 1, got {min_overlap}, {overlap_drop}, {relocalise_overlap}")
+        if not (max_speed > 0 and max_rate > 0):
+            raise ValueError(f"tracker.edge_align: need max_speed > 0 and max_rate > 0, got {max_speed}, {max_rate}")
         if not calib:
             raise ValueError("tracker.edge_align needs the camera intrinsics: give calib= (a calibration file or "
                              "inline 'fx;fy;cx;cy[;k1;k2;p1;p2;k3]' px), or put a calib.txt beside the recording")
@@ -182,6 +198,7 @@ class EdgeAlign(Operator):
         self.max_iter, self.huber = int(max_iter), float(huber)
         self.max_points, self.min_points = int(max_points), int(min_points)
         self.min_overlap, self.relocalise_overlap = float(min_overlap), float(relocalise_overlap)
+        self.overlap_drop, self.max_speed, self.max_rate = float(overlap_drop), float(max_speed), float(max_rate)
         if not 0 <= min_neighbours <= 48 or not neighbour_tol > 0:
             raise ValueError(f"tracker.edge_align: need 0 <= min_neighbours <= 48 and neighbour_tol > 0, got "
                              f"{min_neighbours}, {neighbour_tol}")
@@ -191,8 +208,9 @@ class EdgeAlign(Operator):
                              f"{prior_rad}, {prior_m}, {velocity_gain}")
         self._prior = np.array([prior_rad ** -2] * 3 + [prior_m ** -2] * 3)
         self.velocity_gain = float(velocity_gain)
+        self.binary = bool(binary)
         self.counts = {"steps": 0, "tracked": 0, "bootstrap_poses": 0, "bootstrap_steps": 0, "maps": 0,
-                       "lost_no_map": 0, "lost_few_points": 0, "lost_overlap": 0, "relocalised": 0}
+                       "lost_no_map": 0, "lost_few_points": 0, "lost_overlap": 0, "lost_jump": 0, "relocalised": 0}
         #: (cost, points in view, overlap, iterations) of the last alignment (for diagnostics)
         self.last_info = np.zeros(4)
         self._sensor: tuple[int, int] | None = None
@@ -221,6 +239,7 @@ class EdgeAlign(Operator):
         self._xi = np.zeros(6)
         self._has_velocity = False
         self._lost = False
+        self._overlap: float | None = None  # running overlap of the good steps on the current map
         self._mark: int | None = None  # start of the next output packet's interval, µs
 
     def warmup(self) -> None:
@@ -355,6 +374,8 @@ class EdgeAlign(Operator):
         img = self._img
         img[:] = 0.0
         vote_events(self._xu[a:b], self._yu[a:b], img)
+        if self.binary:
+            img[:] = img >= 0.5
         img[:] = gaussian_filter(img, sigma, mode="constant", truncate=3.0)
         flat = img.ravel()
         k = max(1, int(TOP_FRACTION * flat.size))
@@ -368,6 +389,7 @@ class EdgeAlign(Operator):
         t_mid = int(self._t[(a + b - 1) // 2])
         while self._maps and self._maps[0][0] <= t_last:  # the latest map stamped by now
             self._points = self._maps.pop(0)[1]
+            self._overlap = None
             self.counts["maps"] += 1
         if self._R is None and not self._begin(a, b, t_mid, t_last):
             return None
@@ -392,9 +414,18 @@ class EdgeAlign(Operator):
         if info[1] < self.min_points:
             self.counts["lost_few_points"] += 1
             return self._lost_row(t_last, lose=True)
-        if info[2] < (self.relocalise_overlap if self._lost else self.min_overlap):
+        ov, ref = float(info[2]), self._overlap
+        if self._lost:
+            bad = ov < (2 * self.min_overlap if ref is None else max(self.min_overlap, self.relocalise_overlap * ref))
+        else:
+            bad = ov < self.min_overlap or (ref is not None and ov < self.overlap_drop * ref)
+        if bad:
             self.counts["lost_overlap"] += 1
             return self._lost_row(t_last, lose=True)
+        if not self._plausible(R, tr, (t_mid - self._t_mid) * 1e-6):
+            self.counts["lost_jump"] += 1
+            return self._lost_row(t_last, lose=True)
+        self._overlap = ov if ref is None else ref + 0.1 * (ov - ref)
         if self._lost:
             self.counts["relocalised"] += 1
             self._has_velocity = False
@@ -430,6 +461,14 @@ class EdgeAlign(Operator):
             return True
         self.counts["bootstrap_steps"] += 1
         return False
+
+    def _plausible(self, R: np.ndarray, tr: np.ndarray, dt: float) -> bool:
+        """Whether camera-from-world ``(R, tr)`` is within reach of the last
+        good pose ``dt`` s later (``max_speed``, ``max_rate``; plus 2 cm, 0.02 rad)."""
+        assert self._R is not None
+        turn = float(np.linalg.norm(so3_log(R @ self._R.T)))
+        move = float(np.linalg.norm(R.T @ tr - self._R.T @ self._tr))  # camera centres
+        return turn <= self.max_rate * dt + 0.02 and move <= self.max_speed * dt + 0.02
 
     def _bootstrap_pose(self, t: int) -> tuple[np.ndarray, np.ndarray]:
         """Camera-from-world at ``t`` µs from the bootstrap poses."""
