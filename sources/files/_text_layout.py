@@ -16,7 +16,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-__all__ = ["TextLayout", "text_layout", "UNITS"]
+__all__ = ["TextLayout", "text_layout", "first_lines", "UNITS"]
 
 #: Units of the time column and their names in headers.
 UNITS = {"s": "s", "sec": "s", "seconds": "s", "ms": "ms", "msec": "ms", "us": "us", "µs": "us", "usec": "us",
@@ -40,11 +40,29 @@ class TextLayout:
     time_unit_from: str
 
 
+def first_lines(head: bytes, k: int, *, strip: bool = True, comments: tuple[bytes, ...] = (b"#", b"%")) -> list[bytes]:
+    """Up to ``k`` complete lines of ``head`` (a last one without its newline
+    left out) that are not blank nor start with ``comments``; with ``strip``
+    stripped (and tested for comments so), else as they are. Stops after
+    ``k``: a sniffer reads the first lines of a 64 kB head, not all of them."""
+    out: list[bytes] = []
+    start = 0
+    while len(out) < k:
+        end = head.find(b"\n", start)
+        if end < 0:
+            break
+        raw = head[start:end]
+        ln = raw.strip()
+        if ln and not (ln if strip else raw).startswith(comments):
+            out.append(ln if strip else raw)
+        start = end + 1
+    return out
+
+
 def _header(head: bytes) -> tuple[list[str], list[bytes]]:
     """The header's names (lower case, ``@size`` dropped; empty without a
     header) and the first data lines."""
-    lines = [ln.strip() for ln in head.split(b"\n")[:-1]]
-    lines = [ln for ln in lines if ln and not ln.startswith((b"#", b"%"))]
+    lines = first_lines(head, 21)
     if lines and re.search(rb"[A-Za-z]", lines[0]):
         text = lines[0].decode("utf-8", "replace").lower()
         return [re.sub(r"@\d+$", "", n.strip()) for n in re.split(r"[,\t;]| (?![\[(])", text) if n.strip()], lines[1:21]

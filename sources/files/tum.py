@@ -26,6 +26,7 @@ from tectum import Kind, Packet, PosePacket
 from tectum.tables import header_layout, parse_us, pose_problem
 
 from ._rows import RowParser, RowStream, SampleFileSource, text_lines
+from ._text_layout import first_lines
 
 __all__ = ["TumSource", "TUM_COLUMNS"]
 
@@ -50,7 +51,7 @@ class TumSource(SampleFileSource):
     def sniff(cls, head: bytes) -> bool:
         """The first lines that are not comments are 8 numbers each, the last
         four a unit quaternion."""
-        lines = [ln for ln in head.split(b"\n")[:-1] if ln.strip() and not ln.lstrip().startswith(b"#")][:20]
+        lines = first_lines(head, 20, comments=(b"#",))
         if not lines:
             return False
         for ln in lines:

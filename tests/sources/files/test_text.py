@@ -33,6 +33,8 @@ def _offset(lines: list[bytes], k: int) -> int:
 
 @pytest.mark.parametrize("bad, why", [(b"0.0000035 -1 2 1", "negative coordinate"),
                                       (b"0.0000035 70000 2 1", "above 65535"),
+                                      (b"0.0000035 65536 2 1", "above 65535"),
+                                      (b"0.0000035 3 65536 1", "above 65535"),
                                       (b"0.0000035 1 2 2", "polarity"),
                                       (b"0.0000035 1 2 -1", "polarity"),  # -1 after 0/1 polarities
                                       (b"0.0000035 1.5 2 1", "not 4 numbers"),
