@@ -3,23 +3,25 @@ against a photometric map (Gallego et al., TPAMI 2018; Bryner et al., ICRA
 2019), one batch of events at a time.
 
 **Model.** A pixel fires when its log intensity has changed by the contrast
-``C`` since its last event, so the events of a batch, accumulated with
-their polarity, sample the brightness increment over the batch:
-``ΔL_obs(u) = C Σ_k p_k`` at pixel ``u`` (blurred by a Gaussian of σ px,
-:func:`splat`). The map predicts that increment: a map point ``P`` (world,
-m) with log intensity ``L_map(m)`` seen at pixel ``m`` of the map lands at
-``u1 = π(T1⁻¹ P)`` at the batch's end (pose ``T1``, world-from-camera) and
-at ``u0`` at its start (``T0``). The pixel ``u1`` saw at ``T0`` the map
-point ``m' ≈ m + A (u1 - u0)``, ``A = (∂u/∂m)⁻¹`` the local map-to-image
-warp at ``T0`` (the surface taken fronto-parallel to the map's view around
-``m``), so the predicted increment at ``u1`` is
+``C`` since its last event, so the events since a reference time, summed
+with their polarity, sample the brightness increment since then:
+``ΔL_obs(u) = Σ_k w_k`` at pixel ``u`` (blurred by a Gaussian of σ px,
+:func:`splat`), with ``w_k = C p_k`` plus the half-threshold term of
+:func:`event_weights`. The map predicts that increment: a map point ``P``
+(world, m) with log intensity ``L_map(m)`` seen at pixel ``m`` of the map
+lands at ``u1 = π(T1⁻¹ P)`` now (pose ``T1``, world-from-camera) and at
+``u0`` in the reference view (``T0``). The pixel ``u1`` saw at ``T0`` the
+map point ``m' ≈ m + A (u1 - u0)``, ``A = (∂u/∂m)⁻¹`` the local
+map-to-image warp at ``T0`` (the surface taken fronto-parallel to the map's
+view around ``m``), so the predicted increment at ``u1`` is
 ``ΔL_pred = L_map(m) - L_map(m')``: to first order the papers'
 ``-∇L · u̇ Δt`` (brightness gradient dotted with the motion), without the
-linearisation, so a batch may span several pixels of motion.
+linearisation, so the camera may move several pixels from the reference
+view.
 
-**Estimation.** ``T0`` is the previous batch's estimate; ``T1 = T1 exp(δ)``
-(δ = (ω, v), camera frame) minimises a robust sum over the map's points of
-``r = ΔL_obs(u1) - ΔL_pred`` by Gauss-Newton with analytic Jacobians
+**Estimation.** ``T1 = T1 exp(δ)`` (δ = (ω, v), camera frame) minimises a
+robust sum over the map's points of ``r = ΔL_obs(u1) - ΔL_pred`` by
+Gauss-Newton with analytic Jacobians
 ``∂r/∂δ = (∇ΔL_obs(u1) + Aᵀ ∇L_map(m'))ᵀ ∂u1/∂δ``,
 ``∂u1/∂δ = ∂π/∂X [ [X]ₓ  -I ]``, a Huber weight per point (scale from the
 median absolute residual: the inlier/outlier mixture made robust), and a
@@ -262,13 +264,10 @@ def _rel(R0, t0, R_wr, out):  # type: ignore[no-untyped-def]
 
 @njit(cache=True, nogil=True)
 def fit_batch(P, Xr, Lm, obs_img, map_img, R0, t0, R1, t1, R_wr, fx, fy, cx, cy, iters, huber_k, damping,
-              prior, stats):  # type: ignore[no-untyped-def]
+              stats):  # type: ignore[no-untyped-def]
     """Refine ``(R1, t1)`` in place (see the module). ``P`` (M, 3) world
     points, ``Xr`` (M, 3) their map pixel (x, y) and depth (m), ``Lm`` (M,)
-    their map log intensity (blurred as ``map_img``). ``prior`` (6,): the
-    inverse variances (rad⁻², m⁻²) of a Gaussian prior on the change from
-    the starting ``(R1, t1)`` (the prediction), in units of the robust
-    residual variance; zeros for none. ``stats`` gets
+    their map log intensity (blurred as ``map_img``). ``stats`` gets
     ``[points in view, correlation, rms residual, iterations, last step,
     median displacement (px) of the points in view from T0 to T1]``."""
     M = P.shape[0]
@@ -287,7 +286,6 @@ def fit_batch(P, Xr, Lm, obs_img, map_img, R0, t0, R1, t1, R_wr, fx, fy, cx, cy,
     it = 0
     s = 1.0
     absr = np.empty(M)
-    dev = np.zeros(6)  # the change from the starting pose so far (sum of the steps)
     for it in range(iters):
         n_ok = _residuals(P, Xr, Lm, obs_img, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy, True, res, obs, jac, ok,
                           disp)
@@ -322,10 +320,8 @@ def fit_batch(P, Xr, Lm, obs_img, map_img, R0, t0, R1, t1, R_wr, fx, fy, cx, cy,
         if tr <= 0.0:
             break
         for a in range(6):
-            H[a, a] += damping * H[a, a] + 1e-9 * tr + prior[a] * s * s
-            g[a] += prior[a] * s * s * dev[a]
+            H[a, a] += damping * H[a, a] + 1e-9 * tr
         delta = -np.linalg.solve(H, g)
-        dev += delta
         se3_exp_kernel(delta, dR, dt)
         # T1 <- T1 exp(delta)
         nt = R1 @ dt + t1

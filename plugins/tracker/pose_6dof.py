@@ -21,11 +21,17 @@ interpolated; later poses on the port are not used).
 **Tracking** (kernels and the model in :mod:`._generative`). The events are
 cut into batches of ``batch_events`` (fewer when ``batch_us`` µs pass
 first), by the events alone, so the output does not depend on how the
-stream is packed. Per batch: the pose at its last event is predicted at
-constant velocity from the two previous ones, then refined by Gauss-Newton
-on the robust difference between the observed brightness increments
-(``contrast`` × the polarity sum, blurred by σ) and those the map predicts
-between the previous pose and this one, coarse to fine over ``sigmas`` px.
+stream is packed. The events accumulate (``contrast`` × polarity, blurred
+by σ) into the brightness increment since a reference view (the start,
+then the pose where the image has moved ``keyframe_px`` from the last
+one); per batch the pose at its last event is predicted at the velocity of
+the last ``velocity_us``, then refined by Gauss-Newton on the robust
+difference between that increment and the one the map predicts between
+the reference pose and this one, coarse to fine over ``sigmas`` px. Counting
+from a reference view rather than from the last batch keeps the pose tied
+to the map: a batch's own increment (a tenth of a pixel of motion) says
+little about where the camera is, the increment since the reference (up to
+``keyframe_px``) a lot; a gap in the events or a burst of noise is bridged.
 
 **Output.** One :class:`~tectum.PosePacket` row per batch, at its last
 event: ``position`` m, ``orientation`` (x, y, z, w), ``linear_velocity``
@@ -36,8 +42,9 @@ event: ``position`` m, ``orientation`` (x, y, z, w), ``linear_velocity``
 ``min_points`` map points in view) is not trusted: its row carries the last
 good pose (the prediction, zero velocity) with ``lost`` true, never a
 confident guess. The next batches try to relocalise from the last good pose
-with a wider blur (``sigmas`` with ``4 × sigmas[0]`` in front); tracking
-resumes when a fit reaches ``recover_fit``. ``counts`` holds ``batches``,
+with a wider blur (``sigmas`` with ``4 × sigmas[0]`` in front), the
+increments counting again from the loss; tracking resumes when a fit
+reaches ``recover_fit``. ``counts`` holds ``batches``,
 ``lost``, ``relocalised`` and ``skipped_before_map``.
 
 Cost per batch: a Gaussian splat per event and level (a (6σ+1)² window),
@@ -110,6 +117,12 @@ class Pose6Dof(Operator):
         Fit that ends a loss.
     min_points:
         Fewest map points in view for a trusted pose.
+    keyframe_px:
+        A new reference view when the image has moved this far (median over
+        the map points in view), px.
+    velocity_us:
+        The velocity (output and prediction) is the motion over the good
+        poses of this last stretch, µs.
     """
 
     name = "tracker.pose_6dof"
@@ -125,7 +138,7 @@ class Pose6Dof(Operator):
                  batch_events: int = 1500, batch_us: int = 20_000, sigmas: tuple[float, ...] = (1.0,),
                  iterations: int = 4, max_points: int = 2000, min_gradient: float = 0.02, huber: float = 1.345,
                  min_fit: float = 0.35, recover_fit: float = 0.5, min_points: int = 100,
-                 keyframe_px: float = 8.0, smooth_rad: float = 2e-3, smooth_m: float = 2e-3) -> None:
+                 keyframe_px: float = 8.0, velocity_us: int = 10_000) -> None:
         where = "tracker.pose_6dof"
         if not contrast > 0:
             raise ValueError(f"{where}: contrast must be > 0 (log intensity per event), got {contrast}")
@@ -148,18 +161,12 @@ class Pose6Dof(Operator):
         if not keyframe_px > 0:
             raise ValueError(f"{where}: keyframe_px must be > 0, got {keyframe_px}")
         self.keyframe_px = float(keyframe_px)
-        if not (smooth_rad >= 0 and smooth_m >= 0):
-            raise ValueError(f"{where}: smooth_rad and smooth_m must be >= 0 (0: no prior)")
-        inv = [1.0 / (v * v) if v > 0 else 0.0 for v in (smooth_rad, smooth_m)]
-        self._prior = np.array([inv[0]] * 3 + [inv[1]] * 3)
         self.init: tuple[np.ndarray, np.ndarray] | None = None
         if init:
             m = check_map(np.zeros((8, 8)), np.ones((8, 8)), np.eye(3), init, f"{where} init")
             self.init = (np.asarray(quat_to_rot(m.orientation)), m.position)
         self.map: PhotoMap | None = None
         self._levels: list[_Level] = []
-        if map:
-            self._set_map(load_map(map))
         self.counts = {"batches": 0, "lost": 0, "relocalised": 0, "skipped_before_map": 0}
         self._sensor: tuple[int, int] | None = None
         self._lut: np.ndarray | None = None  # (H, W, 2) undistorted pixel of each sensor pixel
@@ -175,6 +182,8 @@ class Pose6Dof(Operator):
         # state: the last good pose (R, t) and its time (µs); the body twist per µs of the last good batch
         self._pose: tuple[np.ndarray, np.ndarray, int] | None = None
         self._twist = np.zeros(6)
+        self._history: list[tuple[np.ndarray, np.ndarray, int]] = []  # recent good poses (R, t, µs)
+        self.velocity_us = int(velocity_us)
         self._lost = False
         self._init_poses: PosePacket | None = None
         # the reference view (R, t) the increments count from, and the events since, accumulated: unblurred
@@ -182,6 +191,8 @@ class Pose6Dof(Operator):
         self._ref: tuple[np.ndarray, np.ndarray] | None = None
         self._raw: np.ndarray | None = None
         self._obs: list[np.ndarray] = []
+        if map:
+            self._set_map(load_map(map))
 
     #: For the conformance check: a few small batches.
     conformance_params = {"batch_events": 200, "max_points": 400, "min_points": 20, "iterations": 3}
@@ -193,8 +204,11 @@ class Pose6Dof(Operator):
         from tectum.sources.simulate import simulate
         from tectum.sources.simulate.photomap import scene_map
 
-        ev, _ = simulate("plane_6dof", 40_000, sensor="48x36")
-        m = scene_map("plane_6dof", 0, sensor="48x36")
+        scene = {"planes": [{"center": [0, 0, 2.0], "texel_m": 0.04,
+                             "texture": {"kind": "noise", "size": 128, "contrast": 0.5, "blur": 2.0}}],
+                 "motion": {"velocity": [1.0, 0.4, 0.2], "angular_velocity": [0.3, 0.6, 0.2]}, "fov_deg": 90}
+        ev, _ = simulate(scene, 40_000, sensor="48x36")
+        m = scene_map(scene, 0, sensor="48x36")
         maps = MapPacket(np.array([0], np.int64), image=m["image"][None], depth=m["depth"][None], K=m["K"][None],
                          pose=m["pose"][None], t_start=0, t_end=1)
         return {"events": ev.without_columns(*ev.columns), "maps": maps}
@@ -207,7 +221,7 @@ class Pose6Dof(Operator):
         P = np.array([[0.0, 0.0, 1.0]] * 16)
         Xr = np.array([[3.5, 3.5, 1.0]] * 16)
         fit_batch(P, Xr, np.zeros(16), img, img, np.eye(3), np.zeros(3), np.eye(3), np.zeros(3), np.eye(3), 4.0,
-                  4.0, 3.5, 3.5, 1, 1.345, 1e-3, np.zeros(6), np.zeros(6))
+                  4.0, 3.5, 3.5, 1, 1.345, 1e-3, np.zeros(6))
         splat_bilinear(np.array([3.5]), np.array([3.5]), np.array([1.0]), 0.2, img)
         event_weights(np.zeros(1, np.uint16), np.zeros(1, np.uint16), np.ones(1, np.int8), 0.2,
                       np.zeros((1, 1), np.int8), np.empty(1))
@@ -372,28 +386,36 @@ class Pose6Dof(Operator):
         Ra, ta = self._ref
         K = self._K
         stats = np.zeros(6)
-        prior = np.zeros(6) if self._lost else self._prior
         for lv, img in levels:
             fit_batch(self._P, self._Xr, lv.Lm, img, lv.image, Ra, ta, R1, t1, self._R_wr, K[0, 0], K[1, 1], K[0, 2],
-                      K[1, 2], self.iterations, self.huber, 1e-3, prior, stats)
+                      K[1, 2], self.iterations, self.huber, 1e-3, stats)
         fit = float(stats[1])
         good = stats[0] >= self.min_points and fit >= (self.recover_fit if self._lost else self.min_fit) \
             and bool(np.isfinite(t1).all())
         if not good:
             self.counts["lost"] += 1
+            if not self._lost:  # the increments count again from the last good pose
+                self._new_reference(Rp, tp)
             self._lost = True
             self._pose = (Rp, tp, t_end)
             self._twist = np.zeros(6)
+            self._history.clear()
             return t_end, tp.copy(), rot_to_quat(Rp), np.zeros(3), np.zeros(3), True, fit
         if self._lost:
             self.counts["relocalised"] += 1
-        xi = se3_log(Rp.T @ R1, Rp.T @ (t1 - tp))
-        self._twist = np.zeros(6) if self._lost else xi / dt
+            self._history.clear()
         self._lost = False
         self._pose = (R1, t1, t_end)
         if stats[5] > self.keyframe_px:
             self._new_reference(R1, t1)
-        return t_end, t1, rot_to_quat(R1), (t1 - tp) / (dt * 1e-6), xi[:3] / (dt * 1e-6), False, fit
+        # the velocity: the motion since the oldest good pose at most velocity_us back (one batch's is noisy)
+        self._history = [h for h in self._history if h[2] >= t_end - self.velocity_us]
+        Ro, to, t_old = self._history[0] if self._history else (Rp, tp, tprev)
+        self._history.append((R1, t1, t_end))
+        span = max(t_end - t_old, 1)
+        xi = se3_log(Ro.T @ R1, Ro.T @ (t1 - to))
+        self._twist = xi / span
+        return t_end, t1, rot_to_quat(R1), (t1 - to) / (span * 1e-6), xi[:3] / (span * 1e-6), False, fit
 
     def _new_reference(self, R: np.ndarray, t: np.ndarray) -> None:
         """The increments count from here: the reference pose is ``(R, t)``
