@@ -405,7 +405,7 @@ class EdgeAlign(Operator):
             levels = self.levels
         info = np.zeros(4)
         Rp, tp = R.copy(), tr.copy()
-        prior = self._prior * (0.0 if self._lost else 1.0)
+        prior = self._prior
         for lvl in range(levels - 1, -1, -1):
             self._image(a, b, self.sigma_px * 2.0 ** lvl)
             align(self._points, R, tr, Rp, tp, self.cam, self._img, self._gx, self._gy, self.huber, 1.0, MIN_DEPTH_M,

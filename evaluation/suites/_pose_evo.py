@@ -1,0 +1,268 @@
+"""``tectum bench pose``, part ``evo``: EVO (``tracker.edge_align`` and
+``map.emvs`` in a loop, Rebecq et al. RA-L 2017) on simulated scenes and
+``ecd/slider_depth``.
+
+The loop (:func:`evo_loop`) runs the two operators as the ``tracker.evo``
+pipeline wires them: the stream in slices of ``slice_us``; each slice's
+events go to the tracker with the maps the mapper made so far, then to
+the mapper with the tracker's poses of that slice (its lost rows left out);
+the mapper's new maps reach the tracker with the next slice (the feedback
+edge's delay). The tracker outputs the first ``bootstrap_us`` of the true
+poses, then tracks alone.
+
+* accuracy: simulated ``PLANE`` (a textured plane 2 m away, 6-DoF motion)
+  and ``BOXES`` (the built-in ``boxes_3d``: boxes, floor and wall at
+  2.3-8 m, a sideways pass) at 240x180, ideal sensor, tracked 2 s after the
+  bootstrap: drift (the final position error over the path length, %), ATE
+  (position RMSE after no alignment: the bootstrap fixes the frame and the
+  scale, m) and RPE (translation over 0.1 s, m; rotation, deg), the share
+  of lost rows.
+* speed: events per CPU second of the loop (tracker and mapper, one core:
+  the machine may be shared) and the real-time factor at the scene's own
+  event rate (stream time over CPU time: > 1 is faster than real time).
+* failure: the ``PLANE`` scene faster (x1.5, x2) and with shot noise.
+* real data: ``ecd/slider_depth`` (its 50,000 events over 0.17 s,
+  ``groundtruth.txt``, ``calib.txt``): the first part of the truth as
+  bootstrap, then tracking; skipped when the shared data are absent.
+* the README's picture ``evo_map.png`` (with matplotlib): the last map's
+  points and the tracked and true trajectories, top and side views.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tectum import EventPacket, MapPacket, Packet, PosePacket, concat
+from tectum.camera import interpolate_poses
+from tectum.evaluation.harness import shared_data, table, target
+from tectum.evaluation.metrics.trajectory import trajectory_scores
+from tectum.plugins.map.emvs import Emvs
+from tectum.plugins.tracker.edge_align import EdgeAlign, map_points
+from tectum.sources.simulate import make_simulator
+
+SENSOR = (240, 180)
+#: a textured plane 2 m in front of a camera moving in 6 DoF (a slower, coarser ``plane_6dof``:
+#: about 0.5 Mev/s at 240x180, DAVIS240-class)
+PLANE: dict[str, Any] = {
+    "description": "textured plane at 2 m, 6-DoF camera motion (EVO bench)",
+    "planes": [{"center": [0, 0, 2.0], "texture": {"kind": "noise", "size": 512, "contrast": 0.6},
+                "texel_m": 0.03}],
+    "motion": {"position_amplitude": [0.3, 0.2, 0.3], "position_freq_hz": [0.5, 0.7, 0.4],
+               "rotation_amplitude": [0.1, 0.1, 0.15], "rotation_freq_hz": [0.6, 0.4, 0.5]},
+}
+
+
+def simulate(scene: str | dict[str, Any], duration_us: int, **model: Any) -> tuple[EventPacket, PosePacket, str]:
+    """Events, true poses (1 kHz) and inline intrinsics of a simulated run at :data:`SENSOR`."""
+    sim = make_simulator(scene, duration_us, sensor=f"{SENSOR[0]}x{SENSOR[1]}", seed=1, **model)
+    evs: list[EventPacket] = []
+    poses: list[Packet] = []
+    for ev, side in sim.windows(20_000):
+        evs.append(ev.without_columns(*ev.columns))
+        poses += [q for q in side if isinstance(q, PosePacket)]
+    ev_all, ps = concat(evs), concat(poses)
+    assert isinstance(ev_all, EventPacket) and isinstance(ps, PosePacket)
+    f, cx, cy = (float(v) for v in sim.truth["camera"])
+    return ev_all, ps, f"{f};{f};{cx};{cy}"
+
+
+def evo_loop(events: EventPacket, truth: PosePacket, calib: str, bootstrap_us: int, slice_us: int = 5000,
+             tracker: dict[str, Any] | None = None, mapper: dict[str, Any] | None = None
+             ) -> tuple[PosePacket, list[MapPacket], EdgeAlign, Emvs, float]:
+    """Run tracker and mapper in a loop (see the module): ``(the tracker's
+    poses, the maps, the tracker, the mapper, CPU seconds)``."""
+    tr = EdgeAlign(calib=calib, bootstrap_us=bootstrap_us, **(tracker or {}))
+    mp = Emvs(calib=calib, **(mapper or {}))
+    tr.warmup()
+    mp.warmup()
+    poses: list[PosePacket] = []
+    maps: list[MapPacket] = []
+    pending: list[MapPacket] = []
+    t0, t_end = events.t_start, events.t_end
+    cpu = time.process_time()
+    for a in range(t0, t_end, slice_us):
+        b = min(a + slice_us, t_end)
+        ev = events.slice_time(a, b)
+        ports: dict[str, Packet] = {"events": ev, "poses": truth.slice_time(a, b)}
+        if pending:
+            ports["maps"] = concat(pending)
+            pending = []
+        out = [q for q in tr.process_ports(ports) if isinstance(q, PosePacket)]
+        good = [q.take(np.flatnonzero(~q.lost)) for q in out]
+        poses += out
+        mp_ports: dict[str, Packet] = {"events": ev}
+        if good:
+            mp_ports["poses"] = concat(good)
+        new = [q for q in mp.process_ports(mp_ports) if isinstance(q, MapPacket)]
+        maps += new
+        pending += new
+    cpu = time.process_time() - cpu
+    est = concat(poses) if poses else PosePacket.empty(t0, t_end)
+    assert isinstance(est, PosePacket)
+    return est, maps, tr, mp, cpu
+
+
+def scores(est: PosePacket, truth: PosePacket, t_from: int) -> dict[str, float]:
+    """The tracked (not lost) poses from ``t_from`` µs against the truth,
+    unaligned (the bootstrap fixed frame and scale): the scores of
+    :func:`~tectum.evaluation.metrics.trajectory.trajectory_scores` plus
+    ``drift_pct`` (the last pose's position error over the path, %) and
+    ``lost`` (the share of lost rows)."""
+    m = (est.t >= t_from) & (est.t <= truth.t[-1])
+    good = m & ~est.lost
+    if good.sum() < 3:
+        return {"drift_pct": float("nan"), "ate_m": float("nan"), "pos_pct": float("nan"), "rpe_t_m": float("nan"),
+                "rpe_r_deg": float("nan"), "rot_median_deg": float("nan"), "lost": 1.0, "path_m": 0.0}
+    s = trajectory_scores(est.t[good], est.position[good], est.orientation[good], truth.t, truth.position,
+                          truth.orientation, mode="none")
+    last = int(np.flatnonzero(m)[-1])  # the last row, lost or not: where the tracker ended up
+    p, _, _ = interpolate_poses(est.t[last:last + 1], truth.t, truth.position, truth.orientation)
+    path = float(s["path_m"])
+    return {**s, "drift_pct": 100.0 * float(np.linalg.norm(est.position[last] - p[0])) / max(path, 1e-9),
+            "lost": float(np.mean(est.lost[m]))}
+
+
+#: the tracker's and mapper's parameters for the simulated scenes
+TRACKER: dict[str, Any] = {"window_events": 12_000, "step_events": 3000}
+MAPPERS: dict[str, dict[str, Any]] = {
+    "plane": {"min_depth": 1.0, "max_depth": 4.0, "keyframe_baseline": 0.1},
+    "boxes_3d": {"min_depth": 1.5, "max_depth": 10.0, "keyframe_baseline": 0.04},
+}
+BOOT_US = 300_000
+COLS = ["case", "events", "mev_per_s", "maps", "drift_pct", "ate_m", "pos_pct", "rpe_t_m", "rpe_r_deg",
+        "rot_median_deg", "lost", "cpu_mev_s", "realtime_x"]
+
+
+Run = tuple[PosePacket, PosePacket, list[MapPacket]]  # estimate, truth, maps
+
+
+def _case(name: str, scene: str | dict[str, Any], mapper: dict[str, Any], duration_us: int,
+          **model: Any) -> tuple[dict[str, Any], Run, tuple[EventPacket, PosePacket, str]]:
+    """One loop on a simulated scene: its row, (estimate, truth, maps) and
+    the simulated (events, truth, calib)."""
+    ev, truth, calib = simulate(scene, duration_us, **model)
+    est, maps, tr, _, cpu = evo_loop(ev, truth, calib, BOOT_US, tracker=TRACKER, mapper=mapper)
+    span = (ev.t_end - ev.t_start) * 1e-6
+    row = {"case": name, "events": len(ev), "mev_per_s": len(ev) / span / 1e6, "maps": len(maps),
+           **scores(est, truth, BOOT_US), "cpu_mev_s": len(ev) / cpu / 1e6, "realtime_x": span / cpu}
+    print(f"  {name}: {tr.counts}")
+    return row, (est, truth, maps), (ev, truth, calib)
+
+
+def _with_true_poses(name: str, sim: tuple[EventPacket, PosePacket, str], mapper: dict[str, Any]) -> dict[str, Any]:
+    """The tracker alone against the maps ``map.emvs`` makes from the true
+    poses (the known-map case: what the loop's mapping costs)."""
+    from tectum.testing import feed_ports
+
+    ev, truth, calib = sim
+    mp = Emvs(calib=calib, **mapper)
+    maps = [q for q in feed_ports(mp, {"events": [ev], "poses": [truth]}) if isinstance(q, MapPacket)]
+    tr = EdgeAlign(calib=calib, bootstrap_us=BOOT_US, **TRACKER)
+    streams: dict[str, list[Packet]] = {"events": [ev], "poses": [truth], "maps": [concat(maps)] if maps else []}
+    est = concat([q for q in feed_ports(tr, streams) if isinstance(q, PosePacket)])
+    assert isinstance(est, PosePacket)
+    return {"case": name, "events": len(ev), "maps": len(maps), **scores(est, truth, BOOT_US)}
+
+
+def slider_depth() -> tuple[dict[str, Any], Run] | None:
+    """EVO on ``ecd/slider_depth``: the truth's first 80 ms as bootstrap,
+    then tracking to the events' end (0.17 s); None when absent."""
+    data = shared_data()
+    folder = data / "ecd" / "slider_depth" if data is not None else None
+    if folder is None or not (folder / "events.txt").is_file():
+        print("ecd/slider_depth absent: skipped")
+        return None
+    import tectum
+    from tectum.testing import ListSink
+
+    p = tectum.Pipeline()
+    src = p.source(str(folder / "events.txt"))
+    sink = ListSink()
+    p.sink(sink, src)
+    tectum.run(p)
+    ev = concat([q for q in sink.packets if isinstance(q, EventPacket)])
+    truth = concat([q for q in sink.packets if isinstance(q, PosePacket)])
+    assert isinstance(ev, EventPacket) and isinstance(truth, PosePacket)
+    boot = 80_000
+    t0 = int(truth.t[0])
+    # the slider moves 0.23 m/s before a scene 0.4-1 m away: a map every 1 cm of travel (first at 45 ms)
+    mapper = {"min_depth": 0.3, "max_depth": 2.0, "keyframe_baseline": 0.013, "min_baseline": 0.005}
+    tracker = {"window_events": 4000, "step_events": 1000}  # 0.3 Mev/s: a window of 13 ms
+    est, maps, tr, _, cpu = evo_loop(ev, truth, str(folder / "calib.txt"), boot, tracker=tracker, mapper=mapper)
+    span = (ev.t_end - ev.t_start) * 1e-6
+    print(f"  slider_depth: {tr.counts}")
+    row = {"case": "ecd/slider_depth", "events": len(ev), "mev_per_s": len(ev) / span / 1e6, "maps": len(maps),
+           **scores(est, truth, t0 + boot), "cpu_mev_s": len(ev) / cpu / 1e6, "realtime_x": span / cpu}
+    return row, (est, truth, maps)
+
+
+def picture(path: Path, est: PosePacket, truth: PosePacket, maps: list[MapPacket], title: str) -> str | None:
+    """The last map's points (world) and the tracked and true trajectories,
+    top (x-z) and side (z-y) views; None without matplotlib or maps."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    if not maps:
+        return None
+    m = maps[-1]
+    pts = map_points(m.depth[0], m.K[0], m.pose[0])
+    good = ~est.lost
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.5))
+    for ax, (i, j), lab in zip(axes, ((0, 2), (2, 1)), (("x (m)", "z (m)"), ("z (m)", "y (m)"))):
+        ax.scatter(pts[:, i], pts[:, j], s=0.3, c="0.6", label=f"map ({len(pts)} points)")
+        ax.plot(truth.position[:, i], truth.position[:, j], "k-", lw=1.5, label="truth")
+        ax.plot(est.position[good, i], est.position[good, j], "r.", ms=2, label="tracked")
+        ax.set_xlabel(lab[0])
+        ax.set_ylabel(lab[1])
+        ax.set_aspect("equal", adjustable="datalim")
+    axes[1].invert_yaxis()
+    axes[0].legend(loc="best", fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return str(path)
+
+
+def run(out: Path, quick: bool) -> dict[str, Any]:
+    after = 400_000 if quick else 2_000_000  # µs tracked after the bootstrap
+    dur = BOOT_US + after
+    rows: list[dict[str, Any]] = []
+    keep: dict[str, Run] = {}
+    known: list[dict[str, Any]] = []
+    for name, scene in (("plane", PLANE), ("boxes_3d", "boxes_3d")):
+        row, keep[name], sim = _case(name, scene, MAPPERS[name], dur)
+        rows.append(row)
+        known.append(_with_true_poses(f"{name}, maps from true poses", sim, MAPPERS[name]))
+    if not quick:  # failure: faster motion and sensor noise on the plane
+        for k in (1.5, 2.0):
+            fast = {**PLANE, "motion": {**PLANE["motion"],
+                                        "position_freq_hz": [f * k for f in PLANE["motion"]["position_freq_hz"]],
+                                        "rotation_freq_hz": [f * k for f in PLANE["motion"]["rotation_freq_hz"]]}}
+            rows.append(_case(f"plane, motion x{k:g}", fast, MAPPERS["plane"], dur)[0])
+        rows.append(_case("plane, shot noise 1 Hz/px", PLANE, MAPPERS["plane"], dur, shot_noise_hz=1.0)[0])
+    real = slider_depth()
+    if real is not None:
+        rows.append(real[0])
+        keep["slider_depth"] = real[1]
+    print(table(rows, COLS))
+    print("the tracker alone, against map.emvs maps made from the true poses:")
+    print(table(known, ["case", "events", "maps", "drift_pct", "ate_m", "pos_pct", "rpe_t_m", "rot_median_deg",
+                        "lost"]))
+    pic = picture(out / "evo_map.png", *keep["boxes_3d"], "EVO on boxes_3d (simulated, 240x180): map and trajectories")
+    if pic:
+        print(f"picture: {pic}")
+    secs = after / 1e6
+    targets = [target(f"EVO drift, {r['case']} ({secs:g} s after bootstrap)", r["drift_pct"], 5.0, "% of path",
+                      higher_is_better=False) for r in rows[:2]]
+    targets.append(target("EVO processing rate, boxes_3d (one core, CPU time)", rows[1]["cpu_mev_s"], 0.5, "Mev/s"))
+    return {"rows": rows, "known_map_rows": known, "targets": targets, "picture": pic}
