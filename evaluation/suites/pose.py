@@ -6,9 +6,9 @@ rotation error, events/s and pose updates/s) and ``failure``
 (``tracker.pose_6dof``'s failure maps over speed, event noise, map error and
 texture) and ``evo`` (``tracker.edge_align`` and ``map.emvs`` in a loop on
 simulated planes and boxes and on ``ecd/slider_depth``: drift as % of the
-path, ATE, RPE, events/s and real-time factor, the EVO map picture). Each part is a module ``_pose_PART`` with
-``run(out, quick) -> {"rows": ..., "targets": ...}``; pictures go to
-``out``."""
+path, ATE, RPE, events/s and real-time factor, the EVO map picture). Each
+part is a module ``_pose_PART`` with ``run(out, quick) -> {"rows": ...,
+"targets": ...}``; pictures go to ``out``."""
 
 from __future__ import annotations
 
