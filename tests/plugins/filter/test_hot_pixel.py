@@ -61,3 +61,35 @@ def test_batch_invariant(make_pattern):
 def test_rejects_bad_parameters():
     with pytest.raises(ValueError):
         HotPixel(learning="keep")  # type: ignore[arg-type]
+
+
+def test_the_only_pixel_that_fired_can_be_hot():
+    """With a factor below 1 the one active pixel exceeds factor x the mean
+    (its own count): hot when it has more than ``min_events``, not otherwise."""
+    from tectum.plugins.filter.hot_pixel import hot_pixels
+
+    counts = np.zeros((3, 4), np.int64)
+    counts[1, 2] = 6
+    assert hot_pixels(counts, 0.5, 5).tolist() == (counts > 0).tolist()
+    assert not hot_pixels(counts, 0.5, 6).any()
+
+
+def test_parameter_bounds_are_inclusive():
+    """learn_us 0, any positive factor (below 1 too) and min_events 1 are
+    accepted; one value outside its range is enough to be refused."""
+    op = HotPixel(learn_us=0, factor=0.5, min_events=1)
+    assert (op.learn_us, op.factor, op.min_events) == (0, 0.5, 1)
+    for kw in ({"learn_us": -1}, {"factor": 0.0}, {"factor": -1.0}, {"min_events": 0}):
+        with pytest.raises(ValueError, match="need learn_us >= 0, factor > 0 and min_events >= 1"):
+            HotPixel(**kw)
+
+
+def test_learned_once_a_packet_ends_after_learn_us():
+    """``learned`` is False (and ``hot_list`` empty) while the stream is
+    inside ``learn_us``; a packet that ends after it makes the mask, even
+    when all its events came before."""
+    op = HotPixel(learn_us=1000, factor=0.5, min_events=1)
+    op.process(EventPacket.from_arrays([10, 20], [1, 1], [1, 1], [1, 1], sensor=(4, 3), t_start=0, t_end=999))
+    assert op.learned is False and op.hot_list == []
+    op.process(EventPacket.from_arrays([999], [2], [0], [1], sensor=(4, 3), t_start=999, t_end=1500))
+    assert op.learned is True and op.hot_list == [(1, 1)]
