@@ -111,8 +111,18 @@ def decode_evt2(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
 EVT3_STATE = 9
 
 
+#: EVT 3.0 word types that take the branch (vectors, their base, triggers and
+#: the types the format does not define); the rest are decoded without one
+_EVT3_RARE = sum(1 << k for k in (0x1, 0x3, 0x4, 0x5, 0x9, 0xA, 0xB, 0xC, 0xD))
+
+
 @njit(cache=True, nogil=True)
 def decode_evt3(words, state, strict, t, x, y, p, where, trig):  # pragma: no cover - numba
+    """The common words (ADDR_Y, ADDR_X, TIME_LOW, TIME_HIGH and the
+    ignored ones) update the registers with arithmetic instead of a branch
+    per type, whose mispredictions cost more than the decoding on a mixed
+    stream; an ADDR_X event is written every time and counted when valid.
+    Vector words write all their bits' slots and count the set ones."""
     n = 0
     nt = 0
     bad = -1
@@ -124,74 +134,72 @@ def decode_evt3(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
     cy = state[4]
     bx = state[5]
     vp = state[6] if state[6] != 0 else -1  # no VECT_BASE_X seen yet: OFF, as a zeroed register would say
-    tb = (wraps << 24) | (high << 12) | low
+    dropped = state[7]
     track = where.shape[0] > 0
     cap = t.shape[0] - 12  # room for a vector word's events
     i = 0
-    while i < words.shape[0]:
+    m = words.shape[0]
+    while i < m:
         if n > cap:
             break
-        w = np.int64(words[i])
+        w = np.int64(words[np.uint64(i)])
         i += 1
         typ = w >> 12
-        if typ == 0x0:
-            cy = w & 0x7FF
-        elif typ == 0x2:
-            if have == 0:
-                state[7] += 1
-                continue
-            t[n] = tb
-            x[n] = w & 0x7FF
-            y[n] = cy
-            p[n] = 1 if (w >> 11) & 1 else -1
-            if track:
-                where[n] = i - 1
-            n += 1
-        elif typ == 0x3:
-            bx = w & 0x7FF
-            vp = 1 if (w >> 11) & 1 else -1
-        elif typ == 0x4 or typ == 0x5:
-            nb = 12 if typ == 0x4 else 8
-            if have == 0:
-                bx += nb
-                state[7] += 1
-                continue
-            m = w & 0xFFF
-            for b in range(nb):
-                if (m >> b) & 1:
-                    t[n] = tb
-                    x[n] = bx + b
-                    y[n] = cy
-                    p[n] = vp
+        if (_EVT3_RARE >> typ) & 1:
+            if typ == 0x3:
+                bx = w & 0x7FF
+                vp = 1 if (w >> 11) & 1 else -1
+            elif typ == 0x4 or typ == 0x5:
+                nb = 12 if typ == 0x4 else 8
+                if have == 0:
+                    bx += nb
+                    dropped += 1
+                    continue
+                tb = (wraps << 24) | (high << 12) | low
+                bits = w & 0xFFF
+                for b in range(nb):
+                    k = np.uint64(n)
+                    t[k] = tb
+                    x[k] = bx + b
+                    y[k] = cy
+                    p[k] = vp
                     if track:
-                        where[n] = i - 1
-                    n += 1
-            bx += nb
-        elif typ == 0x6:
-            low = w & 0xFFF
-            tb = (wraps << 24) | (high << 12) | low
-        elif typ == 0x8:
-            nh = w & 0xFFF
-            if have == 1 and nh < high and high - nh > 2048:
-                wraps += 1
-            high = nh
-            have = 1
-            tb = (wraps << 24) | (high << 12) | low
-        elif typ == 0xA:
-            if have == 1:
-                trig[nt, 0] = tb
-                trig[nt, 1] = (w >> 8) & 0xF
-                trig[nt, 2] = w & 1
-                nt += 1
-        elif typ == 0x7 or typ == 0xE or typ == 0xF:
-            pass
-        else:
-            if bad < 0:
-                bad = i - 1
-            nbad += 1
-            if strict:
-                i -= 1
-                break
+                        where[k] = i - 1
+                    n += (bits >> b) & 1
+                bx += nb
+            elif typ == 0xA:
+                if have == 1:
+                    trig[nt, 0] = (wraps << 24) | (high << 12) | low
+                    trig[nt, 1] = (w >> 8) & 0xF
+                    trig[nt, 2] = w & 1
+                    nt += 1
+            else:
+                if bad < 0:
+                    bad = i - 1
+                nbad += 1
+                if strict:
+                    i -= 1
+                    break
+            continue
+        is_y = np.int64(typ == 0x0)
+        is_x = np.int64(typ == 0x2)
+        is_low = np.int64(typ == 0x6)
+        is_high = np.int64(typ == 0x8)
+        v = w & 0xFFF
+        cy = (w & 0x7FF) if is_y else cy  # selects (cmov): a multiply would lengthen the loop's chain
+        low = v if is_low else low
+        wraps += is_high & have & np.int64(v < high) & np.int64(high - v > 2048)
+        high = v if is_high else high
+        have |= is_high
+        k = np.uint64(n)
+        t[k] = (wraps << 24) | (high << 12) | low
+        x[k] = w & 0x7FF
+        y[k] = cy
+        p[k] = ((w >> 10) & 2) - 1
+        if track:
+            where[k] = i - 1
+        n += is_x * have
+        dropped += is_x * (1 - have)
     state[0] = high
     state[1] = low
     state[2] = wraps
@@ -199,6 +207,7 @@ def decode_evt3(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
     state[4] = cy
     state[5] = bx
     state[6] = vp
+    state[7] = dropped
     return n, nt, bad, nbad, i
 
 
