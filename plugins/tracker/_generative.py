@@ -263,8 +263,8 @@ def _rel(R0, t0, R_wr, out):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def fit_batch(P, Xr, Lm, obs_img, map_img, R0, t0, R1, t1, R_wr, fx, fy, cx, cy, iters, huber_k, damping,
-              stats):  # type: ignore[no-untyped-def]
+def fit_batch(P, Xr, Lm, obs_img, map_img, R0, t0, R1, t1, R_wr, fx, fy, cx, cy, iters, huber_k, damping,  # type: ignore[no-untyped-def]
+              stats):
     """Refine ``(R1, t1)`` in place (see the module). ``P`` (M, 3) world
     points, ``Xr`` (M, 3) their map pixel (x, y) and depth (m), ``Lm`` (M,)
     their map log intensity (blurred as ``map_img``). ``stats`` gets

@@ -39,6 +39,7 @@ class TumSink(SampleFileSink):
     def _other(self, packet: Packet) -> None:
         lost = packet.data.get("lost") if isinstance(packet, SamplePacket) and packet.kind == self.kind else None
         if lost is not None and lost.any():
+            assert isinstance(packet, SamplePacket)
             n = int(np.count_nonzero(lost))
             self.not_written[str(self.kind)] = self.not_written.get(str(self.kind), 0) + n
             packet = packet.take(np.flatnonzero(~lost.astype(bool)))

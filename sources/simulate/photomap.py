@@ -54,5 +54,5 @@ def write_scene_map(path: str, scene: str | Mapping[str, Any], t_us: float = 0.0
     """:func:`scene_map` written to ``path`` (an ``.npz``); returns the map."""
     m = scene_map(scene, t_us, **kw)
     with open(path, "wb") as f:
-        np.savez(f, **m)
+        np.savez(f, image=m["image"], depth=m["depth"], K=m["K"], pose=m["pose"])
     return m
