@@ -335,11 +335,18 @@ def decode_dat(records, state, t, x, y, p):  # pragma: no cover - numba
         # shift every later time by 2^32 µs
         prev = last if have == 1 else np.int64(r[0] & np.uint64(0xFFFFFFFF))
         jump = np.int64(0)
-        for k in range(j - i):
-            raw = np.int64(r[k] & np.uint64(0xFFFFFFFF))
+        hi = wraps << 32
+        for k in range(j - i):  # one pass: times as if no wrap, the largest jump, the data word
+            rec = r[k]
+            raw = np.int64(rec & np.uint64(0xFFFFFFFF))
             jump = max(jump, abs(prev - raw))
             prev = raw
-        if jump > half:
+            to[k] = hi + raw
+            d = np.uint32(rec >> np.uint64(32))
+            xo[k] = np.uint16(d & np.uint32(0x3FFF))
+            yo[k] = np.uint16((d >> np.uint32(14)) & np.uint32(0x3FFF))
+            po[k] = np.int8((d >> np.uint32(28)) != 0) * np.int8(2) - np.int8(1)
+        if jump > half:  # a wrap in the block: its times again, unrolled one by one
             for k in range(j - i):
                 raw = np.int64(r[k] & np.uint64(0xFFFFFFFF))
                 wraps += _wrap_step(have, last, raw, half)
@@ -347,16 +354,8 @@ def decode_dat(records, state, t, x, y, p):  # pragma: no cover - numba
                 have = 1
                 to[k] = (wraps << 32) + raw
         else:
-            hi = wraps << 32
-            for k in range(j - i):
-                to[k] = hi + np.int64(r[k] & np.uint64(0xFFFFFFFF))
-            last = np.int64(r[j - i - 1] & np.uint64(0xFFFFFFFF))
+            last = prev
             have = 1
-        for k in range(j - i):
-            d = np.uint32(r[k] >> np.uint64(32))
-            xo[k] = np.uint16(d & np.uint32(0x3FFF))
-            yo[k] = np.uint16((d >> np.uint32(14)) & np.uint32(0x3FFF))
-            po[k] = np.int8(1) if (d >> np.uint32(28)) != 0 else np.int8(-1)
         i = j
     state[0] = wraps
     state[1] = last
