@@ -15,8 +15,9 @@ C = 0.2, 150 ms):
 
 Per cell: position RMSE as % of the path, median rotation error (deg) and
 the rows flagged lost (%) (a cell that is all lost has no error to show).
-Each axis reports the last value at which the position stays within 2 %
-of the path with under 10 % of the rows lost.
+Each axis reports the first value at which the position RMSE passes twice
+the base case's or 10 % of the rows are lost. (150 ms is a short path: the
+base case's % of path is larger than in ``known_map``.)
 """
 
 from __future__ import annotations
@@ -44,12 +45,13 @@ def _cell(axis: str, value: float, scene: str = "plane", m_s: float = 0.5, deg_s
                          pose=maps.pose, t_start=maps.t_start, t_end=maps.t_end)
     po, _, _ = track(ev, maps, contrast=contrast)
     s = score(po, truth["pose_t"], truth["pose_position"], truth["pose_orientation"])
-    return {"axis": axis, "value": value, "pos %path": s["pos_pct"], "rot med deg": s["rot_median_deg"],
+    return {"axis": axis, "value": value, "ATE mm": s["ate_m"] * 1e3, "pos %path": s["pos_pct"],
+            "rot med deg": s["rot_median_deg"],
             "lost %": 100 * s["lost"], "events": len(ev)}
 
 
 def run(out: Path, quick: bool) -> dict[str, Any]:
-    speeds = [(30.0, 0.5, 2.0), (300.0, 2.0, 4.0), (1000.0, 3.0, 10.0)] if quick else \
+    speeds = [(30.0, 0.5, 2.0), (300.0, 2.0, 4.0)] if quick else \
         [(30.0, 0.5, 2.0), (100.0, 1.0, 2.0), (300.0, 2.0, 4.0), (600.0, 2.5, 6.0), (1000.0, 3.0, 10.0)]
     noise = [0.0, 5.0] if quick else [0.0, 1.0, 5.0, 20.0]
     depth = [0.0, 0.1, 0.3] if quick else [0.0, 0.02, 0.05, 0.1, 0.3]
@@ -68,13 +70,14 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
             rows.append(_cell_texture("texel m", texel, texel_m=texel))
         for con in (0.1, 0.25, 0.8):
             rows.append(_cell_texture("texture log-contrast", con, contrast=con))
-    cols = ["axis", "value", "pos %path", "rot med deg", "lost %", "events"]
+    cols = ["axis", "value", "ATE mm", "pos %path", "rot med deg", "lost %", "events"]
     print(table(rows, cols))
+    base = rows[0]["ATE mm"]
     breaks = []
     for axis in dict.fromkeys(r["axis"] for r in rows):
-        ok = [r["value"] for r in rows if r["axis"] == axis and r["pos %path"] <= 2.0 and r["lost %"] < 10]
-        breaks.append({"axis": axis, "within 2 % up to": max(ok) if ok else float("nan")})
-    print("\n" + table(breaks, ["axis", "within 2 % up to"]))
+        bad = [r["value"] for r in rows if r["axis"] == axis and not (r["ATE mm"] <= 2 * base and r["lost %"] < 10)]
+        breaks.append({"axis": axis, "first value past 2x the base ATE or 10 % lost": bad[0] if bad else "none"})
+    print("\n" + table(breaks, list(breaks[0])))
     return {"rows": rows, "breaks": breaks, "targets": []}
 
 

@@ -204,14 +204,14 @@ def _plot(rows: PosePacket, truth: Any, path: Path) -> None:
     R0 = quat_to_rot(qt[0]).T
     rv_t = np.degrees([so3_log(R0 @ quat_to_rot(q)) for q in qt])
     rv_e = np.degrees([so3_log(R0 @ quat_to_rot(q)) for q in rows.orientation])
-    pe, _, _ = interpolate_poses(rows.t, t, truth["pose_position"], truth["pose_orientation"])
+    pe, _, ok = interpolate_poses(rows.t, t, truth["pose_position"], truth["pose_orientation"])
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.6))
     for k, c in enumerate("rgb"):
         ax[0].plot(t[keep] * 1e-3, pt[:, k], c, lw=2.5, alpha=0.35, label=f"{'xyz'[k]} truth")
         ax[0].plot(rows.t * 1e-3, rows.position[:, k], c + "--", lw=1, label=f"{'xyz'[k]} tracked")
         ax[1].plot(t[keep] * 1e-3, rv_t[:, k], c, lw=2.5, alpha=0.35)
         ax[1].plot(rows.t * 1e-3, rv_e[:, k], c + "--", lw=1)
-    err = np.sqrt(np.mean(np.sum((rows.position - pe) ** 2, axis=1)))
+    err = np.sqrt(np.mean(np.sum((rows.position[ok] - pe[ok]) ** 2, axis=1)))
     ax[0].set(xlabel="t (ms)", ylabel="position (m)", title=f"position, RMSE {err * 1e3:.1f} mm")
     ax[1].set(xlabel="t (ms)", ylabel="rotation vector (deg)", title="rotation from the start")
     ax[0].legend(fontsize=7, ncol=2)
