@@ -45,7 +45,9 @@ def decode_evt2(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
     while i < m:
         # a run of CD events sharing one time base: a branch-free, vectorisable loop
         k = i
-        while k < m and words[k] < cd_end:
+        while k < m:  # not ``while k < m and ...``: numba compiles that loop several times slower
+            if words[np.uint64(k)] >= cd_end:
+                break
             k += 1
         r = k - i
         if r and have == 0:  # no time base yet: dropped, counted
