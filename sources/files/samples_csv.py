@@ -89,7 +89,8 @@ class CsvSource(SampleFileSource):
             except ValueError:
                 return False
             return parsed is not None and parsed[0] in flat_kinds()
-        return names is not None and bool(kinds_for_header(names))
+        # a header row starts with t (kinds_for_header says so too, after trying every kind)
+        return names is not None and names[:1] == ["t"] and bool(kinds_for_header(names))
 
     @classmethod
     def kinds_for(cls, arg: str, params: Mapping[str, Any]) -> tuple[Kind, ...]:
