@@ -201,8 +201,9 @@ def slider_depth() -> tuple[dict[str, Any], Run] | None:
 
 
 def picture(path: Path, est: PosePacket, truth: PosePacket, maps: list[MapPacket], title: str) -> str | None:
-    """The last map's points (world) and the tracked and true trajectories,
-    top (x-z) and side (z-y) views; None without matplotlib or maps."""
+    """The last map's points (world) with the trajectories from above (x-z),
+    the trajectories close up, and the position over time (tracked dots,
+    truth lines); None without matplotlib or maps."""
     try:
         import matplotlib
 
@@ -215,20 +216,28 @@ def picture(path: Path, est: PosePacket, truth: PosePacket, maps: list[MapPacket
     m = maps[-1]
     pts = map_points(m.depth[0], m.K[0], m.pose[0])
     good = ~est.lost
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4.5))
-    for ax, (i, j), lab in zip(axes, ((0, 2), (2, 1)), (("x (m)", "z (m)"), ("z (m)", "y (m)"))):
-        ax.scatter(pts[:, i], pts[:, j], s=0.3, c="0.6", label=f"map ({len(pts)} points)")
-        ax.plot(truth.position[:, i], truth.position[:, j], "k-", lw=1.5, label="truth")
-        ax.plot(est.position[good, i], est.position[good, j], "r.", ms=2, label="tracked")
-        ax.set_xlabel(lab[0])
-        ax.set_ylabel(lab[1])
-        ax.set_aspect("equal", adjustable="datalim")
-    axes[1].invert_yaxis()
-    axes[0].legend(loc="best", fontsize=8)
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.5))
+    ax = axes[0]
+    ax.scatter(pts[:, 0], pts[:, 2], s=0.3, c="0.6", label=f"last map ({len(pts)} points)")
+    for a in axes[:2]:
+        a.plot(truth.position[:, 0], truth.position[:, 2], "k-", lw=1.5, label="truth")
+        a.plot(est.position[good, 0], est.position[good, 2], "r.", ms=2, label="tracked")
+        a.set_xlabel("x (m)")
+        a.set_ylabel("z (m)")
+        a.set_aspect("equal", adjustable="datalim")
+    ax.legend(loc="best", fontsize=8)
+    axes[1].set_title("trajectories, from above", fontsize=9)
+    ax = axes[2]
+    for k, c in enumerate("rgb"):
+        ax.plot(truth.t * 1e-6, truth.position[:, k], "-", color=c, lw=1, label="xyz"[k] + " truth")
+        ax.plot(est.t[good] * 1e-6, est.position[good, k], ".", color=c, ms=1.5)
+    ax.set_xlabel("t (s)")
+    ax.set_ylabel("position (m)")
+    ax.legend(loc="best", fontsize=8)
     fig.suptitle(title)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
     return str(path)
 
@@ -258,7 +267,8 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
     print("the tracker alone, against map.emvs maps made from the true poses:")
     print(table(known, ["case", "events", "maps", "drift_pct", "ate_m", "pos_pct", "rpe_t_m", "rot_median_deg",
                         "lost"]))
-    pic = picture(out / "evo_map.png", *keep["boxes_3d"], "EVO on boxes_3d (simulated, 240x180): map and trajectories")
+    pic = picture(out / "evo_map.png", *keep["plane"], "EVO (tracker.edge_align + map.emvs) on a simulated textured "
+                  "plane 2 m away, 240x180: the last map and the trajectories")
     if pic:
         print(f"picture: {pic}")
     secs = after / 1e6
