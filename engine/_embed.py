@@ -88,17 +88,15 @@ class Stepper:
         return self._route(self.graph.push(self._source(into), packet))
 
     def end(self, into: str | None = None) -> dict[str, list[Packet]]:
-        """End the stream of source ``into``: operators flush. Once every
-        source has ended, a feedback loop that cannot finish raises
-        :class:`TectumError` saying where it stopped."""
+        """End the stream of source ``into``: operators flush (once every
+        source has ended, a feedback loop that waits on itself runs on
+        without its feedback: :meth:`Graph.unstall`)."""
         sid = self._source(into)
-        out = self._route(self.graph.end(sid))
+        deliveries = self.graph.end(sid)
         self._ended.add(sid)
         if len(self._ended) == len(self._sources):
-            why = self.graph.stalled()
-            if why:
-                raise TectumError(why)
-        return out
+            deliveries += self.graph.unstall()
+        return self._route(deliveries)
 
     def close(self) -> None:
         """Close the sinks (commit files)."""

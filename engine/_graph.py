@@ -17,6 +17,7 @@ interval, so an operator never sees a kind run ahead of another.
 
 from __future__ import annotations
 
+import logging
 from collections import deque
 from collections.abc import Hashable, Iterable, Mapping, Sequence
 from time import perf_counter_ns
@@ -28,6 +29,8 @@ from ._pipeline import Plan
 from ._stats import NodeStats, Stats
 from ._stream import concat, empty_like, merge
 from .errors import NodeError, TectumError
+
+log = logging.getLogger("tectum")
 
 __all__ = ["Graph", "END", "PortJoin", "DelayedJoin", "Merger"]
 
@@ -65,14 +68,24 @@ class PortJoin(Generic[K]):
         self.proto: dict[K, Packet | None] = {p: None for p in self.ports}
         self.ended: dict[K, bool] = {p: False for p in self.ports}
         self.released: int | None = None
+        self.advanced: set[K] = set()  # ports moved on by advance()
 
     def push(self, port: K, pkt: Packet) -> list[dict[K, Packet]]:
         if self.ended[port]:
             raise TectumError(f"port {port!r} received a packet after its end")
         mark = self.marks[port]
         if mark is not None and pkt.t_start < mark:
-            raise TectumError(f"port {port!r}: packet [{pkt.t_start}, {pkt.t_end}) starts before the "
-                              f"stream's watermark {mark} µs")
+            if port not in self.advanced:
+                raise TectumError(f"port {port!r}: packet [{pkt.t_start}, {pkt.t_end}) starts before the "
+                                  f"stream's watermark {mark} µs")
+            # moved on by advance(): a packet whose interval (not its samples) reaches back is cut there
+            if pkt.t.shape[0] and pkt.t[0] < mark:
+                raise TectumError(f"port {port!r}: a sample at {int(pkt.t[0])} µs came after the stream had "
+                                  f"moved on to {mark} µs: its producer on the feedback loop emits later than its "
+                                  "output_mark says")
+            if pkt.t_end <= mark:
+                return []
+            pkt = _reinterval(pkt, mark, pkt.t_end)
         self.pending[port].append(pkt)
         self.marks[port] = pkt.t_end
         self.proto[port] = pkt
@@ -90,6 +103,7 @@ class PortJoin(Generic[K]):
         if self.ended[port] or (mark is not None and t <= mark):
             return []
         self.marks[port] = t
+        self.advanced.add(port)
         return self._release()
 
     @property
@@ -270,7 +284,7 @@ class DelayedJoin(PortJoin[str]):
         e = self.end_mark()
         late = [(p, self.marks[p]) for p in sorted(self.feedback) if not self.ended[p]]
         held = ", ".join(f"port {p!r} at {m} µs" for p, m in late)
-        return f"its other inputs reach {e} µs, {held or 'no feedback port'}"
+        return f"has its other inputs up to {e} µs, {held or 'no feedback port'}"
 
 
 def _shifted(pkt: Packet, d: int) -> Packet:
@@ -461,19 +475,32 @@ class Graph:
             self._drain(out)
         return out
 
-    def stalled(self) -> str | None:
-        """Once every source has ended and no work is left: why a feedback
-        loop has not finished (its nodes wait on each other), or None."""
+    def unstall(self) -> list[Delivery]:
+        """Once every source has ended and no work is left: end the feedback
+        ports of each loop that has not finished (its nodes wait on each
+        other: one of them emits later than the loop's delay allows, e.g. a
+        tracker that lost track feeding a mapper that waits for poses). The
+        nodes then run on to the end without what the loop would have
+        brought back; each such node counts ``feedback_stalled_at`` (µs, where
+        its feedback stopped) and a warning says so. Where a loop stalls is
+        a property of the data, not of timing: the result stays
+        deterministic."""
+        out: list[Delivery] = []
         for loop in self.plan.loops:
-            stuck = [n for n in loop if n not in self._ended]
-            if not stuck:
-                continue
-            why = "; ".join(f"node {n!r} waits: {self._recs[n].join.waiting()}"  # type: ignore[union-attr]
-                            for n in stuck if self._recs[n].settles and not self._recs[n].done)
-            return (f"the feedback loop {' -> '.join(loop)} stopped before the end of its input ({why or 'no data'})"
-                    ": a node on it emits later than the loop's delay allows (see Operator.output_mark); raise "
-                    "delay_us")
-        return None
+            for nid in loop:
+                rec = self._recs[nid]
+                if nid in self._ended or not rec.settles or rec.done:
+                    continue
+                join: Any = rec.join
+                log.warning("the feedback loop %s stalled: node %r %s; it runs on without its feedback (a node on "
+                            "the loop emits later than the delay allows, see Operator.output_mark; raise delay_us)",
+                            " -> ".join(loop), nid, join.waiting())
+                rec.st.counters["feedback_stalled_at"] = min(
+                    (m for q in rec.feedback_ports if (m := join.marks[q]) is not None), default=0)
+                self._deferred.extend((rec, q, END) for q in sorted(rec.feedback_ports))
+        if self._deferred:
+            self._drain(out)
+        return out
 
     # -- internals ----------------------------------------------------------------
     # The hot path: plain calls over routes precomputed in _wire(); kinds are

@@ -66,10 +66,11 @@ class PartSpec:
     part: str
     name: str
     params: dict[str, Any]
-    ports: dict[str, str | Delayed] = field(default_factory=dict)
+    ports: dict[str, str | Delayed | _Part] = field(default_factory=dict)  # str: a node outside the macro
     inputs: tuple[str, ...] = ()
     offload: bool | None = None
     buffer: int = 64
+    parts_in: tuple[str, ...] = ()  # other parts read as plain inputs
 
 
 class Expansion:
@@ -99,20 +100,24 @@ class Expansion:
         """The output of part ``part``, ``delay_us`` µs late (a port's input)."""
         return Delayed(part, delay_us)
 
-    def op(self, part: str, name: str, *, offload: bool | None = None, buffer: int = 64, **kw: Any) -> None:
-        """Add part ``part`` running operator ``name``. Keywords that are
-        :meth:`part`, :meth:`delayed` or :meth:`port` values wire its ports
-        (None: leave that port open); the others are its parameters."""
+    def op(self, part: str, name: str, input: _Part | _Input | None = None, *, offload: bool | None = None,
+           buffer: int = 64, **kw: Any) -> None:
+        """Add part ``part`` running operator ``name``. ``input`` is a
+        one-input operator's input (:meth:`part` or :meth:`port`); keywords
+        that are :meth:`part`, :meth:`delayed` or :meth:`port` values wire
+        named ports (None: leave that port open); the others are parameters."""
         if part in self.parts:
             raise PipelineError(f"macro {self.macro!r}: part {part!r} is added twice")
         spec = PartSpec(part, name, {}, offload=offload, buffer=buffer)
         extra: list[str] = []
+        if isinstance(input, _Part):
+            spec.parts_in = (input.name,)
+        elif isinstance(input, _Input):
+            extra += input.ids
         for k, v in kw.items():
             if v is None:
                 continue
-            if isinstance(v, _Part):
-                spec.ports[k] = v.name
-            elif isinstance(v, Delayed):
+            if isinstance(v, (_Part, Delayed)):
                 spec.ports[k] = v
             elif isinstance(v, _Input):
                 if v.by_name:

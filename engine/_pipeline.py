@@ -439,7 +439,7 @@ def _validate(p: Pipeline, reg: Registry) -> Plan:
         else:
             upstream = frozenset().union(*(provides_of[i] for i in inputs))
             consumes = frozenset(decl.consumes)
-            if not any(accepts(consumes, k) for k in upstream):
+            if not any(accepts(consumes, k) for k in upstream) and not isinstance(s.component, MacroOutputs):
                 raise PipelineError(
                     f"{s.role} {s.id!r} ({s.name}) consumes {_kinds(consumes)} but its input(s) "
                     f"{', '.join(repr(i) for i in inputs)} provide only {_kinds(upstream)}"
@@ -577,14 +577,21 @@ def _expand_one(s: NodeSpec, reg: Registry) -> list[NodeSpec]:
     pid = {part: f"{s.id}.{part}" for part in x.parts}
     nodes = []
     for part in x.parts.values():
+        refs = [*part.parts_in, *(v.node if isinstance(v, Delayed) else v.name for v in part.ports.values()
+                                  if not isinstance(v, str))]
+        unknown = [r for r in refs if r not in pid]
+        if unknown:
+            raise PipelineError(f"{where}: part {part.part!r} reads from {unknown}, which are not parts of the macro "
+                                f"({list(pid)})")
         ports: dict[str, str] = {}
         delays: dict[str, int] = {}
         for q, v in part.ports.items():
             if isinstance(v, Delayed):
-                ports[q], delays[q] = pid.get(v.node, v.node), v.delay_us
+                ports[q], delays[q] = pid[v.node], v.delay_us
             else:
-                ports[q] = pid.get(v, v)
-        nodes.append(NodeSpec(pid[part.part], "operator", part.name, MappingProxyType(part.params), part.inputs,
+                ports[q] = v if isinstance(v, str) else pid[v.name]
+        inputs = (*(pid[q] for q in part.parts_in), *part.inputs)
+        nodes.append(NodeSpec(pid[part.part], "operator", part.name, MappingProxyType(part.params), inputs,
                               buffer=part.buffer, ports=MappingProxyType(ports), offload=part.offload,
                               delays=MappingProxyType(delays), part_of=s.id))
     outputs = tuple(pid[o] for o in x.outputs)
@@ -759,7 +766,7 @@ def _explain(plan: Plan) -> str:
         n = plan.nodes[nid]
         comp = n.spec.component
         if isinstance(comp, MacroOutputs):
-            what = f"{comp.macro} (macro: outputs of {', '.join(n.inputs)})"
+            what = f"{comp.macro} (macro)"
             params: Mapping[str, Any] = comp.params
         else:
             what = n.spec.name if n.role == "operator" else f"{n.role} {n.spec.name}"
@@ -778,7 +785,7 @@ def _explain(plan: Plan) -> str:
         for up in n.inputs:
             for q in by_port[up] or [""]:
                 delay = n.delays.get(q)
-                lines.append(f"  {up} -> {nid}" + (f".{q}" if q else "")
+                lines.append(f"  {up} -> {nid}" + (f" ({q})" if q else "")
                              + (f"  delayed {delay} µs" if delay else "")
                              + ("  (closes a loop)" if q in n.feedback else ""))
     if plan.loops:

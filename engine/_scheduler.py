@@ -325,7 +325,7 @@ async def _offload_task(nid: str, graph: Graph, edge: Edge, out: _Outbox, watch:
 
     while True:
         if watch is not None and not len(edge):
-            watch.idle()
+            await watch.idle(loop)
         try:
             items = await edge.receive_all()
         except trio.EndOfChannel:
@@ -344,14 +344,15 @@ async def _offload_task(nid: str, graph: Graph, edge: Edge, out: _Outbox, watch:
     out.add(forward(nid, res, ended=True), trio.current_time())
     await out.flush(loop)
     if watch is not None:
-        watch.ended(nid)
+        await watch.ended(nid, loop)
 
 
 class _LoopWatch:
     """Finds a feedback loop that stalls (its nodes wait on each other's
-    output, the delay too short for how late one of them emits): once every
-    source has ended and no offloaded node has work left, a loop that has
-    not ended never will, and the run fails saying where it stopped."""
+    output: the delay is too short for how late one of them emits): once
+    every source has ended and no offloaded node has work left, a loop that
+    has not ended never will, and it is told to run on without its
+    feedback (:meth:`Graph.unstall`)."""
 
     def __init__(self, graph: Graph, edges: Mapping[str, Edge], outbox: _Outbox, sources: int) -> None:
         self.graph = graph
@@ -360,21 +361,20 @@ class _LoopWatch:
         self.sources = sources
         self.busy = 0
 
-    def source_ended(self) -> None:
+    async def source_ended(self) -> None:
         self.sources -= 1
-        self.idle()
+        await self.idle()
 
-    def ended(self, nid: str) -> None:
+    async def ended(self, nid: str, loop: int | None) -> None:
         del self.edges[nid]
-        self.idle()
+        await self.idle(loop)
 
-    def idle(self) -> None:
+    async def idle(self, loop: int | None = None) -> None:
         # an offloaded node is still at work while its edge holds items or has closed (it is finishing)
         if self.sources or self.busy or self.outbox.pending or any(len(e) or e.closed for e in self.edges.values()):
             return
-        why = self.graph.stalled()
-        if why:
-            raise TectumError(why)
+        self.outbox.add(self.graph.unstall(), trio.current_time())
+        await self.outbox.flush(loop)  # loop: the calling task's own (it never waits on its own edge)
 
 
 async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox,
@@ -455,7 +455,7 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
         out.add(graph.end(sid), trio.current_time())
         await out.flush()
         if watch is not None:
-            watch.source_ended()
+            await watch.source_ended()
     except NodeError:
         raise
     except Exception as e:

@@ -15,9 +15,9 @@ from tectum import get_registry
 
 from ._doc import first_sentence, parameter_docs, parameters, plain_text
 
-HELP = "list the registered operators, sources and sinks with their owners; NAME: one component in full"
+HELP = "list the registered operators, macros, sources and sinks with their owners; NAME: one component in full"
 
-_ROLES = {"operators": "operator", "sources": "source", "sinks": "sink"}
+_ROLES = {"operators": "operator", "macros": "macro", "sources": "source", "sinks": "sink"}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -40,8 +40,10 @@ def describe(role: str, e: Any) -> dict[str, Any]:
                          "class": f"{cls.__module__}.{cls.__qualname__}",
                          "summary": first_sentence(cls.__doc__), "description": plain_text(rest)}
     d["parameters"] = [{**p._asdict(), "doc": pdocs.get(p.name, "")}
-                       for p in parameters(cls, skip_first=role != "operator")]
-    if role == "operator":
+                       for p in parameters(cls, skip_first=role not in ("operator", "macro"))]
+    if role == "macro":  # its ports; what it expands into: `tectum run --explain`
+        d["inputs"] = {k: {"kind": str(p.kind), "required": p.required, "doc": p.doc} for k, p in cls.inputs.items()}
+    elif role == "operator":
         d["consumes"], d["produces"] = _kinds(cls.consumes), _kinds(cls.produces)
         ports = getattr(cls, "inputs", None)
         if ports:
@@ -91,7 +93,7 @@ def main(args: argparse.Namespace) -> int:
     from tectum.errors import RegistryError
 
     reg = get_registry()
-    tables = {"operators": reg.operators, "sources": reg.sources, "sinks": reg.sinks}
+    tables = {"operators": reg.operators, "macros": reg.macros, "sources": reg.sources, "sinks": reg.sinks}
     width = min(100, shutil.get_terminal_size((100, 24)).columns)
     if args.name:
         found = [(_ROLES[r], t[args.name]) for r, t in tables.items() if args.name in t]

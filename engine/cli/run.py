@@ -30,6 +30,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-events", type=int, help="largest packet in events (1: event by event)")
     p.add_argument("--max-latency-us", type=int, help="with --pace: release events in windows of this many µs")
     p.add_argument("--pace", type=float, help="replay speed (1 = real time); default as fast as possible")
+    p.add_argument("--explain", action="store_true",
+                   help="print the pipeline as it will run (macros expanded: nodes, parameters, edges with ports "
+                   "and delays, feedback loops) and exit without running")
     p.add_argument("--repair", type=int, metavar="US",
                    help="repair the source stream (re-sort within US µs, drop bad events) instead of failing")
     _scale.add_arguments(p)
@@ -80,6 +83,9 @@ def _span(p: Pipeline) -> int | None:
 
 
 def main(args: argparse.Namespace) -> int:
+    if args.explain:
+        print(build(args).explain())
+        return 0
     if args.shards is not None or args.executor is not None or _scale.is_glob(args.source):
         return _scale.main_scaled(args, build)
     p = build(args)

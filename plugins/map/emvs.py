@@ -175,7 +175,8 @@ class Emvs(Operator):
     name = "map.emvs"
     inputs = {
         "events": Port(Kind.EVENTS, doc="the events to map"),
-        "poses": Port(Kind.POSES, doc="camera poses (world-from-camera) covering the events"),
+        "poses": Port(Kind.POSES, doc="camera poses (world-from-camera) covering the events (rows flagged lost "
+                                      "are not used)"),
     }
     produces = (Kind.MAPS, Kind.POINTS)
     heavy = True
@@ -202,7 +203,7 @@ class Emvs(Operator):
         self.points = bool(points)
         self.K = np.array([[self.camera.fx, 0, self.camera.cx], [0, self.camera.fy, self.camera.cy], [0, 0, 1.0]])
         self.counts = {"maps": 0, "no_translation": 0, "skipped_before_poses": 0, "skipped_after_poses": 0,
-                       "outside_view": 0}
+                       "outside_view": 0, "lost_poses": 0}
         self.scene_depth = math.sqrt(min_depth * max_depth)  # m, until a map says better
         self._sensor: tuple[int, int] | None = None
         self._rays = np.empty((0, 0, 2))
@@ -256,6 +257,15 @@ class Emvs(Operator):
                 self._add_events(ev)  # type: ignore[arg-type]
         return self._advance(final=False)
 
+    def output_mark(self, watermark: int) -> int:
+        """A map is stamped with the last event voted into it, which may lie
+        before the input's watermark: no later map or cloud is stamped
+        before the last event voted so far (a reference view in progress),
+        else before the first event still waiting for its pose."""
+        if self._voted:
+            return self._last_t
+        return int(self._t[0]) if self._t.size else watermark
+
     def finish(self) -> list[Packet]:
         out = self._advance(final=True)
         if self._dsi is not None and self._voted:
@@ -269,6 +279,12 @@ class Emvs(Operator):
         return out
 
     def _add_poses(self, poses: PosePacket) -> None:
+        lost = poses.data.get("lost")
+        if lost is not None and lost.any():  # a tracker's predictions, not measurements: not used
+            self.counts["lost_poses"] += int(lost.sum())
+            poses = poses.take(np.flatnonzero(~lost))  # type: ignore[assignment]
+            if not len(poses):
+                return
         t = poses.t
         pos = np.asarray(poses.position, np.float64)
         q = np.asarray(poses.orientation, np.float64)

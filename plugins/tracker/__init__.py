@@ -4,7 +4,8 @@ model ladder that picks the simplest adequate motion model
 (``tracker.ego_motion``); moving objects as event clusters
 (``tracker.clusters``) and blinking LED markers with the pose of their body
 (``tracker.led_markers``); the 6-DoF pose by aligning event images to
-semi-dense maps (``tracker.edge_align``, EVO's tracker) and against a known
+semi-dense maps (``tracker.edge_align``, EVO's tracker; ``tracker.evo``, a
+macro, runs it in a loop with ``map.emvs``) and against a known
 photometric map with the generative event model (``tracker.pose_6dof``)."""
 
 from __future__ import annotations
@@ -15,12 +16,13 @@ from .angular_velocity import AngularVelocity
 from .clusters import Clusters
 from .edge_align import EdgeAlign
 from .ego_motion import EgoMotion, MotionModelPacket
+from .evo import Evo
 from .features import FeatureTracker
 from .led_markers import LedMarkers
 from .pose_6dof import Pose6Dof
 
 __all__: list[str] = ["AngularVelocity", "EgoMotion", "MotionModelPacket", "FeatureTracker", "Clusters", "LedMarkers",
-                     "EdgeAlign", "Pose6Dof"]
+                     "EdgeAlign", "Pose6Dof", "Evo"]
 
 
 @hookimpl
@@ -32,6 +34,11 @@ def tectum_register_operators(registry) -> None:  # type: ignore[no-untyped-def]
     registry.add_operator(LedMarkers)
     registry.add_operator(EdgeAlign)
     registry.add_operator(Pose6Dof)
+
+
+@hookimpl
+def tectum_register_macros(registry) -> None:  # type: ignore[no-untyped-def]
+    registry.add_macro(Evo)
 
 
 @hookimpl

@@ -1,0 +1,91 @@
+"""``tracker.evo``: EVO, tracking and mapping in parallel (Rebecq et al.,
+RA-L 2017), as a pipeline macro.
+
+One name for two nodes and their two-way wiring (see ``tectum run
+--explain``):
+
+* ``<id>.tracker``: ``tracker.edge_align`` aligns event images to the
+  latest semi-dense map; its ``maps`` port reads the mapper's maps
+  ``delay_us`` late (the loop's delayed edge), its ``poses`` port the
+  source's poses when there are any (the bootstrap, ``bootstrap_us``);
+* ``<id>.mapper``: ``map.emvs`` builds those maps from the events and the
+  tracker's poses (rows the tracker flags lost are not used).
+
+The node ``<id>`` hands on both outputs: poses (``--sink traj.tum``) and
+maps with their point clouds (``--sink maps.npz``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from tectum import Expansion, Kind, Macro, Port
+
+__all__ = ["Evo"]
+
+
+class Evo(Macro):
+    """EVO: ``tracker.edge_align`` and ``map.emvs`` in a loop, bootstrapped
+    from the source's first poses (or a plane). Expands into
+    ``<id>.tracker`` and ``<id>.mapper`` (see the module).
+
+    Parameters
+    ----------
+    calib:
+        Calibration for both nodes (file or inline ``fx;fy;cx;cy[;...]``,
+        px); defaults to the calibration beside the recording.
+    delay_us:
+        Delay of the maps on their way back to the tracker, µs: a map made
+        by time ``t`` is used from ``t + delay_us``. At least the mapper's
+        lag: ``segment_us`` and the tracker's pose spacing.
+    bootstrap_us:
+        Tracker: output the source's poses (port ``poses``) for this long
+        from the first one, µs.
+    plane_depth:
+        Tracker: without bootstrap poses, the first window's edges as a plane
+        this far in front of the camera, m (0: off).
+    window_events:
+        Tracker: events per event image.
+    step_events:
+        Tracker: events between poses.
+    planes:
+        Mapper: depth planes of the DSI.
+    min_depth:
+        Mapper: nearest plane, m.
+    max_depth:
+        Mapper: farthest plane, m.
+    keyframe_baseline:
+        Mapper: a new reference view when the camera has moved this fraction
+        of the scene depth.
+    min_baseline:
+        Mapper: a view whose camera moved less than this fraction of the
+        scene depth gives no map.
+    segment_us:
+        Mapper: longest time a segment of events sharing one pose spans, µs.
+    """
+
+    name = "tracker.evo"
+    inputs = {
+        "events": Port(Kind.EVENTS, doc="the events (both nodes)"),
+        "poses": Port(Kind.POSES, required=False, doc="bootstrap poses for the tracker (e.g. ground truth)"),
+    }
+
+    def __init__(self, calib: str = "", delay_us: int = 20_000, bootstrap_us: int = 0, plane_depth: float = 0.0,
+                 window_events: int = 4000, step_events: int = 1000, planes: int = 100, min_depth: float = 0.3,
+                 max_depth: float = 5.0, keyframe_baseline: float = 0.15, min_baseline: float = 0.02,
+                 segment_us: int = 10_000) -> None:
+        if delay_us < 1:
+            raise ValueError(f"tracker.evo: delay_us must be >= 1 µs, got {delay_us}")
+        self.calib, self.delay_us = calib, int(delay_us)
+        self.tracker: dict[str, Any] = {"bootstrap_us": bootstrap_us, "plane_depth": plane_depth, "window_events": window_events,
+                        "step_events": step_events}
+        self.mapper: dict[str, Any] = {"planes": planes, "min_depth": min_depth, "max_depth": max_depth,
+                       "keyframe_baseline": keyframe_baseline, "min_baseline": min_baseline,
+                       "segment_us": segment_us}
+
+    def expand(self, x: Expansion) -> None:
+        calib: dict[str, Any] = {"calib": self.calib} if self.calib else {}
+        x.op("tracker", "tracker.edge_align", events=x.port("events"), poses=x.port("poses"),
+             maps=x.delayed("mapper", self.delay_us), **calib, **self.tracker)
+        x.op("mapper", "map.emvs", events=x.port("events"), poses=x.part("tracker"), **calib, **self.mapper)
+        x.output("tracker", "mapper")

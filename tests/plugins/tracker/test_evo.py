@@ -1,0 +1,130 @@
+"""``tracker.evo`` (the EVO macro): its expansion and wiring, the CLI with
+both sinks (poses and maps) fed, and tracking after a bootstrap on a small
+simulated scene, identical under ``tectum.run`` and :class:`tectum.Stepper`."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+import tectum
+from tectum import Kind, PosePacket
+from tectum.cli import main as cli
+from tectum.sources.simulate import make_simulator
+from tectum.testing import ListSink, ListSource
+
+
+def _calib(sensor: str) -> str:
+    f, cx, cy = (float(v) for v in make_simulator("plane_6dof", 1000, sensor=sensor).truth["camera"])
+    return f"{f};{f};{cx};{cy}"
+
+
+def test_expansion_wires_the_loop_and_the_bootstrap() -> None:
+    p = tectum.Pipeline()
+    cam = p.source("pattern:", id="cam")
+    gt = p.source(ListSource([PosePacket.empty(0, 10)], produces=[Kind.POSES]), id="gt")
+    p.op("tracker.evo", events=cam, poses=gt, id="evo", calib="40;40;20;15", delay_us=3000, bootstrap_us=7,
+         planes=20)
+    plan = p.validate()
+    tr, mp = plan.nodes["evo.tracker"], plan.nodes["evo.mapper"]
+    assert tr.spec.name == "tracker.edge_align" and mp.spec.name == "map.emvs"
+    assert dict(tr.ports) == {"events": "cam", "poses": "gt", "maps": "evo.mapper"}
+    assert tr.delays == {"maps": 3000} and tr.feedback == {"maps"}
+    assert dict(mp.ports) == {"events": "cam", "poses": "evo.tracker"}
+    assert tr.params["bootstrap_us"] == 7 and mp.params["planes"] == 20 and mp.params["calib"] == "40;40;20;15"
+    assert plan.nodes["evo"].inputs == ("evo.tracker", "evo.mapper")
+    assert plan.loops == (("evo.tracker", "evo.mapper"),)
+
+
+def test_cli_writes_poses_and_maps(tmp_path: Any) -> None:
+    """Bootstrapped over the whole run from the simulator's poses: the
+    trajectory is the truth, the mapper makes maps from it, and each sink
+    gets its stream."""
+    traj, maps = tmp_path / "traj.tum", tmp_path / "maps.npz"
+    rc = cli(["run", "simulate:plane_6dof?poses=true&duration_us=300000&sensor=120x90", "--op",
+              f"tracker.evo:bootstrap_us=300000,planes=30,calib={_calib('120x90')}", "--sink", str(traj),
+              "--sink", str(maps)])
+    assert rc == 0
+    rows = np.loadtxt(traj)
+    assert len(rows) == 300 and np.allclose(rows[1, 0], 0.001)
+    with np.load(maps) as z:
+        assert any(k.startswith("maps") for k in z.files), z.files
+
+
+#: a textured plane 2 m away, the camera moving in 6 DoF (slow and smooth)
+PLANE: dict[str, Any] = {
+    "planes": [{"center": [0, 0, 2.0], "texture": {"kind": "noise", "size": 512, "contrast": 0.6},
+                "texel_m": 0.03}],
+    "motion": {"position_amplitude": [0.3, 0.2, 0.3], "position_freq_hz": [0.5, 0.7, 0.4],
+               "rotation_amplitude": [0.1, 0.1, 0.15], "rotation_freq_hz": [0.6, 0.4, 0.5]},
+}
+
+
+@pytest.mark.slow
+def test_tracks_after_the_bootstrap_and_is_deterministic() -> None:
+    sim = make_simulator(PLANE, 800_000, sensor="240x180", seed=1)
+    evs, poses = [], []
+    for ev, side in sim.windows(20_000):
+        evs.append(ev.without_columns(*ev.columns))
+        poses += [q for q in side if isinstance(q, PosePacket)]
+    ev, truth = tectum.concat(evs), tectum.concat(poses)
+    f, cx, cy = (float(v) for v in sim.truth["camera"])
+    boot = 600_000
+
+    def pipeline() -> tuple[tectum.Pipeline, ListSink]:
+        p = tectum.Pipeline()
+        cam = p.source(ListSource([ev]), id="cam")
+        gt = p.source(ListSource([truth]), id="gt")
+        p.op("tracker.evo", events=cam, poses=gt, id="evo", calib=f"{f};{f};{cx};{cy}", bootstrap_us=boot)
+        sink = ListSink()
+        p.sink(sink, "evo")
+        return p, sink
+
+    p, sink = pipeline()
+    tectum.run(p)
+    est = tectum.concat([q for q in sink.packets if q.kind == Kind.POSES])
+    assert isinstance(est, PosePacket)
+    assert sum(len(q) for q in sink.packets if q.kind == Kind.MAPS) >= 1
+    after = (est.t > boot) & (est.t <= truth.t[-1]) & ~est.lost
+    assert after.sum() > 100 and est.lost[est.t > boot].mean() < 0.2
+    true_p, _, _ = tectum.camera.interpolate_poses(est.t[after], truth.t, truth.position, truth.orientation)
+    err = np.linalg.norm(est.position[after] - true_p, axis=1)
+    path = float(np.linalg.norm(np.diff(truth.position[truth.t > boot], axis=0), axis=1).sum())
+    assert np.sqrt(np.mean(err ** 2)) < 0.5 * path, (np.sqrt(np.mean(err ** 2)), path)
+
+    q, sink2 = pipeline()
+    with tectum.Stepper(q) as st:
+        for a in range(0, ev.t_end, 7_000):  # other packets, other interleaving
+            b = min(a + 7_000, ev.t_end)
+            st.push(truth.slice_time(max(a, truth.t_start), max(b, truth.t_start)), into="gt")
+            st.push(ev.slice_time(a, b), into="cam")
+        st.end("gt")
+        st.end("cam")
+    est2 = tectum.concat([q for q in sink2.packets if q.kind == Kind.POSES])
+    np.testing.assert_array_equal(est2.t, est.t)
+    np.testing.assert_array_equal(est2.position, est.position)
+
+
+def test_the_mapper_leaves_out_the_rows_a_tracker_flags_lost() -> None:
+    """EVO's mapper gets every tracker pose: rows flagged lost (garbage here)
+    are not used, so the maps equal those made without them."""
+    from tectum.plugins.map.emvs import Emvs
+    from tectum.testing import assert_streams_equal, feed_ports
+
+    stream = Emvs.conformance_stream()
+    poses = stream["poses"]
+    assert isinstance(poses, PosePacket)
+    n = len(poses)
+    lost = np.zeros(n, bool)
+    lost[5::7] = True
+    flagged = PosePacket(poses.t, position=np.where(lost[:, None], 50.0, poses.position),
+                         orientation=poses.orientation, lost=lost, t_start=poses.t_start, t_end=poses.t_end)
+    kept = poses.take(np.flatnonzero(~lost))
+    op = Emvs(**Emvs.conformance_params)
+    got = feed_ports(op, {"events": [stream["events"]], "poses": [flagged]})
+    want = feed_ports(Emvs(**Emvs.conformance_params), {"events": [stream["events"]], "poses": [kept]})
+    assert sum(len(q) for q in want if q.kind == Kind.MAPS) >= 1
+    assert_streams_equal(want, got, "lost rows left out")
+    assert op.counts["lost_poses"] == int(lost.sum())
