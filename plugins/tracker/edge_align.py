@@ -534,8 +534,8 @@ def _twist(R0: np.ndarray, t0: np.ndarray, R1: np.ndarray, t1: np.ndarray, dt: f
 
 
 def _points_scene(duration_us: int, sensor: tuple[int, int], f: float, speed: float = 0.5, n_points: int = 60,
-                  period_us: int = 100, seed: int = 0) -> dict[str, Packet]:
-    """Events of ``n_points`` world points 1-3 m away (one event per visible
+                  period_us: int = 100, seed: int = 0, depth: tuple[float, float] = (1.0, 3.0)) -> dict[str, Packet]:
+    """Events of ``n_points`` world points ``depth`` m away (one event per visible
     point every ``period_us`` at its rounded projection) seen by a pinhole
     camera (focal ``f`` px, centred) sliding along x at ``speed`` m/s; its
     poses at 1 kHz and a map of the points from the first pose. For the
@@ -543,7 +543,7 @@ def _points_scene(duration_us: int, sensor: tuple[int, int], f: float, speed: fl
     rng = np.random.default_rng(seed)
     w, h = sensor
     cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
-    Z = rng.uniform(1.0, 3.0, n_points)
+    Z = rng.uniform(depth[0], depth[1], n_points)
     X = (rng.uniform(0.05, 0.95, n_points) * w - cx) / f * Z
     Y = (rng.uniform(0.05, 0.95, n_points) * h - cy) / f * Z
     ts = np.arange(0, duration_us, period_us, dtype=np.int64)

@@ -204,3 +204,19 @@ def test_evo_loop_from_the_command_line(tmp_path):
     z = np.load(tmp_path / "maps.npz")
     assert len(z["maps_t"]) >= 2 and z["maps_depth"].shape[1:] == (90, 120)
     assert z["poses_lost"].sum() == len(z["poses_t"]) - len(tum)  # lost rows are not in the TUM file
+
+
+def test_planar_bootstrap_tracks_without_poses():
+    """No poses: the first window's edges as a plane at ``plane_depth`` (the
+    scene's points all lie 2 m away), the world is the first camera."""
+    s = _points_scene(duration_us=200_000, sensor=SENSOR, f=F, speed=SPEED, n_points=150, depth=(2.0, 2.0))
+    op = EdgeAlign(calib=CALIB, plane_depth=2.0, **KW)  # type: ignore[arg-type]
+    out = feed_ports(op, {"events": [s["events"]], "maps": [MapPacket.empty(0, 200_001)]})
+    est = concat([q for q in out if isinstance(q, PosePacket)])
+    assert isinstance(est, PosePacket)
+    assert op.counts["tracked"] == len(est) > 500 and not est.lost.any()
+    moved = est.position - est.position[0]
+    true = SPEED * (est.t - est.t[0]) * 1e-6
+    path = true[-1]
+    assert abs(moved[-1, 0] - path) <= 0.05 * path  # the scale is plane_depth's
+    assert np.abs(moved[:, 1:]).max() <= 0.15 * path  # measured: 12 mm once, 0.3 mm at the end
