@@ -171,6 +171,14 @@ def blur_and_gradients(img, sigma, out):  # type: ignore[no-untyped-def]
             out[2, y, x] = 0.5 * (b[min(y + 1, H - 1), x] - b[max(y - 1, 0), x])
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _in_camera(P, i, R, t):  # type: ignore[no-untyped-def]
+    """World point ``P[i]`` in the camera of world-from-camera pose ``(R, t)``: ``Rᵀ (P - t)``."""
+    px, py, pz = P[i, 0] - t[0], P[i, 1] - t[1], P[i, 2] - t[2]
+    return (R[0, 0] * px + R[1, 0] * py + R[2, 0] * pz, R[0, 1] * px + R[1, 1] * py + R[2, 1] * pz,
+            R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz)
+
+
 @njit(cache=True, nogil=True)
 def _residuals(P, Xr, Lm, obs_img, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy, with_jac, res, obs, jac, ok, disp):  # type: ignore[no-untyped-def]
     """Per map point: residual ``r``, the observed increment ``obs`` (and
@@ -181,20 +189,14 @@ def _residuals(P, Xr, Lm, obs_img, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy
     n_ok = 0
     for i in range(P.shape[0]):
         ok[i] = False
-        px, py, pz = P[i, 0] - t1[0], P[i, 1] - t1[1], P[i, 2] - t1[2]
-        X = R1[0, 0] * px + R1[1, 0] * py + R1[2, 0] * pz
-        Y = R1[0, 1] * px + R1[1, 1] * py + R1[2, 1] * pz
-        Z = R1[0, 2] * px + R1[1, 2] * py + R1[2, 2] * pz
+        X, Y, Z = _in_camera(P, i, R1, t1)
         if Z <= 1e-6:
             continue
         u1 = fx * X / Z + cx
         v1 = fy * Y / Z + cy
         if not (1.0 <= u1 < W - 2.0 and 1.0 <= v1 < H - 2.0):
             continue
-        qx, qy, qz = P[i, 0] - t0[0], P[i, 1] - t0[1], P[i, 2] - t0[2]
-        X0 = R0[0, 0] * qx + R0[1, 0] * qy + R0[2, 0] * qz
-        Y0 = R0[0, 1] * qx + R0[1, 1] * qy + R0[2, 1] * qz
-        Z0 = R0[0, 2] * qx + R0[1, 2] * qy + R0[2, 2] * qz
+        X0, Y0, Z0 = _in_camera(P, i, R0, t0)
         if Z0 <= 1e-6:
             continue
         u0 = fx * X0 / Z0 + cx
