@@ -92,7 +92,7 @@ class Windowed(Operator):
             self._by_count(packet, frames)
         if packet.t.shape[0]:
             self._last = int(packet.t[-1])
-        return [self._emit(frames, packet.t_end)]
+        return self._emit_packets(frames, packet.t_end)
 
     def _by_time(self, pk: EventPacket, frames: list[tuple[int, np.ndarray]]) -> None:
         w = int(self.window_us)  # type: ignore[arg-type]
@@ -128,6 +128,11 @@ class Windowed(Operator):
                 self._first = int(pk.t[i])
             self._add(pk.t[i:j], pk.x[i:j], pk.y[i:j], pk.p[i:j])
             self._n += j - i
+
+    def _emit_packets(self, frames: list[tuple[int, np.ndarray]], t_end: int) -> list[FramePacket]:
+        """The frames one packet completed, as packets (one here; a subclass
+        may cut them into several, back to back)."""
+        return [self._emit(frames, t_end)]
 
     def _emit(self, frames: list[tuple[int, np.ndarray]], t_end: int) -> FramePacket:
         t0 = self._out

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from tectum import EventPacket
+from tectum import EventPacket, FramePacket
 
 from . import functional as F
 from . import kernels as K
@@ -48,7 +48,7 @@ class _Image(Windowed):
         self._flat = self.state.reshape(-1)
         self._touched = np.empty(self._flat.shape[0], np.int64)  # state indices that left zero
         self._n_touched = np.zeros(1, np.int64)
-        self._pending: np.ndarray | None = None  # the frames of the packet being sliced
+        self._pending: list[np.ndarray] | None = None  # the frame blocks of the packet being sliced
 
     def _by_time(self, pk: EventPacket, frames: list[tuple[int, np.ndarray]]) -> None:
         w = int(self.window_us)  # type: ignore[arg-type]
@@ -69,16 +69,33 @@ class _Image(Windowed):
     def _run(self, pk: EventPacket, splits: np.ndarray, stamps: np.ndarray,
              frames: list[tuple[int, np.ndarray]]) -> None:
         """Windows ending at event indices ``splits`` (stamped ``stamps``, µs)
-        from the packet's events; the rest stays in the state."""
+        from the packet's events; the rest stays in the state. The frames
+        come in blocks of at most :data:`BLOCK_BYTES` (one packet each):
+        memory the allocator hands out again while it is still in cache,
+        where one block for a packet of many sparse windows would be fresh
+        pages, dearer than the events."""
         n_win, n = len(splits), len(pk)
         self._n = n - int(splits[-1]) if n_win else self._n + n
         if not (n_win or n):
             return
-        images = np.zeros((n_win, *self.state.shape), self.dtype)
-        self._kernel(pk.x, pk.y, pk.p, splits, images)
-        if n_win:
-            self._pending = images
-            frames.extend(zip(stamps.tolist(), images))
+        if not n_win:
+            self._kernel(pk.x, pk.y, pk.p, splits, np.zeros((0, *self.state.shape), self.dtype))
+            return
+        g = max(1, BLOCK_BYTES // self.state.nbytes)
+        if n_win <= g:  # one block: no slicing
+            self._pending = [np.zeros((n_win, *self.state.shape), self.dtype)]
+            self._kernel(pk.x, pk.y, pk.p, splits, self._pending[0])
+            frames.extend(zip(stamps.tolist(), self._pending[0]))
+            return
+        self._pending = []
+        for a in range(0, n_win, g):
+            b = min(a + g, n_win)
+            lo = int(splits[a - 1]) if a else 0
+            hi = int(splits[b - 1]) if b < n_win else n
+            block = np.zeros((b - a, *self.state.shape), self.dtype)
+            self._kernel(pk.x[lo:hi], pk.y[lo:hi], pk.p[lo:hi], splits[a:b] - lo, block)
+            self._pending.append(block)
+        frames.extend(zip(stamps.tolist(), (im for block in self._pending for im in block)))
 
     def _kernel(self, x: np.ndarray, y: np.ndarray, p: np.ndarray, splits: np.ndarray, images: np.ndarray) -> None:
         K.windows_kernel(self.mode, self.state.shape[1], *self._limits, x, y, p, splits, self._flat, self._touched,
@@ -90,16 +107,28 @@ class _Image(Windowed):
         self._kernel(_NO_XY, _NO_XY, _NO_P, np.zeros(1, np.int64), out)
         return out[0]
 
-    def _stack(self, images: list[np.ndarray]) -> np.ndarray:
-        pending, self._pending = self._pending, None
-        if pending is not None and len(pending) == len(images):
-            return pending  # the block's frames, in order: no copy
-        return super()._stack(images)
+    def _emit_packets(self, frames: list[tuple[int, np.ndarray]], t_end: int) -> list[FramePacket]:
+        """One packet per block of frames (no copy), back to back: each but
+        the last ends after its last frame's time."""
+        blocks, self._pending = self._pending, None
+        if not blocks:
+            return super()._emit_packets(frames, t_end)
+        out, k = [], 0
+        for i, block in enumerate(blocks):
+            ts = np.array([f[0] for f in frames[k:k + len(block)]], np.int64)
+            end = max(t_end, self._out) if i == len(blocks) - 1 else int(ts[-1]) + 1
+            out.append(FramePacket(ts, images=block, t_start=self._out, t_end=end))
+            self._out = end
+            k += len(block)
+        return out
 
     def describe(self) -> dict[str, Any]:
         return {**super().describe(), "dtype": str(self.dtype)}
 
 
+#: the most bytes of frames in one block (and packet): about what stays in
+#: a core's cache, so the allocator's next block reuses warm memory
+BLOCK_BYTES = 1 << 21
 _NO_XY, _NO_P = np.empty(0, np.uint16), np.empty(0, np.int8)
 
 

@@ -137,3 +137,21 @@ def test_in_a_pipeline(ev):
     frames = [q for q in sink.packets if q.kind == tectum.Kind.FRAMES and len(q)]
     imgs = np.concatenate([q.images for q in frames])
     assert imgs.shape == (3, 10, 16, 3) and imgs.dtype == np.uint8
+
+
+@pytest.mark.parametrize("make", [R.EventFrame, R.Accumulate, R.CountImage])
+def test_frames_in_several_blocks(ev, make, monkeypatch):
+    """A packet that completes many windows hands its frames out in blocks
+    (one packet each, back to back): the same frames as in one block, batch
+    invariant."""
+    from tectum.plugins.repr import operators
+    from tectum.testing import assert_stream_contract
+
+    one = concat(feed(make(window_us=1000), [ev]))
+    monkeypatch.setattr(operators, "BLOCK_BYTES", 16 * 10 * 8)  # 1 or 2 frames a block
+    out = feed(make(window_us=1000), [ev])
+    assert len(out) > 5
+    assert_stream_contract(out)
+    both = concat(out)
+    assert np.array_equal(both.t, one.t) and np.array_equal(both.images, one.images)
+    assert_batch_invariant(lambda: make(window_us=1000), ev, max_examples=4, event_by_event_check=False)
