@@ -94,7 +94,7 @@ def _split(b, o, t, x, y, p):  # pragma: no cover - numba
             to[i] = q[2 * i]
             xo[i] = h[8 * i + 4]
             yo[i] = h[8 * i + 5]
-            po[i] = np.int8(1) if b[16 * i + 12] != 0 else np.int8(-1)
+            po[i] = np.int8(b[16 * i + 12] != 0) * np.int8(2) - np.int8(1)  # no branch on a random bit
         return
     for i in range(n):
         v = np.int64(0)
