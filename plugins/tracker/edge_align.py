@@ -49,10 +49,11 @@ view; when its aligned points land on edges (E ≥ 0.5) for less than
 running overlap of the good steps on the same map (how much of a map lands
 on edges depends on the scene and the view: a relative test); or when the
 pose moved farther from the last good one than ``max_speed`` m/s and
-``max_rate`` rad/s allow (plus 2 cm, 0.02 rad). A lost row holds the last
-good pose, zero velocities and ``lost`` true (never a confident guess);
-each is counted in ``counts``. While lost, each step tries to relocalise
-from the last good pose with one coarser level and no motion prior, and
+``max_rate`` rad/s allow (plus 2 cm, 0.02 rad). A lost row holds the prediction, flagged ``lost`` (never a confident
+guess): the last good pose moved on at the last velocity for ``coast_us``,
+then held with zero velocities; each is counted in ``counts``. While
+lost, each step tries to relocalise from that prediction with one coarser
+level, and
 resumes when the overlap is back to ``relocalise_overlap`` times the
 running overlap (twice ``min_overlap`` on a new map) and the jump is
 plausible.
@@ -153,6 +154,11 @@ class EdgeAlign(Operator):
     velocity_gain:
         Each step moves the velocity estimate this fraction of the way to
         the step's own (1: the last step's motion; 0: no velocity).
+    binary:
+        Event image of pixels with events (1) rather than event counts.
+    coast_us:
+        While lost, the prediction goes on at the last velocity for this
+        long after the last good step, µs; then it holds the last good pose.
     """
 
     name = "tracker.edge_align"
@@ -168,10 +174,10 @@ class EdgeAlign(Operator):
     def __init__(self, calib: str = "", bootstrap_us: int = 0, plane_depth: float = 0.0, window_events: int = 12000,
                  step_events: int = 3000, sigma_px: float = 1.0, levels: int = 2, max_iter: int = 10,
                  huber: float = 0.5, max_points: int = 6000, min_points: int = 60, min_overlap: float = 0.1,
-                 overlap_drop: float = 0.5, relocalise_overlap: float = 0.8, max_speed: float = 10.0,
+                 overlap_drop: float = 0.3, relocalise_overlap: float = 0.8, max_speed: float = 10.0,
                  max_rate: float = 20.0, min_neighbours: int = 8, neighbour_tol: float = 0.03,
                  prior_rad: float = 0.01, prior_m: float = 0.01, velocity_gain: float = 0.3,
-                 binary: bool = False) -> None:
+                 binary: bool = False, coast_us: int = 50_000) -> None:
         if bootstrap_us < 0 or not plane_depth >= 0:
             raise ValueError(f"tracker.edge_align: need bootstrap_us >= 0 and plane_depth >= 0 m, got {bootstrap_us}, "
                              f"{plane_depth}")
@@ -209,6 +215,9 @@ class EdgeAlign(Operator):
         self._prior = np.array([prior_rad ** -2] * 3 + [prior_m ** -2] * 3)
         self.velocity_gain = float(velocity_gain)
         self.binary = bool(binary)
+        if coast_us < 0:
+            raise ValueError(f"tracker.edge_align: coast_us must be >= 0 µs, got {coast_us}")
+        self.coast_us = int(coast_us)
         self.counts = {"steps": 0, "tracked": 0, "bootstrap_poses": 0, "bootstrap_steps": 0, "maps": 0,
                        "lost_no_map": 0, "lost_few_points": 0, "lost_overlap": 0, "lost_jump": 0, "relocalised": 0}
         #: (cost, points in view, overlap, iterations) of the last alignment (for diagnostics)
@@ -398,11 +407,9 @@ class EdgeAlign(Operator):
             self.counts["lost_no_map"] += 1
             return self._lost_row(t_last)
         dt = (t_mid - self._t_mid) * 1e-6
-        if self._lost:  # relocalise from the last good pose, one level coarser
-            R, tr, levels = self._R.copy(), self._tr.copy(), self.levels + 1
-        else:
-            R, tr = self._predict(dt)
-            levels = self.levels
+        self._coast(t_mid)
+        R, tr = self._predict(dt)  # lost: relocalise from the coasting prediction, one level coarser
+        levels = self.levels + 1 if self._lost else self.levels
         info = np.zeros(4)
         Rp, tp = R.copy(), tr.copy()
         prior = self._prior
@@ -428,7 +435,6 @@ class EdgeAlign(Operator):
         self._overlap = ov if ref is None else ref + 0.1 * (ov - ref)
         if self._lost:
             self.counts["relocalised"] += 1
-            self._has_velocity = False
         self._set_state(R, tr, t_mid)
         self.counts["tracked"] += 1
         return self._row(t_last)
@@ -498,14 +504,23 @@ class EdgeAlign(Operator):
         R_wc = R.T
         return (t_last, -(R_wc @ tr), np.asarray(rot_to_quat(R_wc)), self._xi.copy(), False)
 
+    def _coast(self, t: int) -> None:
+        """Lost for longer than ``coast_us`` by ``t`` µs: stop predicting motion."""
+        if self._lost and self._has_velocity and t - self._t_mid > self.coast_us:
+            self._has_velocity = False
+            self._xi = np.zeros(6)
+
     def _lost_row(self, t_last: int, lose: bool = False) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, bool]:
+        """A lost row at ``t_last``: the prediction (coasting at the last
+        velocity for ``coast_us``, then the last good pose held)."""
         assert self._R is not None
         if lose:
             self._lost = True
-            self._has_velocity = False
-            self._xi = np.zeros(6)
-        R_wc = self._R.T
-        return (t_last, -(R_wc @ self._tr), np.asarray(rot_to_quat(R_wc)), np.zeros(6), True)
+        self._coast(t_last)
+        R, tr = self._predict((t_last - self._t_mid) * 1e-6)
+        R_wc = R.T
+        xi = self._xi.copy() if self._has_velocity else np.zeros(6)
+        return (t_last, -(R_wc @ tr), np.asarray(rot_to_quat(R_wc)), xi, True)
 
     def _emit(self, rows: list[tuple[int, np.ndarray, np.ndarray, np.ndarray, bool]], watermark: int) -> list[Packet]:
         assert self._mark is not None
