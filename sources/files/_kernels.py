@@ -167,7 +167,7 @@ def decode_evt3(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
                     p[k] = vp
                     if track:
                         where[k] = i - 1
-                    n += (bits >> b) & 1
+                    n += int((bits >> b) & 1)
                 bx += nb
             elif typ == 0xA:
                 if have == 1:
