@@ -40,11 +40,10 @@ from tectum import EventPacket, MapPacket, Packet, PosePacket, concat
 from tectum.camera import interpolate_poses
 from tectum.evaluation.harness import shared_data, table, target
 from tectum.evaluation.metrics.trajectory import trajectory_scores
+from tectum.evaluation.suites._map_emvs import _simulate
 from tectum.plugins.map.emvs import Emvs
 from tectum.plugins.tracker.edge_align import EdgeAlign, map_points
-from tectum.sources.simulate import make_simulator
 
-SENSOR = (240, 180)
 #: a textured plane 2 m in front of a camera moving in 6 DoF (a slower, coarser ``plane_6dof``:
 #: about 0.5 Mev/s at 240x180, DAVIS240-class)
 PLANE: dict[str, Any] = {
@@ -57,17 +56,11 @@ PLANE: dict[str, Any] = {
 
 
 def simulate(scene: str | dict[str, Any], duration_us: int, **model: Any) -> tuple[EventPacket, PosePacket, str]:
-    """Events, true poses (1 kHz) and inline intrinsics of a simulated run at :data:`SENSOR`."""
-    sim = make_simulator(scene, duration_us, sensor=f"{SENSOR[0]}x{SENSOR[1]}", seed=1, **model)
-    evs: list[EventPacket] = []
-    poses: list[Packet] = []
-    for ev, side in sim.windows(20_000):
-        evs.append(ev.without_columns(*ev.columns))
-        poses += [q for q in side if isinstance(q, PosePacket)]
-    ev_all, ps = concat(evs), concat(poses)
-    assert isinstance(ev_all, EventPacket) and isinstance(ps, PosePacket)
+    """Events, true poses (1 kHz) and inline intrinsics of a simulated run at
+    240x180, seed 1 (the EMVS bench's simulation)."""
+    ev, poses, sim = _simulate(scene, duration_us, **model)
     f, cx, cy = (float(v) for v in sim.truth["camera"])
-    return ev_all, ps, f"{f};{f};{cx};{cy}"
+    return ev, poses, f"{f};{f};{cx};{cy}"
 
 
 def evo_loop(events: EventPacket, truth: PosePacket, calib: str, bootstrap_us: int, slice_us: int = 5000,
