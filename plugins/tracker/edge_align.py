@@ -252,13 +252,14 @@ class EdgeAlign(Operator):
         self._mark: int | None = None  # start of the next output packet's interval, µs
 
     def warmup(self) -> None:
-        twin = EdgeAlign(calib="40;40;23.5;17.5", window_events=200, step_events=100, min_points=6)
+        twin = EdgeAlign(calib="40;40;23.5;17.5", bootstrap_us=5_000, window_events=200, step_events=100, min_points=6,
+                         min_neighbours=0)
         twin.process_ports(self.conformance_stream())
         twin.finish()
 
     #: For the conformance check: a 48x36 sensor, small windows.
     conformance_params = {"calib": "40;40;23.5;17.5", "window_events": 200, "step_events": 100, "min_points": 6,
-                          "bootstrap_us": 5_000}
+                          "bootstrap_us": 5_000, "min_neighbours": 0}
 
     @staticmethod
     def conformance_stream() -> dict[str, Packet]:
