@@ -287,6 +287,9 @@ class Pose6Dof(Operator):
         return self._advance(final=False)
 
     def finish(self) -> list[Packet]:
+        if self.map is None and self.counts["skipped_before_map"]:
+            raise ValueError(f"tracker.pose_6dof: no map came for the {self.counts['skipped_before_map']} events: give "
+                             "map=FILE.npz (image, depth, K, pose) or connect a maps port")
         return self._advance(final=True)
 
     def _add_events(self, ev: EventPacket) -> None:

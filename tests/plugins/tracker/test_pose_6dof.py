@@ -137,6 +137,14 @@ def test_a_bad_map_is_one_line_and_a_non_zero_exit(tmp_path: Path, case: str) ->
     assert {"missing": "depth", "size": "120x90", "intrinsics": "intrinsics"}[case] in lines[0]
 
 
+def test_no_map_is_an_error_not_an_empty_trajectory() -> None:
+    ev, _, _ = _run(1.0, 30.0)
+    op = Pose6Dof()
+    op.process_ports({"events": ev.slice_time(0, 10_000)})
+    with pytest.raises(ValueError, match="no map came"):
+        op.finish()
+
+
 def test_map_checks_name_the_field(tmp_path: Path) -> None:
     _, _, m = _run(1.0, 30.0)
     for key, value, words in (("depth", -m["depth"], "<= 0"), ("K", np.eye(2), "3x3"),
