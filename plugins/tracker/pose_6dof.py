@@ -322,7 +322,8 @@ class Pose6Dof(Operator):
         pix = np.stack([u.ravel(), v.ravel()], axis=1)
         if self.camera is not None and self.camera.D is not None and np.any(self.camera.D):
             pix = self.camera.undistort_points(pix)
-        self._lut = np.ascontiguousarray(pix.reshape(h, w, 2))
+        # where the lens model has no inverse (NaN), far outside: such events add nothing
+        self._lut = np.ascontiguousarray(np.nan_to_num(pix.reshape(h, w, 2), nan=-1e6))
         self._last = np.zeros((h, w), np.int8)
 
     # -- batches -----------------------------------------------------------------------
