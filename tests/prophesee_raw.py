@@ -42,7 +42,8 @@ def check_stream(source: type, path: Path, header: str, word: str, case: tuple,
     reads what was meant and the reader (``chunk_bytes=chunk``) the same,
     on that sensor; then ``bad`` (a reserved word) inserted before
     ``words[at]`` raises a FormatError at its byte and, with ``skip_bad``,
-    leaves the rest as without it (which the reference says too)."""
+    leaves the rest as without it (which the reference says too), counted
+    as one skipped word at its bytes."""
     sensor, words, events, triggers = case
     assert reference(words)[:2] == (events, triggers)
     write_raw(path, header, words, word)
@@ -55,3 +56,8 @@ def check_stream(source: type, path: Path, header: str, word: str, case: tuple,
     assert e.value.offset == head + struct.calcsize(word) * at
     assert reference(spoiled) == (events, triggers, 1)
     assert read_raw(source, path, chunk_bytes=chunk, skip_bad=True) == (events, triggers)
+    lenient = source(str(path), chunk_bytes=chunk, skip_bad=True)
+    for _ in lenient.packets():
+        pass
+    at_byte, size = head + struct.calcsize(word) * at, struct.calcsize(word)
+    assert lenient.skipped_events == 1 and lenient.skipped_ranges == [(at_byte, at_byte + size - 1)]
