@@ -585,14 +585,7 @@ class Graph:
                 if pkt.kind == extra[1]:
                     self._deferred.append((child, extra[0], pkt))
             elif pkt.kind == extra[1]:  # a port
-                try:
-                    batches = child.join.push(extra[0], pkt)
-                except Exception as e:
-                    raise NodeError(child.id, e) from e
-                for b in batches:
-                    self._dispatch(child, b, out)
-                if child.settles:
-                    self._settle(child, out)
+                self._feed(child, child.join.push, extra[0], pkt, out)
 
     def _run(self, rec: _Node, pkt: Packet, out: list[Delivery]) -> None:
         # The hot path of one-input operators (event by event: once per
@@ -644,14 +637,19 @@ class Graph:
             if child.settles and port in child.feedback_ports:
                 self._deferred.append((child, port, mark))
                 continue
-            try:
-                batches = child.join.advance(port, mark)  # type: ignore[union-attr]
-            except Exception as e:
-                raise NodeError(child.id, e) from e
-            for b in batches:
-                self._dispatch(child, b, out)
-            if child.settles:
-                self._settle(child, out)
+            self._feed(child, child.join.advance, port, mark, out)  # type: ignore[union-attr]
+
+    def _feed(self, child: _Node, into: Any, port: str, x: Any, out: list[Delivery]) -> None:
+        """``into(port, x)`` on ``child``'s join (push, advance or end), then
+        run ``child`` on what it releases."""
+        try:
+            batches = into(port, x) if x is not END else into(port)
+        except Exception as e:
+            raise NodeError(child.id, e) from e
+        for b in batches:
+            self._dispatch(child, b, out)
+        if child.settles:
+            self._settle(child, out)
 
     def _drain(self, out: list[Delivery]) -> None:
         """Deliver what waits on feedback edges: packets, output marks, ends."""
@@ -661,18 +659,8 @@ class Graph:
             if child.done:
                 continue
             join: Any = child.join
-            try:
-                if x is END:
-                    batches = join.end(port)
-                elif isinstance(x, int):
-                    batches = join.advance(port, x)
-                else:
-                    batches = join.push(port, x)
-            except Exception as e:
-                raise NodeError(child.id, e) from e
-            for b in batches:
-                self._dispatch(child, b, out)
-            self._settle(child, out)
+            self._feed(child, join.end if x is END else join.advance if isinstance(x, int) else join.push, port, x,
+                       out)
 
     def _settle(self, rec: _Node, out: list[Delivery]) -> None:
         """A node with feedback ports ends once its other inputs have ended

@@ -93,11 +93,16 @@ def pipeline_dict(p: Pipeline, source_params: Mapping[str, Mapping[str, Any]] | 
             out["source"].append(entry)
         elif s.role == "operator":
             params = dict(s.params)
-            if s.inputs and s.ports:
+            ports: dict[str, Any] = {q: {"from": up, "delay_us": s.delays[q]} if q in s.delays else up
+                                     for q, up in s.ports.items()}  # a delayed port as a file gives it
+            if s.inputs and ports:
                 inp: Any = list(s.inputs)
-                params.update(s.ports)
+                if any(q in s.delays for q in ports):
+                    raise NotShardable(f"node {s.id!r}: a delayed port beside plain inputs cannot travel to a "
+                                       "worker; name every input by its port")
+                params.update(ports)
             else:
-                inp = dict(s.ports) if s.ports else list(s.inputs)
+                inp = ports if ports else list(s.inputs)
             op: dict[str, Any] = {"id": s.id, "name": s.name, "input": inp, "params": params, "buffer": s.buffer}
             if s.offload is not None:
                 op["offload"] = s.offload

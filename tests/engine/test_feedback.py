@@ -322,3 +322,17 @@ def test_time_shards_refuse_a_loop() -> None:
 
     with pytest.raises(NotShardable, match=r"feedback loop acc -> echo"):
         warmup_of(_bare(tectum.Pipeline.delayed("echo", 5)).validate())
+
+
+def test_a_delayed_edge_travels_to_a_worker() -> None:
+    """The dict a shard's worker rebuilds the pipeline from keeps the delay."""
+    from tectum.scale import pipeline_dict
+
+    p = tectum.Pipeline()
+    cam = p.source("pattern:", id="cam")
+    p.op("map.emvs", events=cam, poses=p.delayed("gt", 1500), id="m")
+    p.source("pattern:", id="gt")
+    d = pipeline_dict(p)
+    assert d["op"][0]["input"]["poses"] == {"from": "gt", "delay_us": 1500}
+    back = tectum.Pipeline.from_dict(d)["m"]
+    assert back.delays == {"poses": 1500} and back.ports["poses"] == "gt"
