@@ -229,8 +229,9 @@ class Pipeline:
             id = "rf"
             name = "filter.refractory"
             input = "cam"         # or a list, merged by timestamp,
-                                  # or named ports: { events = "cam", poses = "gt" },
-                                  # a delayed one: { maps = { from = "m", delay_us = 2000 } }
+                                  # or named ports: { events = "cam", poses = "gt" }
+            ports = { maps = { from = "m", delay_us = 2000 } }  # named ports (beside
+                                  # or instead of input), here a delayed one
             params = { period_us = 1000 }
             offload = false       # true: run in a worker thread
             [[sink]]
@@ -267,15 +268,16 @@ class Pipeline:
             p.source(path_arg(d["uri"]), id=d.get("id"), repair=d.get("repair"), **d.get("params", {}))
         for i, d in enumerate(data.get("op", [])):
             w = where("op", i, d)
-            check_keys(d, {"id", "name", "input", "params", "offload", "buffer"}, w)
-            if "name" not in d or "input" not in d:
-                raise PipelineError(f"{w}: needs 'name' and 'input'")
-            inp = d["input"]
+            check_keys(d, {"id", "name", "input", "ports", "params", "offload", "buffer"}, w)
+            if "name" not in d or ("input" not in d and "ports" not in d):
+                raise PipelineError(f"{w}: needs 'name' and 'input' (or 'ports')")
+            inp = d.get("input")
+            ports = dict(d.get("ports", {}))
             if isinstance(inp, Mapping):
-                inp = {k: _delayed_from(v, f"{w}: port {k!r}") if isinstance(v, Mapping) else v
-                       for k, v in inp.items()}
+                inp, ports = None, {**inp, **ports}
+            ports = {k: _delayed_from(v, f"{w}: port {k!r}") if isinstance(v, Mapping) else v for k, v in ports.items()}
             p.op(d["name"], inp, id=d.get("id"), offload=d.get("offload"), buffer=d.get("buffer", 64),
-                 **d.get("params", {}))
+                 **ports, **d.get("params", {}))
         for i, d in enumerate(data.get("sink", [])):
             w = where("sink", i, d)
             check_keys(d, {"id", "uri", "input", "params", "policy", "buffer"}, w)

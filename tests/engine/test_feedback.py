@@ -272,6 +272,10 @@ def test_delayed_edges_from_a_file(tmp_path: Any) -> None:
                  '[[op]]\nid = "b"\nname = "tracker.angular_velocity"\ninput = "a"\n')
     p = tectum.Pipeline.from_toml(f)
     assert p["a"].ports["poses"] == "b" and p["a"].delays == {"poses": 2000}
+    f.write_text('[[source]]\nid = "cam"\nuri = "pattern:"\n[[op]]\nid = "a"\nname = "map.emvs"\ninput = "cam"\n'
+                 'ports = { poses = { from = "b", delay_us = 300 } }\n')
+    p = tectum.Pipeline.from_toml(f)
+    assert p["a"].inputs == ("cam",) and p["a"].ports["poses"] == "b" and p["a"].delays == {"poses": 300}
     f.write_text('[[source]]\nid = "cam"\nuri = "pattern:"\n[[op]]\nid = "a"\nname = "map.emvs"\n'
                  'input = { events = "cam", poses = { from = "b", delay = 2000 } }\n')
     with pytest.raises(PipelineError, match=r"\(\'a\'\): port 'poses': a delayed input is"):
