@@ -271,10 +271,11 @@ class Pipeline:
             check_keys(d, {"id", "name", "input", "ports", "params", "offload", "buffer"}, w)
             if "name" not in d or ("input" not in d and "ports" not in d):
                 raise PipelineError(f"{w}: needs 'name' and 'input' (or 'ports')")
-            inp = d.get("input")
+            inp: Any = d.get("input")
             ports = dict(d.get("ports", {}))
             if isinstance(inp, Mapping):
-                inp, ports = None, {**inp, **ports}
+                ports = {**inp, **ports}
+                inp = None
             ports = {k: _delayed_from(v, f"{w}: port {k!r}") if isinstance(v, Mapping) else v for k, v in ports.items()}
             p.op(d["name"], inp, id=d.get("id"), offload=d.get("offload"), buffer=d.get("buffer", 64),
                  **ports, **d.get("params", {}))
