@@ -53,7 +53,7 @@ SENSOR = "240x180"
 CASES = [("plane", 0.5, 30.0, 2.0, 300_000), ("plane", 1.0, 100.0, 2.0, 300_000),
          ("plane", 2.0, 300.0, 4.0, 200_000), ("plane", 3.0, 1000.0, 10.0, 100_000),
          ("boxes", 0.5, 30.0, 2.0, 300_000), ("boxes", 1.0, 100.0, 2.0, 200_000)]
-QUICK = [CASES[0], ("plane", 3.0, 1000.0, 10.0, 40_000)]
+QUICK = [("plane", 0.5, 30.0, 2.0, 200_000), ("plane", 3.0, 1000.0, 10.0, 30_000)]
 #: offset of the APS frame's log, ``log(I + eps)`` with I in [0, 1] (see the module)
 SLIDER_EPS = 0.3
 
