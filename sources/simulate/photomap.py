@@ -43,6 +43,9 @@ def scene_map(scene: str | Mapping[str, Any], t_us: float = 0.0, *, sensor: Any 
     ys, xs = (a.ravel().astype(np.float64) for a in np.mgrid[0:h, 0:w])
     _, _, _, depth = sim.probe(xs, ys, float(t_us))
     depth = np.where(np.isfinite(depth) & (depth > 0), depth, np.nan).reshape(h, w)
+    if not np.isfinite(depth).any():
+        raise ValueError(f"scene_map: nothing in view at {t_us:g} µs has a finite depth (a panorama or image-plane "
+                         "objects only): no map to track against")
     cs = sim.cs
     K = np.array([[cs.f, 0.0, cs.cx], [0.0, cs.f, cs.cy], [0.0, 0.0, 1.0]])
     R, p = sim.pose(float(t_us) * 1e-6)

@@ -154,6 +154,10 @@ def test_map_checks_name_the_field(tmp_path: Path) -> None:
             load_map(str(tmp_path / "m.npz"))
     with pytest.raises(FormatError, match="no such map"):
         Pose6Dof(map=str(tmp_path / "absent.npz"))
+    from tectum.sources.simulate.photomap import scene_map
+
+    with pytest.raises(ValueError, match="finite depth"):  # a panorama: nothing to map
+        scene_map("rotation", 0, sensor="64x48")
 
 
 def _turned(m: dict[str, np.ndarray], deg: float) -> dict[str, np.ndarray]:
