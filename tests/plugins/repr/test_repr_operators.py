@@ -99,7 +99,10 @@ def test_small_dtypes_saturate(make, dtype, n_hot):
     """Each event moves its pixel towards the dtype's limit and stops there
     (a signed sum comes back from it), in event order: a slow reference."""
     ev = _hot(n_hot)  # one window: every event before 20 ms
+    # in pieces the window fills the operator's state; in one packet that ends after it, the frame directly
     out = concat(feed(make(window_us=25_000, dtype=dtype), list(ev.batches(997))))
+    whole = concat(feed(make(window_us=25_000, dtype=dtype), [ev.with_interval(ev.t_start, 30_000)]))
+    assert np.array_equal(whole.images, out.images)
     lo, hi = np.iinfo(dtype).min, np.iinfo(dtype).max
     ref = np.zeros(out.images.shape[1:], np.int64)
     stops = 0  # events the limit stopped
