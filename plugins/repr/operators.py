@@ -20,9 +20,9 @@ __all__ = ["EventFrame", "Accumulate", "CountImage", "TimeSurface", "Sae", "Voxe
 
 
 class _Image(Windowed):
-    """A per-window image that starts at zero. One kernel call per packet
-    accumulates every window the packet completes into its own frame of one
-    fresh block (the packet's images, no copy); the window in progress
+    """A per-window image that starts at zero. One kernel call per block of
+    frames accumulates the windows a packet completes, each into its own
+    frame (a block is a packet's images, no copy); the window in progress
     lives in a private state image that remembers where it was touched.
     ``dtype``: an integer numpy dtype; values saturate at its limits."""
 
@@ -82,18 +82,16 @@ class _Image(Windowed):
             self._kernel(pk.x, pk.y, pk.p, splits, np.zeros((0, *self.state.shape), self.dtype))
             return
         g = max(1, BLOCK_BYTES // self.state.nbytes)
-        if n_win <= g:  # one block: no slicing
-            self._pending = [np.zeros((n_win, *self.state.shape), self.dtype)]
-            self._kernel(pk.x, pk.y, pk.p, splits, self._pending[0])
-            frames.extend(zip(stamps.tolist(), self._pending[0]))
-            return
         self._pending = []
         for a in range(0, n_win, g):
             b = min(a + g, n_win)
-            lo = int(splits[a - 1]) if a else 0
-            hi = int(splits[b - 1]) if b < n_win else n
             block = np.zeros((b - a, *self.state.shape), self.dtype)
-            self._kernel(pk.x[lo:hi], pk.y[lo:hi], pk.p[lo:hi], splits[a:b] - lo, block)
+            if b - a == n_win:  # one block: no slicing
+                self._kernel(pk.x, pk.y, pk.p, splits, block)
+            else:
+                lo = int(splits[a - 1]) if a else 0
+                hi = int(splits[b - 1]) if b < n_win else n
+                self._kernel(pk.x[lo:hi], pk.y[lo:hi], pk.p[lo:hi], splits[a:b] - lo, block)
             self._pending.append(block)
         frames.extend(zip(stamps.tolist(), (im for block in self._pending for im in block)))
 
