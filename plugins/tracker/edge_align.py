@@ -579,11 +579,11 @@ def _points_scene(duration_us: int, sensor: tuple[int, int], f: float, speed: fl
     pos[:, 0] = speed * tp * 1e-6
     poses = PosePacket(tp, position=pos, orientation=np.tile([0, 0, 0, 1.0], (len(tp), 1)), t_start=0,
                        t_end=duration_us + 1)
-    depth = np.full((h, w), np.nan, np.float32)
+    dmap = np.full((h, w), np.nan, np.float32)
     u0 = np.round(f * X / Z + cx).astype(np.int64)
     v0 = np.round(f * Y / Z + cy).astype(np.int64)
-    depth[v0, u0] = Z
+    dmap[v0, u0] = Z
     K = np.array([[f, 0, cx], [0, f, cy], [0, 0, 1.0]])
-    maps = MapPacket(np.array([0], np.int64), depth=depth[None], K=K[None],
+    maps = MapPacket(np.array([0], np.int64), depth=dmap[None], K=K[None],
                      pose=np.array([[0, 0, 0, 0, 0, 0, 1.0]]), t_start=0, t_end=duration_us + 1)
     return {"events": ev, "maps": maps, "poses": poses}
