@@ -12,12 +12,13 @@ step of ``step_events`` events:
    positions, one bilinear vote each), blurred by a Gaussian of σ
    ``sigma_px`` px and scaled so its brightest 0.5 % of pixels are 1
    (clipped there);
-2. the map's points (3-D, world) are projected with the pose predicted by
-   constant velocity from the last two steps;
+2. the map's points (3-D, world) are projected with the pose predicted at
+   constant velocity (the steps' velocities smoothed by ``velocity_gain``);
 3. the pose moves so the points land on bright pixels: Levenberg-Marquardt
    on SE(3) with analytic Jacobians (the image gradient is computed once per
    image, the points are reprojected per iteration) of ``Σ ρ(1 - E(u))``,
-   ρ Huber at ``huber``, coarse to fine over ``levels`` blurs (σ doubling
+   ρ Huber at ``huber``, plus a prior at the prediction (σ ``prior_rad``,
+   ``prior_m``, counted like one point), coarse to fine over ``levels`` blurs (σ doubling
    per coarser level: a wider basin first). EVO states its alignment as an
    inverse-compositional image alignment of the event image against the
    map's projection; this is the forward (Gauss-Newton on the points)
@@ -28,7 +29,9 @@ event (µs), moved there by the estimated velocity.
 
 Maps (port ``maps``, :class:`~tectum.MapPacket` rows with ``depth`` m NaN
 unknown, ``K`` and ``pose`` world-from-camera) become their back-projected
-points in the world (at most ``max_points``, thinned evenly); a step uses
+points in the world (pixels with fewer than ``min_neighbours`` neighbours of
+consistent depth within 3 px dropped: EMVS leaves scattered outliers; at
+most ``max_points``, thinned evenly); a step uses
 the latest map stamped at or before its last event (EVO aligns to the
 latest map). A map whose size differs from the events' sensor, or whose
 intrinsics differ from the calibration's by more than 1 %, is an error.
@@ -49,14 +52,13 @@ view; when its aligned points land on edges (E ≥ 0.5) for less than
 running overlap of the good steps on the same map (how much of a map lands
 on edges depends on the scene and the view: a relative test); or when the
 pose moved farther from the last good one than ``max_speed`` m/s and
-``max_rate`` rad/s allow (plus 2 cm, 0.02 rad). A lost row holds the prediction, flagged ``lost`` (never a confident
-guess): the last good pose moved on at the last velocity for ``coast_us``,
-then held with zero velocities; each is counted in ``counts``. While
-lost, each step tries to relocalise from that prediction with one coarser
-level, and
-resumes when the overlap is back to ``relocalise_overlap`` times the
-running overlap (twice ``min_overlap`` on a new map) and the jump is
-plausible.
+``max_rate`` rad/s allow (plus 2 cm, 0.02 rad). A lost row holds the
+prediction, flagged ``lost`` (never a confident guess): the last good pose
+moved on at the last velocity for ``coast_us``, then held with zero
+velocities; each is counted in ``counts``. While lost, each step tries to
+relocalise from that prediction with one coarser level, and resumes when
+the overlap is back to ``relocalise_overlap`` times the running overlap
+(twice ``min_overlap`` on a new map) and the jump is plausible.
 
 Output (:class:`~tectum.PosePacket`): ``position`` (m), ``orientation``
 (x, y, z, w, world-from-camera), ``linear_velocity`` (m/s, world),
