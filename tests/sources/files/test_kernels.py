@@ -149,3 +149,14 @@ def test_dat_unrolls_wraps_in_any_chunking(n, cuts, t0, n_jumps, n_back):
         K.decode_dat(part, state, t, x, y, p)
         got += list(zip(t.tolist(), x.tolist(), y.tolist(), p.tolist()))
     assert got == ref_dat(times.tolist(), data.tolist())
+
+
+def test_wrap_step_at_exactly_half_the_range():
+    """The 32-bit clocks (DAT, AEDAT 2.0) unroll to the nearest time: a fall
+    by more than half the range is one wrap forward, a rise by more than half
+    one back (a corrupt value); exactly half either way is no wrap; nothing
+    before the first time."""
+    half = 1 << 31
+    for have, last, raw, step in [(1, half + 10, 10, 0), (1, half + 10, 9, 1), (1, 10, half + 10, 0),
+                                  (1, 10, half + 11, -1), (1, 7, 7, 0), (0, half + 10, 9, 0), (0, 10, half + 11, 0)]:
+        assert K._wrap_step(np.int64(have), np.int64(last), np.int64(raw), np.int64(half)) == step, (last, raw)
