@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 
+from tectum import EventPacket
 from tectum.evaluation.metrics import binomial_pass
 from tectum.plugins.filter import BackgroundActivity, background_activity_kernel
 from tectum.plugins.filter._state import padded_timestamps
@@ -64,8 +65,6 @@ def test_streams_longer_than_the_int32_span(dt_us):
     """Hours of events with gaps of 2^29..2^31 µs and packets spanning more
     than 2^29 µs: the state's origin moves on and the output is the slow
     reference's."""
-    from tectum import EventPacket
-
     rng = np.random.default_rng(3)
     n = 4000
     steps = rng.integers(0, 400, n)
@@ -90,8 +89,6 @@ def _across_the_span(t0: int, dt_us: int, sensor: tuple[int, int], spans: float,
     ``b + 2^30 - 1``, ``b + 2^30``, ``b + 2^30 + 1`` and two neighbours exactly ``dt_us`` apart across it;
     and the packet cuts that end one packet exactly 2^30 µs after the origin (no move) and the next one
     µs past it (the origin moves to that packet's start, ``b + 2^30``)."""
-    from tectum import EventPacket
-
     rng = np.random.default_rng(seed)
     w, h = sensor
     gap = min(2 * dt_us, 2**26)
@@ -145,8 +142,6 @@ def test_the_origin_moves_on_when_a_packet_ends_past_2_30_us():
     and moves to a packet's start once that packet ends more than 2^30 µs
     after it: not earlier (each move is a pass over the whole state), not
     later (relative times must fit in int32)."""
-    from tectum import EventPacket
-
     t0 = 10**12 + 3
     op = BackgroundActivity(dt_us=500)
     for a, b, base in [(t0, t0 + 10, t0), (t0 + SPAN - 5, t0 + SPAN, t0), (t0 + SPAN, t0 + SPAN + 1, t0 + SPAN),
@@ -160,8 +155,6 @@ def test_the_origin_moves_on_when_a_packet_ends_past_2_30_us():
 def test_the_state_is_one_int32_per_pixel_below_2_29_us(dt_us, dtype):
     """The memory the class promises: one int32 per pixel plus a one-pixel
     border, (W + 2) x (H + 2) of them; int64 from a dt_us of 2^29 µs."""
-    from tectum import EventPacket
-
     op = BackgroundActivity(dt_us=dt_us)
     op.process(EventPacket.from_arrays([5], [1], [2], [1], sensor=(7, 4)))
     assert op.last is not None and op.last.dtype == dtype and op.last.shape == (1, 6, 9)
