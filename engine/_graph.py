@@ -46,6 +46,7 @@ Delivery = tuple[str, Any]  # (sink id, "tap:" + id or "offload:" + id; packet, 
 Batch = dict[str, Packet]  # one packet per port
 K = TypeVar("K", bound=Hashable)
 _OP, _SINK, _MERGE, _PORT, _FEEDBACK = 0, 1, 2, 3, 4
+_EVENTS = Kind.EVENTS
 
 
 class PortJoin(Generic[K]):
@@ -353,7 +354,7 @@ class Merger:
 class _Node:
     """A node's wiring for the hot path (one attribute load per field)."""
 
-    __slots__ = ("id", "op", "consumes", "st", "routes", "tapped", "join", "ports", "offload", "ticks",
+    __slots__ = ("id", "op", "consumes", "st", "routes", "chain", "tapped", "join", "ports", "offload", "ticks",
                  "advances", "settles", "feedback_from", "feedback_ports", "done")
 
     def __init__(self, nid: str) -> None:
@@ -362,6 +363,7 @@ class _Node:
         self.op: Operator | None = None
         self.consumes: tuple[Kind, ...] = ()
         self.routes: tuple[tuple[int, Any, Any], ...] = ()
+        self.chain: _Node | None = None  # the only route, when it is a one-input operator and no tap
         self.tapped = False
         self.join: PortJoin[str] | Merger | None = None
         self.ports: Mapping[str, str] = {}
@@ -430,7 +432,11 @@ class Graph:
     def push(self, node_id: str, pkt: Packet) -> list[Delivery]:
         """Emit ``pkt`` as the output of ``node_id`` (a source, usually)."""
         out: list[Delivery] = []
-        self._emit(self._recs[node_id], pkt, out)
+        rec = self._recs[node_id]
+        if rec.chain is not None:
+            self._run(rec.chain, pkt, out)
+        else:
+            self._emit(rec, pkt, out)
         if self._deferred:
             self._drain(out)
         return out
@@ -542,6 +548,8 @@ class Graph:
                 else:
                     routes.append((_OP, crec, None))
             rec.routes = tuple(routes)
+            if len(routes) == 1 and routes[0][0] == _OP and not rec.tapped:
+                rec.chain = routes[0][1]
         for loop in plan.loops:  # inside a loop, each node moves its children's ports on by its output mark
             for nid in loop:
                 recs[nid].advances = tuple((recs[c], q) for c in plan.nodes[nid].children if c in loop
@@ -589,7 +597,8 @@ class Graph:
 
     def _run(self, rec: _Node, pkt: Packet, out: list[Delivery]) -> None:
         # The hot path of one-input operators (event by event: once per
-        # event per operator), so _call's work is inlined here.
+        # event per operator), so _call's work, the event counts and a
+        # chain's next step are inlined here.
         if pkt.kind not in rec.consumes:
             self._emit(rec, pkt, out)  # passes by
             return
@@ -598,7 +607,10 @@ class Graph:
             return
         st = rec.st
         st.packets_in += 1
-        st.took(pkt)
+        if pkt.kind is _EVENTS:
+            st.events_in += pkt.t.shape[0]
+        else:
+            st.took(pkt)
         t0 = perf_counter_ns()
         try:
             res = rec.op.process(pkt)  # type: ignore[union-attr]
@@ -609,10 +621,17 @@ class Graph:
         except Exception as e:
             raise NodeError(rec.id, e) from e
         st.busy_ns += perf_counter_ns() - t0
+        nxt = rec.chain
         for q in res if type(res) is list else as_packets(res):
             st.packets_out += 1
-            st.gave(q)
-            self._emit(rec, q, out)
+            if q.kind is _EVENTS:
+                st.events_out += q.t.shape[0]
+            else:
+                st.gave(q)
+            if nxt is not None:
+                self._run(nxt, q, out)
+            else:
+                self._emit(rec, q, out)
 
     def _dispatch(self, rec: _Node, item: Packet | Batch, out: list[Delivery]) -> None:
         if rec.offload:
