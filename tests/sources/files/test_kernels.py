@@ -151,6 +151,26 @@ def test_dat_unrolls_wraps_in_any_chunking(n, cuts, t0, n_jumps, n_back):
     assert got == ref_dat(times.tolist(), data.tolist())
 
 
+def test_dat_wrap_exactly_at_a_chunk_or_block_boundary():
+    """A wrap between the last record of one call (or of one 4096-record
+    vector block) and the first of the next counts as one too."""
+    n = 4096 + 10
+    times = (np.arange(n, dtype=np.uint64) + np.uint64((1 << 32) - 4096)) & np.uint64(0xFFFFFFFF)
+    data = np.random.default_rng(1).integers(0, 1 << 32, n, dtype=np.uint64)
+    rec = times | (data << np.uint64(32))
+    want = ref_dat(times.tolist(), data.tolist())
+    assert want[4096][0] == 1 << 32
+    for cuts in ([], [4096], [4095, 4096]):
+        state = np.zeros(K.DAT_STATE, np.int64)
+        got = []
+        for part in np.split(rec, cuts):
+            t, x, y = np.empty(len(part), np.int64), np.empty(len(part), np.uint16), np.empty(len(part), np.uint16)
+            p = np.empty(len(part), np.int8)
+            K.decode_dat(part, state, t, x, y, p)
+            got += list(zip(t.tolist(), x.tolist(), y.tolist(), p.tolist()))
+        assert got == want, cuts
+
+
 def test_wrap_step_at_exactly_half_the_range():
     """The 32-bit clocks (DAT, AEDAT 2.0) unroll to the nearest time: a fall
     by more than half the range is one wrap forward, a rise by more than half
