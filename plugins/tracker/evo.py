@@ -23,17 +23,24 @@ from tectum import Expansion, Kind, Macro, Port
 
 __all__ = ["Evo"]
 
+#: parameters handed to ``tracker.edge_align`` and to ``map.emvs``
+_TRACKER = ("bootstrap_us", "plane_depth", "window_events", "step_events")
+_MAPPER = ("planes", "min_depth", "max_depth", "keyframe_baseline", "min_baseline", "segment_us")
+
 
 class Evo(Macro):
     """EVO: ``tracker.edge_align`` and ``map.emvs`` in a loop, bootstrapped
     from the source's first poses (or a plane). Expands into
-    ``<id>.tracker`` and ``<id>.mapper`` (see the module).
+    ``<id>.tracker`` and ``<id>.mapper`` (see the module). Each parameter
+    but ``calib`` and ``delay_us`` goes to one part; one not given keeps
+    that operator's own default (see ``tracker.edge_align``, ``map.emvs``).
 
     Parameters
     ----------
     calib:
         Calibration for both nodes (file or inline ``fx;fy;cx;cy[;...]``,
         px); defaults to the calibration beside the recording.
+
     delay_us:
         Delay of the maps on their way back to the tracker, µs: a map made
         by time ``t`` is used from ``t + delay_us``. At least the mapper's
@@ -70,18 +77,18 @@ class Evo(Macro):
         "poses": Port(Kind.POSES, required=False, doc="bootstrap poses for the tracker (e.g. ground truth)"),
     }
 
-    def __init__(self, calib: str = "", delay_us: int = 20_000, bootstrap_us: int = 0, plane_depth: float = 0.0,
-                 window_events: int = 4000, step_events: int = 1000, planes: int = 100, min_depth: float = 0.3,
-                 max_depth: float = 5.0, keyframe_baseline: float = 0.15, min_baseline: float = 0.02,
-                 segment_us: int = 10_000) -> None:
+    def __init__(self, calib: str = "", delay_us: int = 20_000, bootstrap_us: int | None = None,
+                 plane_depth: float | None = None, window_events: int | None = None, step_events: int | None = None,
+                 planes: int | None = None, min_depth: float | None = None, max_depth: float | None = None,
+                 keyframe_baseline: float | None = None, min_baseline: float | None = None,
+                 segment_us: int | None = None) -> None:
         if delay_us < 1:
             raise ValueError(f"tracker.evo: delay_us must be >= 1 µs, got {delay_us}")
         self.calib, self.delay_us = calib, int(delay_us)
-        self.tracker: dict[str, Any] = {"bootstrap_us": bootstrap_us, "plane_depth": plane_depth, "window_events": window_events,
-                        "step_events": step_events}
-        self.mapper: dict[str, Any] = {"planes": planes, "min_depth": min_depth, "max_depth": max_depth,
-                       "keyframe_baseline": keyframe_baseline, "min_baseline": min_baseline,
-                       "segment_us": segment_us}
+        # only what was given goes to the parts: the rest keeps each operator's own default
+        given = {k: v for k, v in locals().items() if k not in ("self", "calib", "delay_us") and v is not None}
+        self.tracker: dict[str, Any] = {k: given[k] for k in _TRACKER if k in given}
+        self.mapper: dict[str, Any] = {k: given[k] for k in _MAPPER if k in given}
 
     def expand(self, x: Expansion) -> None:
         calib: dict[str, Any] = {"calib": self.calib} if self.calib else {}

@@ -38,6 +38,24 @@ def test_expansion_wires_the_loop_and_the_bootstrap() -> None:
     assert plan.loops == (("evo.tracker", "evo.mapper"),)
 
 
+def test_parameters_not_given_keep_each_operators_default() -> None:
+    """The macro passes on only what it was given: the tracker's window and
+    step are ``tracker.edge_align``'s own defaults, not numbers of the macro."""
+    import inspect
+
+    from tectum.plugins.tracker.edge_align import EdgeAlign
+
+    p = tectum.Pipeline()
+    cam = p.source("pattern:", id="cam")
+    p.op("tracker.evo", events=cam, id="evo", calib="40;40;20;15", step_events=500, min_depth=0.5)
+    plan = p.validate()
+    tr, mp = plan.nodes["evo.tracker"].params, plan.nodes["evo.mapper"].params
+    assert dict(tr) == {"calib": "40;40;20;15", "step_events": 500}
+    assert dict(mp) == {"calib": "40;40;20;15", "min_depth": 0.5}
+    op = plan.nodes["evo.tracker"].instantiate()
+    assert op.window_events == inspect.signature(EdgeAlign).parameters["window_events"].default
+
+
 def test_cli_writes_poses_and_maps(tmp_path: Any) -> None:
     """Bootstrapped over the whole run from the simulator's poses: the
     trajectory is the truth, the mapper makes maps from it, and each sink
@@ -88,7 +106,8 @@ def test_tracks_after_the_bootstrap_and_is_deterministic() -> None:
     assert isinstance(est, PosePacket)
     assert sum(len(q) for q in sink.packets if q.kind == Kind.MAPS) >= 1
     after = (est.t > boot) & (est.t <= truth.t[-1]) & ~est.lost
-    assert after.sum() > 100 and est.lost[est.t > boot].mean() < 0.2
+    # 200 ms after the bootstrap at ~0.3 Mev/s: a pose per step of edge_align's default 3000 events (~55)
+    assert after.sum() > 40 and est.lost[est.t > boot].mean() < 0.2
     true_p, _, _ = tectum.camera.interpolate_poses(est.t[after], truth.t, truth.position, truth.orientation)
     err = np.linalg.norm(est.position[after] - true_p, axis=1)
     path = float(np.linalg.norm(np.diff(truth.position[truth.t > boot], axis=0), axis=1).sum())
