@@ -433,9 +433,19 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                         add(push(sid, join_consecutive(held)), arrival)
                         held, held_n = [], 0
                     arrival = trio.current_time()
+                    k = 0
                     for piece in pkt.batches(batch.max_events):
                         st.packets_out += 1
                         add(push(sid, piece), arrival)
+                        k += 1
+                        # a packet cut in many pieces (event by event) yields on the same
+                        # schedule: what it delivered is written and freed while young,
+                        # not held to the packet's end (and promoted by the GC)
+                        if not k & _CHECK_EVERY and clock() - last_yield > _SLICE_S:
+                            await out.flush()
+                            await trio.lowlevel.checkpoint()
+                            last_yield = clock()
+                            arrival = trio.current_time()
                 now = clock()
                 if now - last_yield > _SLICE_S:
                     if held:
@@ -493,6 +503,9 @@ async def _read(source: Source, out: _Outbox, st: Any) -> AsyncIterator[Packet]:
 
 #: Longest stretch (s) a source task works before letting other tasks run.
 _SLICE_S = 200e-6
+
+#: The clock is read every this many + 1 pieces of a packet (a power of 2 minus 1).
+_CHECK_EVERY = 63
 
 #: Event packets smaller than this (unpaced) are joined before they go in.
 _SMALL = 8192
