@@ -230,7 +230,8 @@ class Packet:
             lo, start = self.t_start, 0
             ev: Any = self
             if type(self) is EventPacket and not ev.columns:  # the hot case, inlined
-                x, y, p, sensor, build = ev.x, ev.y, ev.p, ev.sensor, _Build
+                x, y, p, sensor = ev.x, ev.y, ev.p, ev.sensor
+                build: Any = _Build  # makes EventPackets
                 checked = ev._checked
                 if len(runs) == n - 1:  # one event per timestamp: rows of (n, 1) views cost less than slices
                     for hi, a, b, c, d in zip([*ts, self.t_end], t.reshape(-1, 1), x.reshape(-1, 1),
@@ -578,7 +579,7 @@ class _Build(EventPacket):
     EventPacket (same slots, so the class can change) and is immutable."""
 
     __slots__ = ()
-    __setattr__ = object.__setattr__
+    __setattr__ = object.__setattr__  # type: ignore[assignment]
 
     def __init__(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray,
                  sensor: tuple[int, int], t_start: int, t_end: int, columns: Mapping[str, np.ndarray],
