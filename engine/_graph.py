@@ -537,7 +537,8 @@ class Graph:
                 node = plan.nodes[child]
                 crec = recs[child]
                 if node.role == "sink":
-                    routes.append((_SINK, child, tuple(node.cls.consumes)))  # type: ignore[attr-defined]
+                    takes = tuple(node.cls.consumes)  # type: ignore[attr-defined]
+                    routes.append((_SINK, child, None if Kind.ANY in takes else takes))  # None: every kind
                 elif crec.ports:
                     for port, up in crec.ports.items():
                         if up == nid:
@@ -578,7 +579,7 @@ class Graph:
             if how == _OP:
                 self._run(child, pkt, out)
             elif how == _SINK:
-                if pkt.kind in extra or Kind.ANY in extra:
+                if extra is None or pkt.kind in extra:
                     out.append((child, pkt))
                 else:  # a kind the sink does not take: counted as not written
                     self.stats.nodes[child].refuse(pkt.kind, pkt.t.shape[0])

@@ -23,7 +23,7 @@ from ._boundary import Guard, Repair
 from ._edge import Edge
 from ._graph import END, Delivery, Graph
 from ._operator import Sink, Source
-from ._packet import EventPacket, Packet, join_consecutive
+from ._packet import EventPacket, Kind, Packet, join_consecutive
 from ._pipeline import BatchPolicy, EdgePolicy, Pipeline, Plan
 from ._registry import Registry
 from ._stats import Stats
@@ -201,7 +201,10 @@ async def _sink_task(sid: str, sink: Sink, edge: Edge, stats: Stats) -> None:
         t0 = time.perf_counter_ns()
         for pkt, _ in items:
             st.packets_in += 1
-            st.took(pkt)
+            if pkt.kind is _EVENTS:
+                st.events_in += pkt.t.shape[0]
+            else:
+                st.took(pkt)
             try:
                 if sync_write is not None:
                     sync_write(pkt)
@@ -500,6 +503,8 @@ async def _read(source: Source, out: _Outbox, st: Any) -> AsyncIterator[Packet]:
             st.busy_ns += clock() - t0
         yield pkt
 
+
+_EVENTS = Kind.EVENTS
 
 #: Longest stretch (s) a source task works before letting other tasks run.
 _SLICE_S = 200e-6
