@@ -1,0 +1,75 @@
+"""The engine's fast paths build the same packets and counts as the plain ones."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import tectum
+from tectum import EventPacket
+from tectum.sinks.null import NullSink
+from tectum.testing import ListSource
+
+
+def _events(t: np.ndarray) -> EventPacket:
+    n = len(t)
+    rng = np.random.default_rng(0)
+    return EventPacket(t.astype(np.int64), rng.integers(0, 8, n).astype(np.uint16),
+                       rng.integers(0, 6, n).astype(np.uint16), np.where(rng.random(n) < 0.5, 1, -1).astype(np.int8),
+                       sensor=(8, 6), t_start=int(t[0]) - 3, t_end=int(t[-1]) + 5)
+
+
+@pytest.mark.parametrize("t", [np.arange(0, 50, 2), np.array([0, 0, 1, 4, 4, 4, 9, 10])], ids=["distinct", "runs"])
+@pytest.mark.parametrize("checked", [False, True])
+def test_event_by_event_pieces_are_plain_immutable_views(t: np.ndarray, checked: bool) -> None:
+    pk = _events(t)
+    if checked:
+        pk.validate()
+    pieces = list(pk.batches(1))
+    lo, i = pk.t_start, 0
+    for q in pieces:
+        assert type(q) is EventPacket and q.checked is checked
+        with pytest.raises(AttributeError):
+            q.t_end = 0  # type: ignore[misc]
+        m = len(q)
+        assert m >= 1 and np.all(q.t == q.t[0])  # one timestamp per packet
+        for name in ("t", "x", "y", "p"):
+            assert np.array_equal(q[name], pk[name][i:i + m])
+        assert q.t_start == lo and q.t[0] >= lo
+        lo, i = q.t_end, i + m
+    assert i == len(pk) and lo == pk.t_end and pieces[-1].t_end == pk.t_end
+    assert [int(q.t[0]) for q in pieces] == sorted(set(t.tolist()))
+    # a trusted view is a plain, immutable EventPacket too
+    v = pk.slice_time(int(t[1]), int(t[-1]))
+    assert type(v) is EventPacket and v.checked is checked
+    with pytest.raises(AttributeError):
+        v.x = v.y  # type: ignore[misc]
+
+
+class _Twice(tectum.Operator):
+    """Emits each packet twice (a chain's next step must see both)."""
+
+    name = "filter.twice_hot_path_test"
+
+    def process(self, packet: EventPacket) -> list[EventPacket]:
+        return [packet, packet]
+
+
+def test_event_by_event_chain_counts_and_taps() -> None:
+    pk = _events(np.arange(0, 300, 3))
+
+    def build() -> tectum.Pipeline:
+        p = tectum.Pipeline(max_events=1)
+        a = p.op(_Twice(), p.source(ListSource([pk]), id="src"), id="a")
+        b = p.op(_Twice(), a, id="b")
+        p.sink(NullSink(), b, id="sink")
+        return p
+
+    stats = tectum.run(build())
+    n = len(pk)
+    assert stats.nodes["a"].events_in == n and stats.nodes["a"].events_out == 2 * n
+    assert stats.nodes["b"].events_in == 2 * n and stats.nodes["b"].events_out == 4 * n
+    assert stats.nodes["sink"].events_in == 4 * n and stats.nodes["sink"].packets_in == 4 * n
+    with tectum.Stepper(build(), outputs=["a"]) as s:  # a tapped node still hands its outputs out
+        got = s.push(pk.slice_time(0, 9))["a"]
+    assert len(got) == 2 and all(len(q) == 3 for q in got)  # a Stepper pushes packets whole
