@@ -215,6 +215,7 @@ def test_ports_from_toml(tmp_path):
 
 
 def test_ports_batch_invariance_and_stepper_agree_with_run():
+    _registry_with(Recorder)
     ev, ps = events(0, 2000, 7), poses(0, 2000, 130)
     assert_batch_invariant(Recorder, {"events": ev, "poses": ps}, max_examples=10)
     ref = feed_ports(Recorder(), {"events": [ev], "poses": [ps]})
