@@ -153,14 +153,26 @@ def test_dat_unrolls_wraps_in_any_chunking(n, cuts, t0, n_jumps, n_back):
 
 def test_dat_wrap_exactly_at_a_chunk_or_block_boundary():
     """A wrap between the last record of one call (or of one 4096-record
-    vector block) and the first of the next counts as one too."""
+    vector block) and the first of the next counts as one too, after a block
+    without a wrap (the vector loop) and after one with a wrap (record by
+    record)."""
     n = 4096 + 10
-    times = (np.arange(n, dtype=np.uint64) + np.uint64((1 << 32) - 4096)) & np.uint64(0xFFFFFFFF)
+    k = np.arange(n, dtype=np.int64)
     data = np.random.default_rng(1).integers(0, 1 << 32, n, dtype=np.uint64)
+    plain = (1 << 32) - 4096 + k  # 2^32 at record 4096
+    wrapped = np.where(k == 0, (1 << 32) - 1, (1 << 33) - (4096 - k) * (1 << 20))  # 2^32 at 1, 2^33 at 4096
+    for unrolled in (plain, wrapped):
+        check_dat_cuts(unrolled, data, [[], [4096], [4095, 4096]])
+
+
+def check_dat_cuts(unrolled, data, cuts_list):
+    """decode_dat over the 32-bit times of ``unrolled``, in calls cut at each
+    of ``cuts_list``, gives the unrolled times."""
+    times = (unrolled & 0xFFFFFFFF).astype(np.uint64)
     rec = times | (data << np.uint64(32))
     want = ref_dat(times.tolist(), data.tolist())
-    assert want[4096][0] == 1 << 32
-    for cuts in ([], [4096], [4095, 4096]):
+    assert [w[0] for w in want] == unrolled.tolist()
+    for cuts in cuts_list:
         state = np.zeros(K.DAT_STATE, np.int64)
         got = []
         for part in np.split(rec, cuts):
