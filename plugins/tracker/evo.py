@@ -40,7 +40,6 @@ class Evo(Macro):
     calib:
         Calibration for both nodes (file or inline ``fx;fy;cx;cy[;...]``,
         px); defaults to the calibration beside the recording.
-
     delay_us:
         Delay of the maps on their way back to the tracker, µs: a map made
         by time ``t`` is used from ``t + delay_us``. At least the mapper's
