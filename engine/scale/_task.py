@@ -117,8 +117,8 @@ def run_shard(task: ShardTask) -> ShardResult:
     began, cpu = time.perf_counter(), time.process_time()
     res = ShardResult(task.job, task.shard.index, host=f"{socket.gethostname()}:{os.getpid()}")
     marker = os.path.join(task.part_dir, f"attempt-{task.job:05d}-{task.shard.index:05d}-{uuid.uuid4().hex[:8]}")
-    with open(marker, "w"):
-        pass
+    with open(marker, "w") as fh:  # the worker's pid: which process ran (or died in) this attempt
+        fh.write(str(os.getpid()))
     try:
         _run(task, res)
     except (TectumError, ValueError, OSError) as e:  # bad input: reported, not retried
