@@ -86,6 +86,8 @@ def load_map(path: str) -> PhotoMap:
     """Read and check a map ``.npz`` (see the module)."""
     if not os.path.isfile(path):
         raise FormatError("no such map file (map=FILE.npz: image, depth, K, pose)", path=path)
+    if not zipfile.is_zipfile(path):  # np.load would read any other file as a pickle and say so
+        raise FormatError("not a .npz map (a zip of arrays image, depth, K, pose)", path=path)
     try:
         with np.load(path, allow_pickle=False) as z:
             missing = [k for k in ("image", "depth", "K", "pose") if k not in z.files]

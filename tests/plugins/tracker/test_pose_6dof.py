@@ -117,7 +117,7 @@ rotation_freq_hz = [2.0, 2.0, 2.0]
     assert info.returncode == 0 and "poses" in info.stdout
 
 
-@pytest.mark.parametrize("case", ["missing", "size", "intrinsics"])
+@pytest.mark.parametrize("case", ["missing", "size", "intrinsics", "not_npz"])
 def test_a_bad_map_is_one_line_and_a_non_zero_exit(tmp_path: Path, case: str) -> None:
     _, _, m = _run(1.0, 30.0)
     bad = dict(m)
@@ -127,6 +127,8 @@ def test_a_bad_map_is_one_line_and_a_non_zero_exit(tmp_path: Path, case: str) ->
         bad["image"], bad["depth"] = m["image"][:90, :120], m["depth"][:90, :120]
     mp = tmp_path / "map.npz"
     np.savez(mp, **bad)
+    if case == "not_npz":  # e.g. the scene's .toml given as the map
+        mp.write_text("fov_deg = 90.0\n")
     src = "simulate:plane_6dof?duration_us=20000&sensor=240x180"
     calib = ["--op", f"tracker.pose_6dof:map={mp}" + (",calib=100;100;119.5;89.5" if case == "intrinsics" else "")]
     run = subprocess.run([sys.executable, "-m", "tectum", "run", src, *calib, "--sink", str(tmp_path / "t.tum")],
@@ -134,7 +136,7 @@ def test_a_bad_map_is_one_line_and_a_non_zero_exit(tmp_path: Path, case: str) ->
     assert run.returncode != 0
     lines = [ln for ln in run.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "Traceback" not in run.stderr, run.stderr
-    assert {"missing": "depth", "size": "120x90", "intrinsics": "intrinsics"}[case] in lines[0]
+    assert {"missing": "depth", "size": "120x90", "intrinsics": "intrinsics", "not_npz": "not a .npz map"}[case] in lines[0]
 
 
 def test_no_map_is_an_error_not_an_empty_trajectory() -> None:
