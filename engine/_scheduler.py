@@ -3,9 +3,11 @@
 Each source runs in its own task: it reads packets, cuts or paces them by the
 pipeline's :class:`BatchPolicy`, checks them (or repairs them), then pushes
 them through the operator graph as ordinary function calls. What reaches a
-sink goes through a bounded :class:`Edge` into the sink's task. An error in
-any node cancels the others, aborts the sinks (no half-written files) and is
-raised as :class:`NodeError` naming the node.
+sink with a plain ``write`` and the ``block`` policy is written there and
+then, by the task that made it (:class:`_InlineSink`); what reaches any
+other sink goes through a bounded :class:`Edge` into the sink's task. An
+error in any node cancels the others, aborts the sinks (no half-written
+files) and is raised as :class:`NodeError` naming the node.
 """
 
 from __future__ import annotations
@@ -153,11 +155,14 @@ async def _main(plan: Plan, graph: Graph, edges: dict[str, Edge], scope: trio.Ca
             except Exception as e:
                 raise NodeError(sid, e) from e
             opened.append(sid)
-        outbox = _Outbox(edges, loops)
+        inline = {sid: _InlineSink(sid, sink, graph.stats) for sid, sink in sinks.items()
+                  if _writes_inline(sink, plan.nodes[sid].spec.policy)}
+        outbox = _Outbox(edges, loops, inline)
         watch = _LoopWatch(graph, edges, outbox, len(plan.of_role("source"))) if plan.loops else None
         async with trio.open_nursery() as nursery:
             for sid, sink in sinks.items():
-                nursery.start_soon(_sink_task, sid, sink, edges[sid], graph.stats)
+                if sid not in inline:
+                    nursery.start_soon(_sink_task, sid, sink, edges[sid], graph.stats)
             with scope:
                 async with trio.open_nursery() as sources:
                     for nid in sorted(graph.offloaded):
@@ -224,10 +229,52 @@ async def _sink_task(sid: str, sink: Sink, edge: Edge, stats: Stats) -> None:
     st.drops += edge.drops
 
 
+def _writes_inline(sink: Sink, policy: EdgePolicy) -> bool:
+    """True when ``sink`` can be written by the task that made its packets:
+    its write is a plain call (no ``awrite`` of its own) and its policy
+    ``block`` (lossless, so an edge would change nothing but when the write
+    happens; ``keep_latest`` and ``drop`` need the edge to drop)."""
+    return policy == "block" and type(sink).awrite is Sink.awrite
+
+
+class _InlineSink:
+    """A sink written as soon as a packet reaches it, in the task that
+    pushed the packet (see :func:`_writes_inline`). The same writes in the
+    same order as through an edge into the sink's own task, without the
+    edge, the task switch and the wait until the pushing task yields: each
+    packet is written and freed while its arrays are still in the cache (a
+    packet held for a burst pushes the operator's state and its next output
+    out of it), and its latency is the engine's alone."""
+
+    __slots__ = ("sid", "_write", "st", "lat")
+
+    def __init__(self, sid: str, sink: Sink, stats: Stats) -> None:
+        self.sid = sid
+        self._write = sink.write
+        self.st = stats.node(sid)
+        self.lat = stats.latency_of(sid)
+
+    def write(self, pkt: Packet, arrival: float) -> None:
+        st = self.st
+        st.packets_in += 1
+        if pkt.kind is _EVENTS:
+            st.events_in += pkt.t.shape[0]
+        else:
+            st.took(pkt)
+        t0 = time.perf_counter_ns()
+        try:
+            self._write(pkt)
+        except Exception as e:
+            raise NodeError(self.sid, e) from e
+        st.busy_ns += time.perf_counter_ns() - t0
+        self.lat.add(trio.current_time() - arrival)
+
+
 class _Outbox:
     """What the tasks' pushes delivered to sinks (and offload edges), held
     until the pushing task next yields and then handed to each edge in one
-    go (one task switch per burst, not per packet).
+    go (one task switch per burst, not per packet). Sinks written inline
+    (``inline``: sink id to :class:`_InlineSink`) are written at once instead.
 
     One outbox serves every task of a run. Each edge has its own FIFO lock,
     taken in the order the deliveries were taken out of the outbox, so every
@@ -241,15 +288,22 @@ class _Outbox:
     task waits for room *before* it takes their items out of the outbox, so
     nobody holds items while waiting and the order stays that of the graph."""
 
-    def __init__(self, edges: Mapping[str, Edge], loops: Mapping[str, int] | None = None) -> None:
+    def __init__(self, edges: Mapping[str, Edge], loops: Mapping[str, int] | None = None,
+                 inline: Mapping[str, _InlineSink] | None = None) -> None:
         self.edges = edges
         self.pending: dict[str, list[Any]] = {}
         self._locks = {t: trio.StrictFIFOLock() for t in edges}
         self.loops = dict(loops or {})
+        self.inline = dict(inline or {})
 
     def add(self, deliveries: list[Delivery], arrival: float) -> None:
-        pending = self.pending
+        pending, inline = self.pending, self.inline
         for target, pkt in deliveries:
+            sink = inline.get(target)
+            if sink is not None:
+                if pkt is not END:  # an inline sink is closed by _main, after every task
+                    sink.write(pkt, arrival)
+                continue
             item = _CLOSE if pkt is END else (pkt, arrival)
             items = pending.get(target)
             if items is None:

@@ -194,3 +194,58 @@ async def test_open_pipeline_taps_and_cancel(small_stream):
                 await trio.sleep(0.001)
             run.cancel()
     assert sink2.closed and not sink2.aborted and len(sink2.packets) > 3
+
+
+class Logged(Operator):
+    """Passes packets on, noting each call in a shared log."""
+
+    name = "filter.logged_test"
+
+    def __init__(self, log: list) -> None:
+        self.log = log
+
+    def process(self, packet):
+        self.log.append("op")
+        return [packet]
+
+
+class LoggedSink(ListSink):
+    def __init__(self, log: list, fail_at: int | None = None) -> None:
+        super().__init__()
+        self.log = log
+        self.fail_at = fail_at
+
+    def write(self, packet):
+        if len(self.packets) == self.fail_at:
+            raise OSError("disk full")
+        self.log.append("sink")
+        super().write(packet)
+
+
+def test_a_plain_lossless_sink_is_written_as_each_packet_is_made(small_stream):
+    # a sink with a plain write and the block policy is written by the task that made
+    # the packet, at once: each output is written (and can be freed) before the next is made
+    log: list = []
+    sink = LoggedSink(log)
+    p = Pipeline(max_events=50)
+    p.sink(sink, p.op(Logged(log), p.source(ListSource([small_stream]), id="src")), id="out")
+    stats = tectum.run(p)
+    n = stats.nodes["out"].packets_in
+    assert n > 10 and log == ["op", "sink"] * n
+    assert_streams_equal([small_stream], sink.packets)
+    assert stats.latency["out"].count == n
+    assert stats.nodes["out"].events_in == len(small_stream)
+
+
+def test_a_failing_inline_sink_is_named_and_the_others_abort(small_stream, tmp_path):
+    bad, good = LoggedSink([], fail_at=3), ListSink()
+    out = tmp_path / "out.npz"
+    p = Pipeline(max_events=50)
+    s = p.source(ListSource([small_stream]), id="src")
+    p.sink(bad, s, id="bad")
+    p.sink(good, s, id="good")
+    p.sink(str(out), s, id="file")
+    with pytest.raises(NodeError, match="node 'bad' failed: OSError: disk full"):
+        tectum.run(p)
+    assert good.aborted and not good.closed
+    assert list(tmp_path.iterdir()) == []
