@@ -5,7 +5,7 @@
 The loop (:func:`evo_loop`) runs the two operators as the ``tracker.evo``
 pipeline wires them: the stream in slices of ``slice_us``; each slice's
 events go to the tracker with the maps the mapper made so far, then to
-the mapper with the tracker's poses of that slice (its lost rows left out);
+the mapper with the tracker's poses of that slice (its lost rows mark a gap);
 the mapper's new maps reach the tracker with the next slice (the feedback
 edge's delay). The tracker outputs the first ``bootstrap_us`` of the true
 poses, then tracks alone.
@@ -88,11 +88,10 @@ def evo_loop(events: EventPacket, truth: PosePacket, calib: str, bootstrap_us: i
             ports["maps"] = concat(pending)
             pending = []
         out = [q for q in tr.process_ports(ports) if isinstance(q, PosePacket)]
-        good = [q.take(np.flatnonzero(~q.lost)) for q in out]
         poses += out
         mp_ports: dict[str, Packet] = {"events": ev}
-        if good:
-            mp_ports["poses"] = concat(good)
+        if out:
+            mp_ports["poses"] = concat(out)  # lost rows too: the mapper takes them as a gap
         new = [q for q in mp.process_ports(mp_ports) if isinstance(q, MapPacket)]
         maps += new
         pending += new

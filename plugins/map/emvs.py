@@ -47,6 +47,15 @@ out on the one output stream: ``--sink depth.npz`` stores the maps (and the
 points), ``--sink cloud.ply`` writes the clouds (a sink takes the kinds it
 consumes).
 
+Lost poses (rows of a tracker's pose stream flagged ``lost``: predictions,
+not measurements) are not used. Lost rows between two good poses at least
+``gap_us`` apart make a *gap*: events whose segment falls in it are not
+mapped (counted in ``skipped_lost_poses``); the first such segment ends the
+reference view in progress, which becomes a map at once (no later good pose
+is needed: a tracker that stays lost still gets the map it waits for), and
+the first segment after the gap starts a new reference view. Shorter runs of
+lost rows are bridged: the poses either side are interpolated.
+
 No translation, no depth: a reference view from which the camera moved less
 than ``min_baseline`` times the scene depth (pure rotation, standing still)
 gives no map; it is counted in ``counts["no_translation"]`` and logged.
@@ -170,13 +179,16 @@ class Emvs(Operator):
         Side of the median filter on the depth, px (odd; 1: none).
     points:
         Emit each map's point cloud (PointPacket, world frame) as well.
+    gap_us:
+        Lost pose rows between good poses this far apart or more make a gap
+        (not mapped, the map in progress ends), µs.
     """
 
     name = "map.emvs"
     inputs = {
         "events": Port(Kind.EVENTS, doc="the events to map"),
         "poses": Port(Kind.POSES, doc="camera poses (world-from-camera) covering the events (rows flagged lost "
-                                      "are not used)"),
+                                      "are not used: they mark a gap)"),
     }
     produces = (Kind.MAPS, Kind.POINTS)
     heavy = True
@@ -185,7 +197,7 @@ class Emvs(Operator):
                  spacing: Literal["inverse", "depth"] = "inverse", segment_events: int = 1024,
                  segment_us: int = 10_000, keyframe_baseline: float = 0.15, min_baseline: float = 0.02,
                  refine: bool = True, threshold_sigma: float = 2.0, threshold_c: float = 0.05,
-                 median_size: int = 5, points: bool = True) -> None:
+                 median_size: int = 5, points: bool = True, gap_us: int = 20_000) -> None:
         self.camera: Camera = camera_from(calib)
         self.depths = depth_planes(planes, min_depth, max_depth, spacing)
         self.rho = np.ascontiguousarray(1.0 / self.depths)
@@ -201,9 +213,12 @@ class Emvs(Operator):
         self.map_options = {"refine": bool(refine), "threshold_sigma": float(threshold_sigma),
                             "threshold_c": float(threshold_c), "median_size": int(median_size)}
         self.points = bool(points)
+        if gap_us < 1:
+            raise ValueError(f"map.emvs: gap_us must be >= 1 µs, got {gap_us}")
+        self.gap_us = int(gap_us)
         self.K = np.array([[self.camera.fx, 0, self.camera.cx], [0, self.camera.fy, self.camera.cy], [0, 0, 1.0]])
         self.counts = {"maps": 0, "no_translation": 0, "skipped_before_poses": 0, "skipped_after_poses": 0,
-                       "outside_view": 0, "lost_poses": 0}
+                       "outside_view": 0, "lost_poses": 0, "skipped_lost_poses": 0}
         self.scene_depth = math.sqrt(min_depth * max_depth)  # m, until a map says better
         self._sensor: tuple[int, int] | None = None
         self._rays = np.empty((0, 0, 2))
@@ -211,6 +226,7 @@ class Emvs(Operator):
         self._kt = np.empty(0, np.int64)
         self._kp = np.empty((0, 3))
         self._kq = np.empty((0, 4))
+        self._klost = np.empty(0, np.int64)  # per pose: the last lost row before the next pose, µs (-1: none)
         # events waiting for their segment to close or its pose to come
         self._t = np.empty(0, np.int64)
         self._x = np.empty(0, np.uint16)
@@ -280,9 +296,19 @@ class Emvs(Operator):
 
     def _add_poses(self, poses: PosePacket) -> None:
         lost = poses.data.get("lost")
+        last_lost = np.full(len(poses), -1, np.int64)  # per good row: the last lost row after it, µs
         if lost is not None and lost.any():  # a tracker's predictions, not measurements: not used
+            lost = np.asarray(lost, bool)
             self.counts["lost_poses"] += int(lost.sum())
-            poses = poses.take(np.flatnonzero(~lost))  # type: ignore[assignment]
+            keep = np.flatnonzero(~lost)
+            # each lost row goes to the good row before it (in this packet, or the last one so far)
+            before = np.searchsorted(keep, np.flatnonzero(lost)) - 1
+            t_lost = poses.t[lost]
+            if self._kt.size and (before < 0).any():
+                self._klost[-1] = int(t_lost[before < 0].max())
+            np.maximum.at(last_lost, keep[before[before >= 0]], t_lost[before >= 0])
+            last_lost = last_lost[keep]
+            poses = poses.take(keep)  # type: ignore[assignment]
             if not len(poses):
                 return
         t = poses.t
@@ -308,6 +334,7 @@ class Emvs(Operator):
         self._kt = np.concatenate([self._kt, t])
         self._kp = np.concatenate([self._kp, pos])
         self._kq = np.concatenate([self._kq, q / norm[:, None]])
+        self._klost = np.concatenate([self._klost, last_lost])
 
     def _add_events(self, ev: EventPacket) -> None:
         if self._sensor is None:
@@ -352,12 +379,16 @@ class Emvs(Operator):
         return out
 
     def _advance(self, final: bool) -> list[Packet]:
-        """Vote every closed segment whose pose can be interpolated; emit
-        the maps whose reference view the camera has left."""
+        """Vote every closed segment whose pose can be interpolated, skip
+        those in a gap of lost poses; emit the maps whose reference view the
+        camera has left or a gap ended."""
         segs = self._segments(final) if self._kt.size else []
         t = self._t
         mids = np.array([(int(t[a]) + int(t[b - 1])) // 2 for a, b in segs], np.int64)
         ready = int(np.searchsorted(mids, int(self._kt[-1]), side="right")) if segs else 0
+        gap = self._gaps()
+        if segs and gap[-1]:  # lost rows for gap_us after the last pose: everything after it is a gap
+            ready = len(segs)
         if final and self._t.size:  # what no pose covers now never will be
             key = "skipped_after_poses" if self._kt.size else "skipped_before_poses"
             self.counts[key] += int(len(t) - (segs[ready][0] if ready < len(segs) else len(t)))
@@ -366,13 +397,27 @@ class Emvs(Operator):
                 self._t, self._x, self._y = self._t[:0], self._x[:0], self._y[:0]
             return []
         segs, mids = segs[:ready], mids[:ready]
+        # the pose before each segment's middle, and whether the segment lies in a gap after it
+        knot = np.searchsorted(self._kt, mids, side="right") - 1
+        in_gap = gap[knot] & (mids > self._kt[knot])
+        # a reference view starts at its first segment's first event, or at the pose that ends a gap
         starts = np.array([a for a, _ in segs], np.int64)
-        pos, q, _ = interpolate_poses(np.concatenate([mids, t[starts]]), self._kt, self._kp, self._kq)
+        ends_gap = (knot > 0) & gap[np.maximum(knot - 1, 0)]
+        t_ref = np.where(ends_gap, np.maximum(t[starts], self._kt[knot]), t[starts])
+        pos, q, _ = interpolate_poses(np.concatenate([mids, t_ref]), self._kt, self._kp, self._kq)
         n, run = len(segs), 0  # run: the first segment voting into the current DSI
         out: list[Packet] = []
         for s in range(n):
+            if in_gap[s]:
+                self._vote(segs[run:s], pos[run:s], q[run:s])
+                if self._ref is not None and self._voted:
+                    out += self._finalize()
+                self._ref, self._dsi, self._voted = None, None, False
+                self.counts["skipped_lost_poses"] += segs[s][1] - segs[s][0]
+                run = s + 1
+                continue
             if self._ref is None:
-                self._new_reference(q[n + s], pos[n + s], int(t[starts[s]]))
+                self._new_reference(q[n + s], pos[n + s], int(t_ref[s]))
             assert self._ref is not None
             b = float(np.linalg.norm(pos[s] - self._ref[1]))
             if b > self.keyframe_baseline * self.scene_depth and (s > run or self._voted):
@@ -386,6 +431,17 @@ class Emvs(Operator):
         self._t, self._x, self._y = self._t[end:], self._x[end:], self._y[end:]
         self._drop_knots(int(self._t[0]) if self._t.size else int(self._kt[-1]))
         return out
+
+    def _gaps(self) -> np.ndarray:
+        """Per pose: whether a gap follows it (lost rows, and the next good
+        pose ``gap_us`` or more later; without a next pose yet, lost rows
+        ``gap_us`` or more after it)."""
+        lost = self._klost >= 0
+        span = np.empty(len(self._kt), np.int64)
+        span[:-1] = np.diff(self._kt)
+        if len(span):
+            span[-1] = self._klost[-1] - self._kt[-1]
+        return lost & (span >= self.gap_us)
 
     def _new_reference(self, q: np.ndarray, p: np.ndarray, t_ref: int) -> None:
         assert self._sensor is not None
@@ -462,7 +518,7 @@ class Emvs(Operator):
         """Forget poses no waiting event needs (keep the last at or before ``t_keep``)."""
         k = int(np.searchsorted(self._kt, t_keep, side="right")) - 1
         if k > 0:
-            self._kt, self._kp, self._kq = self._kt[k:], self._kp[k:], self._kq[k:]
+            self._kt, self._kp, self._kq, self._klost = self._kt[k:], self._kp[k:], self._kq[k:], self._klost[k:]
 
 
 def translating_points(duration_us: int, sensor: tuple[int, int], f: float, velocity: tuple[float, float, float] = (

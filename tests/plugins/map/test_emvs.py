@@ -195,6 +195,62 @@ def test_any_packet_split_gives_the_same_maps():
     assert sum(q.kind == "maps" for q in whole) >= 2
 
 
+def _with_lost(poses, t0, t1):
+    """``poses`` with the rows in ``[t0, t1]`` µs flagged lost (a tracker's gap)."""
+    lost = (poses.t >= t0) & (poses.t <= t1)
+    return PosePacket(poses.t, position=poses.position, orientation=poses.orientation, lost=lost,
+                      t_start=poses.t_start, t_end=poses.t_end)
+
+
+def test_lost_poses_end_the_map_in_progress_without_waiting_for_a_later_pose():
+    # a tracker that lost track sends only lost rows: the map it waits for must still come (EVO's loop stalled)
+    s = _scene()
+    poses = _with_lost(s["poses"], 80_000, 200_000)
+    op = Emvs(**OPTS, keyframe_baseline=0.5)
+    out = op.process_ports({"events": s["events"], "poses": poses})
+    maps = [q for q in out if q.kind == "maps"]
+    assert len(maps) == 1 and int(maps[0].t_ref[0]) == 0 and int(maps[0].t[0]) < 80_000
+    u, v, Z = _truth((1.0, 3.0), np.zeros(3))
+    assert np.nanmedian(np.abs(maps[0].depth[0][v, u] - Z) / Z) < 0.1  # 13 cm of baseline
+    assert op.counts["lost_poses"] == 121 and op.counts["skipped_lost_poses"] > 0
+    assert [q for q in op.finish() if q.kind == "maps"] == []  # nothing left to map
+
+
+def test_a_gap_of_lost_poses_is_not_mapped_and_a_new_view_starts_after_it():
+    s = _scene()
+    velocity = np.array([1.5, 0.5, 0.0])
+    streams = {"events": s["events"], "poses": _with_lost(s["poses"], 80_000, 120_000)}
+    op, maps, _ = _run(streams, keyframe_baseline=0.5)
+    assert [int(m.t_ref[0]) for m in maps] == [0, 121_000]  # the first good pose after the gap
+    assert int(maps[0].t[0]) < 80_000 and op.counts["maps"] == 2
+    ev_t = s["events"].t
+    assert 0 < op.counts["skipped_lost_poses"] <= np.sum((ev_t > 79_000) & (ev_t < 122_000))
+    np.testing.assert_allclose(maps[1].pose[0][:3], velocity * 0.121, atol=1e-9)
+    u, v, Z = _truth((1.0, 3.0), velocity * 0.121)
+    assert np.nanmedian(np.abs(maps[1].depth[0][v, u] - Z) / Z) < 0.1
+    # any packet split, also one at the gap's first lost row, gives the same maps
+    ev, ps = streams["events"], streams["poses"]
+    for cut in (7_000, 80_000):
+        pieces = {"events": list(ev.batches(997)), "poses": [ps.slice_time(a, a + cut) for a in range(0, 200_001, cut)]}
+        split = feed_ports(Emvs(**OPTS, keyframe_baseline=0.5), pieces)
+        tectum.testing.assert_streams_equal(feed_ports(Emvs(**OPTS, keyframe_baseline=0.5),
+                                                       {k: [v] for k, v in streams.items()}), split, "split")
+
+
+def test_a_short_run_of_lost_poses_is_bridged():
+    # lost rows spanning less than gap_us (here 6 ms between good poses): mapped as if they were not there
+    s = _scene()
+    poses = _with_lost(s["poses"], 80_000, 84_000)
+    op, maps, _ = _run({"events": s["events"], "poses": poses}, keyframe_baseline=0.5)
+    good = poses.take(np.flatnonzero(~poses.lost))
+    _, ref, _ = _run({"events": s["events"], "poses": good}, keyframe_baseline=0.5)
+    tectum.testing.assert_streams_equal(ref, maps, "bridged")
+    assert len(maps) == 1 and op.counts["lost_poses"] == 5 and op.counts["skipped_lost_poses"] == 0
+    # with gap_us below that spacing they are a gap
+    _, cut, _ = _run({"events": s["events"], "poses": poses}, keyframe_baseline=0.5, gap_us=5_000)
+    assert len(cut) == 2 and int(cut[0].t_ref[0]) == 0 and 85_000 <= int(cut[1].t_ref[0]) < 88_000
+
+
 # -- bad input ----------------------------------------------------------------------------
 def test_no_pose_port_is_an_error_before_running():
     p = Pipeline()
