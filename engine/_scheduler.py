@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import AsyncIterator, Iterable, Mapping
+from collections.abc import AsyncIterator, Callable, Iterable, Mapping
 from contextlib import asynccontextmanager
 from typing import Any
 
@@ -155,7 +155,8 @@ async def _main(plan: Plan, graph: Graph, edges: dict[str, Edge], scope: trio.Ca
             except Exception as e:
                 raise NodeError(sid, e) from e
             opened.append(sid)
-        inline = {sid: _InlineSink(sid, sink, graph.stats) for sid, sink in sinks.items()
+        now = trio.lowlevel.current_clock().current_time
+        inline = {sid: _InlineSink(sid, sink, graph.stats, now) for sid, sink in sinks.items()
                   if _writes_inline(sink, plan.nodes[sid].spec.policy)}
         outbox = _Outbox(edges, loops, inline)
         watch = _LoopWatch(graph, edges, outbox, len(plan.of_role("source"))) if plan.loops else None
@@ -246,13 +247,14 @@ class _InlineSink:
     packet held for a burst pushes the operator's state and its next output
     out of it), and its latency is the engine's alone."""
 
-    __slots__ = ("sid", "_write", "st", "lat")
+    __slots__ = ("sid", "_write", "st", "lat", "now")
 
-    def __init__(self, sid: str, sink: Sink, stats: Stats) -> None:
+    def __init__(self, sid: str, sink: Sink, stats: Stats, now: Callable[[], float]) -> None:
         self.sid = sid
         self._write = sink.write
         self.st = stats.node(sid)
         self.lat = stats.latency_of(sid)
+        self.now = now  # trio's clock
 
     def write(self, pkt: Packet, arrival: float) -> None:
         st = self.st
@@ -267,7 +269,7 @@ class _InlineSink:
         except Exception as e:
             raise NodeError(self.sid, e) from e
         st.busy_ns += time.perf_counter_ns() - t0
-        self.lat.add(trio.current_time() - arrival)
+        self.lat.add(self.now() - arrival)
 
 
 class _Outbox:
@@ -450,9 +452,11 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
         # source feeding an operator that acts on each packet's tick
         small = _SMALL if not source.live and graph.joinable(sid) else 0
         clock = time.perf_counter
+        trio_now = trio.lowlevel.current_clock().current_time  # trio.current_time() without its lookups
         push, add = graph.push, out.add
+        max_events = batch.max_events
         last_yield = clock()
-        arrival = trio.current_time()
+        arrival = trio_now()
         held: list[EventPacket] = []  # small event packets waiting to go in as one
         held_n = 0
         async for raw in _read(source, out, st):
@@ -478,9 +482,12 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                 # and a packet costs the engine and each operator a few µs
                 # whatever its size. (Arrival is read once per packet and
                 # slice: latency errs on the high side.)
-                st.gave(pkt)
                 n = pkt.t.shape[0]
-                if type(pkt) is EventPacket and n < small and held_n + n <= batch.max_events and (
+                if pkt.kind is _EVENTS:
+                    st.events_out += n
+                else:
+                    st.gave(pkt)
+                if type(pkt) is EventPacket and n < small and held_n + n <= max_events and (
                         not held or (pkt.sensor == held[0].sensor and pkt.columns.keys() == held[0].columns.keys())):
                     held.append(pkt)
                     held_n += n
@@ -489,9 +496,15 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                         st.packets_out += 1
                         add(push(sid, join_consecutive(held)), arrival)
                         held, held_n = [], 0
-                    arrival = trio.current_time()
+                    arrival = trio_now()
+                    if n <= max_events:  # goes in whole (the usual case: no cutting)
+                        st.packets_out += 1
+                        add(push(sid, pkt), arrival)
+                        pieces: Iterable[Packet] = ()
+                    else:
+                        pieces = pkt.batches(max_events)
                     k = 0
-                    for piece in pkt.batches(batch.max_events):
+                    for piece in pieces:
                         st.packets_out += 1
                         add(push(sid, piece), arrival)
                         k += 1
@@ -502,9 +515,8 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                             await out.flush()
                             await trio.lowlevel.checkpoint()
                             last_yield = clock()
-                            arrival = trio.current_time()
-                now = clock()
-                if now - last_yield > _SLICE_S:
+                            arrival = trio_now()
+                if clock() - last_yield > _SLICE_S:
                     if held:
                         st.packets_out += 1
                         add(push(sid, join_consecutive(held)), arrival)
@@ -512,7 +524,7 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                     await out.flush()
                     await trio.lowlevel.checkpoint()
                     last_yield = clock()
-                    arrival = trio.current_time()
+                    arrival = trio_now()
         if held:
             st.packets_out += 1
             add(push(sid, join_consecutive(held)), arrival)
@@ -560,8 +572,9 @@ async def _read(source: Source, out: _Outbox, st: Any) -> AsyncIterator[Packet]:
 
 _EVENTS = Kind.EVENTS
 
-#: Longest stretch (s) a source task works before letting other tasks run.
-_SLICE_S = 200e-6
+#: Longest stretch (s) a source task works before letting other tasks run
+#: (sinks written inline need none; a scheduler pass costs 5-20 µs).
+_SLICE_S = 1e-3
 
 #: The clock is read every this many + 1 pieces of a packet (a power of 2 minus 1).
 _CHECK_EVERY = 63
