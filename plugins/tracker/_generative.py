@@ -7,7 +7,9 @@ against a photometric map (Gallego et al., TPAMI 2018; Bryner et al., ICRA
 with their polarity, sample the brightness increment since then:
 ``ΔL_obs(u) = Σ_k w_k`` at pixel ``u`` (blurred by a Gaussian of σ px,
 :func:`splat`), with ``w_k = C p_k`` plus the half-threshold term of
-:func:`event_weights`. The map predicts that increment: a map point ``P``
+:func:`event_weights`, refined per pixel by the time since its last event
+(:func:`residue_image`, added at the map points by
+:func:`point_corrections`). The map predicts that increment: a map point ``P``
 (world, m) with log intensity ``L_map(m)`` seen at pixel ``m`` of the map
 lands at ``u1 = π(T1⁻¹ P)`` now (pose ``T1``, world-from-camera) and at
 ``u0`` in the reference view (``T0``). The pixel ``u1`` saw at ``T0`` the
@@ -40,7 +42,8 @@ from scipy.ndimage import gaussian_filter
 
 from tectum._rigid import se3_exp_kernel
 
-__all__ = ["event_weights", "splat", "splat_bilinear", "blur_and_gradients", "fit_batch"]
+__all__ = ["event_weights", "residue_image", "point_corrections", "splat", "splat_bilinear", "blur_and_gradients",
+           "fit_batch"]
 
 
 @njit(cache=True, nogil=True)
@@ -79,7 +82,7 @@ def splat(ux, uy, p, c, sigma, img):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def event_weights(x, y, p, c, last, out):  # type: ignore[no-untyped-def]
+def event_weights(x, y, t, p, c, last, tlast, dtp, out):  # type: ignore[no-untyped-def]
     """Each event's share of the brightness increment, in order: ``c p``
     plus ``c/2 (p - p_prev)``, ``p_prev`` the polarity of the pixel's
     previous event (0 before its first; ``last`` (H, W) int8 keeps them
@@ -88,12 +91,110 @@ def event_weights(x, y, p, c, last, out):  # type: ignore[no-untyped-def]
     whose brightness keeps moving holds on average ``c/2`` more, unseen; the
     sum over a window telescopes to ``c/2 (p_last(end) - p_last(start))``,
     so the increments of a window are not biased towards a lag of half a
-    threshold."""
+    threshold (:func:`residue_image` refines that ``c/2`` by the time since
+    the pixel's last event). ``tlast`` (H, W) int64 gets each pixel's last
+    event time (µs), ``dtp`` (H, W) int64 the interval from the event before
+    it when both had this polarity, else -1."""
     h = 0.5 * c
     for k in range(x.shape[0]):
         q = last[y[k], x[k]]
         out[k] = c * p[k] + h * (p[k] - q)
+        dtp[y[k], x[k]] = t[k] - tlast[y[k], x[k]] if q == p[k] else -1
+        tlast[y[k], x[k]] = t[k]
         last[y[k], x[k]] = p[k]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _residue(p, tl, d, t_now, c):  # type: ignore[no-untyped-def]
+    """One pixel's term of :func:`residue_image` (last polarity ``p``, time
+    ``tl`` µs, interval ``d`` µs or -1)."""
+    if p == 0 or d <= 0:
+        return 0.0
+    f = (t_now - tl) / d
+    g = f if f <= 1.0 else max(0.0, 2.0 - f)
+    return c * p * (g - 0.5)
+
+
+@njit(cache=True, nogil=True)
+def residue_image(last, tlast, dtp, t_now, c, base, out):  # type: ignore[no-untyped-def]
+    """``out`` (H, W): the sub-threshold change of each pixel at ``t_now``
+    (µs) beyond the ``c/2`` of :func:`event_weights`, log intensity, less
+    ``base`` (H, W; e.g. the same at the reference view). A pixel
+    whose last two events had one polarity ``p``, ``dt`` µs apart, is taken
+    to go on at that rate: ``x = (t_now - t_last) / dt`` of a threshold has
+    built up (``c p x``) until the next event is due (``x = 1``); past that
+    it has slowed or turned back, and the estimate falls back to 0 by ``x =
+    2``. Other pixels keep ``c/2`` (0 here). A pixel firing steadily so
+    holds its true residue rather than half a threshold; one the motion
+    has left (at a turn of the camera) no longer claims a change it does
+    not have."""
+    H, W = out.shape
+    for y in range(H):
+        for x in range(W):
+            out[y, x] = _residue(last[y, x], tlast[y, x], dtp[y, x], t_now, c) - base[y, x]
+
+
+@njit(cache=True, nogil=True)
+def point_corrections(P, R, t, fx, fy, cx, cy, sensor_at, diff, sigma, out):  # type: ignore[no-untyped-def]
+    """``out[i]``: ``diff`` (H, W, sensor pixels; the change of
+    :func:`residue_image` since the reference view) blurred by a normalised Gaussian of
+    ``sigma`` px (cut at 3σ), at where world point ``P[i]`` lands seen from
+    pose ``(R, t)`` (world-from-camera): its pinhole pixel ``u``, taken to
+    the sensor by ``sensor_at`` (H, W, 2: the sensor position of each
+    pinhole pixel, bilinear; empty: the identity). 0 out of view. What
+    :func:`splat` of those pixels would add there, the lens's local stretch
+    ignored."""
+    H, W = diff.shape
+    r = int(math.ceil(3.0 * sigma))
+    n = 2 * r + 1
+    inv = 1.0 / (2.0 * sigma * sigma)
+    norm = 0.0
+    for i in range(n):
+        norm += math.exp(-(i - r) * (i - r) * inv)
+    norm = 1.0 / (norm * norm)
+    # the Gaussian's taps by the point's offset from the nearest pixel, in 1/64 px (no exp per point)
+    nb = 64
+    taps = np.empty((nb + 1, n))
+    for b in range(nb + 1):
+        f = b / nb - 0.5
+        for i in range(n):
+            d = i - r - f
+            taps[b, i] = math.exp(-d * d * inv)
+    for k in range(P.shape[0]):
+        out[k] = 0.0
+        X, Y, Z = _in_camera(P, k, R, t)
+        if Z <= 1e-6:
+            continue
+        u = fx * X / Z + cx
+        v = fy * Y / Z + cy
+        if not (0.0 <= u < W - 1.0 and 0.0 <= v < H - 1.0):
+            continue
+        if sensor_at.shape[0]:
+            x0 = int(u)
+            y0 = int(v)
+            ax = u - x0
+            ay = v - y0
+            su = (1 - ay) * ((1 - ax) * sensor_at[y0, x0, 0] + ax * sensor_at[y0, x0 + 1, 0]) + \
+                ay * ((1 - ax) * sensor_at[y0 + 1, x0, 0] + ax * sensor_at[y0 + 1, x0 + 1, 0])
+            sv = (1 - ay) * ((1 - ax) * sensor_at[y0, x0, 1] + ax * sensor_at[y0, x0 + 1, 1]) + \
+                ay * ((1 - ax) * sensor_at[y0 + 1, x0, 1] + ax * sensor_at[y0 + 1, x0 + 1, 1])
+            u, v = su, sv
+        cu = math.floor(u + 0.5)
+        cv = math.floor(v + 0.5)
+        wx = taps[int((u - cu + 0.5) * nb + 0.5)]
+        wy = taps[int((v - cv + 0.5) * nb + 0.5)]
+        xs = int(cu) - r
+        ys = int(cv) - r
+        i0 = max(0, -xs)
+        i1 = min(n, W - xs)
+        acc = 0.0
+        for j in range(max(0, -ys), min(n, H - ys)):
+            row = diff[ys + j]
+            a = 0.0
+            for i in range(i0, i1):
+                a += row[xs + i] * wx[i]
+            acc += a * wy[j]
+        out[k] = acc * norm
 
 
 @njit(cache=True, nogil=True)
@@ -158,7 +259,8 @@ def _in_camera(P, i, R, t):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def _residuals(P, Xr, Lm, obs_img, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy, with_jac, res, obs, jac, ok, disp):  # type: ignore[no-untyped-def]
+def _residuals(P, Xr, Lm, obs_img, corr, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy, with_jac, res, obs, jac, ok,  # type: ignore[no-untyped-def]
+               disp):
     """Per map point: residual ``r``, the observed increment ``obs`` (and
     with ``with_jac`` the residual's 6 Jacobian entries); ``ok`` false where the point is out of view (either pose), or
     its ``m'`` off the map. Returns the number of points in view."""
@@ -204,6 +306,7 @@ def _residuals(P, Xr, Lm, obs_img, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy
             continue
         lm2, gmx, gmy = _bilinear(map_img, mx, my)
         e, gex, gey = _bilinear(obs_img, u1, v1)
+        e += corr[i]
         res[i] = e - (Lm[i] - lm2)
         obs[i] = e
         disp[i] = math.sqrt(du * du + dv * dv)
@@ -243,11 +346,13 @@ def _rel(R0, t0, R_wr, out):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def fit_batch(P, Xr, Lm, obs_img, map_img, R0, t0, R1, t1, R_wr, fx, fy, cx, cy, iters, huber_k, damping,  # type: ignore[no-untyped-def]
+def fit_batch(P, Xr, Lm, obs_img, corr, map_img, R0, t0, R1, t1, R_wr, fx, fy, cx, cy, iters, huber_k, damping,  # type: ignore[no-untyped-def]
               stats):
     """Refine ``(R1, t1)`` in place (see the module). ``P`` (M, 3) world
     points, ``Xr`` (M, 3) their map pixel (x, y) and depth (m), ``Lm`` (M,)
-    their map log intensity (blurred as ``map_img``). ``stats`` gets
+    their map log intensity (blurred as ``map_img``), ``corr`` (M,) added to
+    the observed increment at each point (:func:`point_corrections`: held
+    through the iterations). ``stats`` gets
     ``[points in view, correlation, rms residual, iterations, last step,
     median displacement (px) of the points in view from T0 to T1]``."""
     M = P.shape[0]
@@ -267,8 +372,8 @@ def fit_batch(P, Xr, Lm, obs_img, map_img, R0, t0, R1, t1, R_wr, fx, fy, cx, cy,
     s = 1.0
     absr = np.empty(M)
     for it in range(iters):
-        n_ok = _residuals(P, Xr, Lm, obs_img, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy, True, res, obs, jac, ok,
-                          disp)
+        n_ok = _residuals(P, Xr, Lm, obs_img, corr, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy, True, res, obs, jac,
+                          ok, disp)
         if n_ok < 12:
             break
         if it == 0:  # robust scale: 1.4826 x median |r| over the points in view, at the start
@@ -310,7 +415,8 @@ def fit_batch(P, Xr, Lm, obs_img, map_img, R0, t0, R1, t1, R_wr, fx, fy, cx, cy,
         step = math.sqrt((delta * delta).sum())
         if step < 1e-5:  # rad and m: a few thousandths of a pixel
             break
-    n_ok = _residuals(P, Xr, Lm, obs_img, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy, False, res, obs, jac, ok, disp)
+    n_ok = _residuals(P, Xr, Lm, obs_img, corr, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy, False, res, obs, jac, ok,
+                      disp)
     k = 0
     for i in range(M):
         if ok[i]:

@@ -22,7 +22,10 @@ interpolated; later poses on the port are not used).
 cut into batches of ``batch_events`` (fewer when ``batch_us`` µs pass
 first), by the events alone, so the output does not depend on how the
 stream is packed. The events accumulate (``contrast`` × polarity, blurred
-by σ) into the brightness increment since a reference view (the start,
+by σ, plus each pixel's change still below the threshold: with
+``timed_residue`` estimated from the time since its last event and its
+last interval between events, else half a threshold) into the brightness
+increment since a reference view (the start,
 then the pose where the image has moved ``keyframe_px`` from the last
 one); per batch the pose at its last event is predicted at the velocity of
 the last ``velocity_us``, then refined by Gauss-Newton on the robust
@@ -61,7 +64,15 @@ import numpy as np
 from tectum import EventPacket, Kind, MapPacket, Operator, Packet, Port, PosePacket
 from tectum.camera import Camera, camera_from, interpolate_poses, quat_to_rot, rot_to_quat, se3_exp, se3_log
 
-from ._generative import blur_and_gradients, event_weights, fit_batch, splat, splat_bilinear
+from ._generative import (
+    blur_and_gradients,
+    event_weights,
+    fit_batch,
+    point_corrections,
+    residue_image,
+    splat,
+    splat_bilinear,
+)
 from ._photomap import PhotoMap, check_map, load_map, map_from_packet
 
 __all__ = ["Pose6Dof"]
@@ -123,6 +134,11 @@ class Pose6Dof(Operator):
     velocity_us:
         The velocity (output and prediction) is the motion over the good
         poses of this last stretch, µs.
+    timed_residue:
+        Estimate each pixel's change still below the threshold from the
+        time since its last event and its last interval between events
+        (:func:`._generative.residue_image`); false: half a threshold in
+        the last event's direction, always.
     """
 
     name = "tracker.pose_6dof"
@@ -138,7 +154,7 @@ class Pose6Dof(Operator):
                  batch_events: int = 1500, batch_us: int = 20_000, sigmas: tuple[float, ...] = (1.0,),
                  iterations: int = 4, max_points: int = 2000, min_gradient: float = 0.02, huber: float = 1.345,
                  min_fit: float = 0.35, recover_fit: float = 0.5, min_points: int = 100,
-                 keyframe_px: float = 8.0, velocity_us: int = 10_000) -> None:
+                 keyframe_px: float = 8.0, velocity_us: int = 10_000, timed_residue: bool = True) -> None:
         where = "tracker.pose_6dof"
         if not contrast > 0:
             raise ValueError(f"{where}: contrast must be > 0 (log intensity per event), got {contrast}")
@@ -178,6 +194,13 @@ class Pose6Dof(Operator):
         self._ix = np.empty(0, np.uint16)  # sensor pixel of each waiting event
         self._iy = np.empty(0, np.uint16)
         self._last: np.ndarray | None = None  # (H, W) int8 polarity of each pixel's last event
+        self._tlast = np.zeros((0, 0), np.int64)  # (H, W) its time, µs
+        self._dtp = np.zeros((0, 0), np.int64)  # (H, W) the interval before it (same polarity), µs; -1 unknown
+        self.timed_residue = bool(timed_residue)
+        # the sub-threshold residues (residue_image) at the reference view, and their change since at the last batch
+        self._dref = np.zeros((0, 0))
+        self._ddiff = np.zeros((0, 0))
+        self._sensor_at = np.zeros((0, 0, 2))  # (H, W, 2) sensor position of each pinhole pixel; empty: identity
         self._mark = -(1 << 62)
         # state: the last good pose (R, t) and its time (µs); the body twist per µs of the last good batch
         self._pose: tuple[np.ndarray, np.ndarray, int] | None = None
@@ -220,11 +243,14 @@ class Pose6Dof(Operator):
         blur_and_gradients(img, 1.0, out)
         P = np.array([[0.0, 0.0, 1.0]] * 16)
         Xr = np.array([[3.5, 3.5, 1.0]] * 16)
-        fit_batch(P, Xr, np.zeros(16), img, img, np.eye(3), np.zeros(3), np.eye(3), np.zeros(3), np.eye(3), 4.0,
-                  4.0, 3.5, 3.5, 1, 1.345, 1e-3, np.zeros(6))
+        fit_batch(P, Xr, np.zeros(16), img, np.zeros(16), img, np.eye(3), np.zeros(3), np.eye(3), np.zeros(3),
+                  np.eye(3), 4.0, 4.0, 3.5, 3.5, 1, 1.345, 1e-3, np.zeros(6))
         splat_bilinear(np.array([3.5]), np.array([3.5]), np.array([1.0]), 0.2, img)
-        event_weights(np.zeros(1, np.uint16), np.zeros(1, np.uint16), np.ones(1, np.int8), 0.2,
-                      np.zeros((1, 1), np.int8), np.empty(1))
+        one = np.zeros((1, 1), np.int64)
+        event_weights(np.zeros(1, np.uint16), np.zeros(1, np.uint16), np.zeros(1, np.int64), np.ones(1, np.int8), 0.2,
+                      np.zeros((1, 1), np.int8), one, one, np.empty(1))
+        residue_image(np.zeros((1, 1), np.int8), one, one, 0, 0.2, np.zeros((1, 1)), np.empty((1, 1)))
+        point_corrections(P, np.eye(3), np.zeros(3), 4.0, 4.0, 3.5, 3.5, np.zeros((0, 0, 2)), img, 1.0, np.empty(16))
 
     # -- the map ----------------------------------------------------------------------
     def _set_map(self, m: PhotoMap) -> None:
@@ -322,9 +348,18 @@ class Pose6Dof(Operator):
         pix = np.stack([u.ravel(), v.ravel()], axis=1)
         if self.camera is not None and self.camera.D is not None and np.any(self.camera.D):
             pix = self.camera.undistort_points(pix)
+            # and back: the sensor position of each pinhole pixel (the residues are kept per sensor pixel)
+            c = self.camera
+            rays = np.stack([(u.ravel() - c.cx) / c.fx, (v.ravel() - c.cy) / c.fy, np.ones(h * w)], axis=1)
+            at = c.project(rays).reshape(h, w, 2)
+            self._sensor_at = np.ascontiguousarray(np.nan_to_num(at, nan=-1e6))
         # where the lens model has no inverse (NaN), far outside: such events add nothing
         self._lut = np.ascontiguousarray(np.nan_to_num(pix.reshape(h, w, 2), nan=-1e6))
         self._last = np.zeros((h, w), np.int8)
+        self._tlast = np.zeros((h, w), np.int64)
+        self._dtp = np.full((h, w), -1, np.int64)
+        self._dref = np.zeros((h, w))
+        self._ddiff = np.zeros((h, w))
 
     # -- batches -----------------------------------------------------------------------
     def _advance(self, final: bool) -> list[Packet]:
@@ -371,7 +406,10 @@ class Pose6Dof(Operator):
         self.counts["batches"] += 1
         x, y = self._x[a:b], self._y[a:b]
         wgt = np.empty(b - a)
-        event_weights(self._ix[a:b], self._iy[a:b], self._p[a:b], self.contrast, self._last, wgt)
+        event_weights(self._ix[a:b], self._iy[a:b], self._t[a:b], self._p[a:b], self.contrast, self._last, self._tlast,
+                      self._dtp, wgt)
+        if self.timed_residue:
+            residue_image(self._last, self._tlast, self._dtp, t_end, self.contrast, self._dref, self._ddiff)
         splat_bilinear(x, y, wgt, 1.0, self._raw)
         for lv, img in zip(self._levels[1:], self._obs):
             splat(x, y, wgt, 1.0, lv.sigma, img)
@@ -390,9 +428,13 @@ class Pose6Dof(Operator):
         Ra, ta = self._ref
         K = self._K
         stats = np.zeros(6)
-        for lv, img in levels:
-            fit_batch(self._P, self._Xr, lv.Lm, img, lv.image, Ra, ta, R1, t1, self._R_wr, K[0, 0], K[1, 1], K[0, 2],
-                      K[1, 2], self.iterations, self.huber, 1e-3, stats)
+        corr = np.zeros(len(self._P))
+        for k, (lv, img) in enumerate(levels):
+            if self.timed_residue and (k or not self._lost):  # at the prediction; none at a relocalising coarse level
+                point_corrections(self._P, R1, t1, K[0, 0], K[1, 1], K[0, 2], K[1, 2], self._sensor_at, self._ddiff,
+                                  lv.sigma, corr)
+            fit_batch(self._P, self._Xr, lv.Lm, img, corr, lv.image, Ra, ta, R1, t1, self._R_wr, K[0, 0], K[1, 1],
+                      K[0, 2], K[1, 2], self.iterations, self.huber, 1e-3, stats)
         fit = float(stats[1])
         good = stats[0] >= self.min_points and fit >= (self.recover_fit if self._lost else self.min_fit) \
             and bool(np.isfinite(t1).all())
@@ -427,5 +469,7 @@ class Pose6Dof(Operator):
         assert self._sensor is not None
         w, h = self._sensor
         self._ref = (np.ascontiguousarray(R), np.ascontiguousarray(t))
+        self._dref += self._ddiff  # the residues now
+        self._ddiff[:] = 0.0
         self._raw = np.zeros((h, w))
         self._obs = [np.zeros((h, w)) for _ in self._levels[1:]]
