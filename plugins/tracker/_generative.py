@@ -162,12 +162,8 @@ def point_corrections(P, R, t, fx, fy, cx, cy, sensor_at, diff, sigma, out):  # 
             taps[b, i] = math.exp(-d * d * inv)
     for k in range(P.shape[0]):
         out[k] = 0.0
-        X, Y, Z = _in_camera(P, k, R, t)
-        if Z <= 1e-6:
-            continue
-        u = fx * X / Z + cx
-        v = fy * Y / Z + cy
-        if not (0.0 <= u < W - 1.0 and 0.0 <= v < H - 1.0):
+        u, v, _, _, _, front = _project(P, k, R, t, fx, fy, cx, cy)
+        if not (front and 0.0 <= u < W - 1.0 and 0.0 <= v < H - 1.0):
             continue
         if sensor_at.shape[0]:
             x0 = int(u)
@@ -258,6 +254,16 @@ def _in_camera(P, i, R, t):  # type: ignore[no-untyped-def]
             R[0, 2] * px + R[1, 2] * py + R[2, 2] * pz)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _project(P, i, R, t, fx, fy, cx, cy):  # type: ignore[no-untyped-def]
+    """Pinhole pixel ``(u, v)`` of world point ``P[i]`` from pose ``(R, t)``,
+    its camera-frame ``(X, Y, Z)``, and whether it is in front (``Z > 1e-6``)."""
+    X, Y, Z = _in_camera(P, i, R, t)
+    if Z <= 1e-6:
+        return 0.0, 0.0, X, Y, Z, False
+    return fx * X / Z + cx, fy * Y / Z + cy, X, Y, Z, True
+
+
 @njit(cache=True, nogil=True)
 def _residuals(P, Xr, Lm, obs_img, corr, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy, with_jac, res, obs, jac, ok,  # type: ignore[no-untyped-def]
                disp):
@@ -269,18 +275,12 @@ def _residuals(P, Xr, Lm, obs_img, corr, map_img, R0, t0, R1, t1, R_0r, fx, fy, 
     n_ok = 0
     for i in range(P.shape[0]):
         ok[i] = False
-        X, Y, Z = _in_camera(P, i, R1, t1)
-        if Z <= 1e-6:
+        u1, v1, X, Y, Z, front = _project(P, i, R1, t1, fx, fy, cx, cy)
+        if not (front and 1.0 <= u1 < W - 2.0 and 1.0 <= v1 < H - 2.0):
             continue
-        u1 = fx * X / Z + cx
-        v1 = fy * Y / Z + cy
-        if not (1.0 <= u1 < W - 2.0 and 1.0 <= v1 < H - 2.0):
+        u0, v0, X0, Y0, Z0, front = _project(P, i, R0, t0, fx, fy, cx, cy)
+        if not front:
             continue
-        X0, Y0, Z0 = _in_camera(P, i, R0, t0)
-        if Z0 <= 1e-6:
-            continue
-        u0 = fx * X0 / Z0 + cx
-        v0 = fy * Y0 / Z0 + cy
         # du/dm at T0: dpi/dX0 . R_0r . d [1/fx 0; 0 1/fy; 0 0]
         d = Xr[i, 2]
         c0x = R_0r[0, 0] * d / fx
