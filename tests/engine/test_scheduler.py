@@ -249,3 +249,59 @@ def test_a_failing_inline_sink_is_named_and_the_others_abort(small_stream, tmp_p
         tectum.run(p)
     assert good.aborted and not good.closed
     assert list(tmp_path.iterdir()) == []
+
+
+class TrioSink(ListSink):
+    """Notes whether each write runs inside trio."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.in_trio: list[bool] = []
+
+    def write(self, packet):
+        try:
+            trio.lowlevel.current_task()
+            self.in_trio.append(True)
+        except RuntimeError:
+            self.in_trio.append(False)
+        super().write(packet)
+
+
+@pytest.mark.parametrize("how", ["plain", "keep_latest", "two sources", "paced"])
+def test_run_starts_trio_only_where_something_runs_concurrently(small_stream, how):
+    sink = TrioSink()
+    p = Pipeline(max_events=100, pace=1000.0 if how == "paced" else None)
+    s = p.source(ListSource([small_stream]), id="src")
+    if how == "two sources":
+        p.sink(ListSink(), p.source(ListSource([small_stream]), id="other"))
+    o = p.op("filter.refractory", s, id="rf", period_us=300)
+    p.sink(sink, o, id="out", policy="keep_latest" if how == "keep_latest" else "block",
+           buffer=100_000 if how == "keep_latest" else 64)
+    stats = tectum.run(p)
+    assert sink.in_trio and set(sink.in_trio) == {how != "plain"}
+    assert_streams_equal(feed(Refractory(300), [small_stream]), sink.packets)
+    assert sink.closed and not sink.aborted
+    assert stats.nodes["out"].events_in == stats.nodes["rf"].events_out
+    assert stats.latency["out"].count == stats.nodes["out"].packets_in
+    assert stats.wall_s > 0
+
+
+class Interrupt(Operator):
+    name = "filter.interrupt_test"
+
+    def process(self, packet):
+        if len(packet) > 100:  # not in warmup()
+            raise KeyboardInterrupt
+        return [packet]
+
+
+def test_an_interrupt_aborts_the_sinks_without_trio_too(small_stream, tmp_path):
+    sink = ListSink()
+    p = Pipeline()
+    s = p.source(ListSource([small_stream]), id="src")
+    p.sink(sink, p.op(Interrupt(), s), id="mem")
+    p.sink(str(tmp_path / "out.npz"), s, id="file")
+    with pytest.raises(KeyboardInterrupt):
+        tectum.run(p)
+    assert sink.aborted and not sink.closed
+    assert list(tmp_path.iterdir()) == []

@@ -5,8 +5,9 @@ pipeline delivers to its sink equals what :func:`tectum.testing.feed` (or
 
 Each runner gets the stream cut at random (seeded) places into packets,
 with empty packets between, and a random ``max_events`` (pacing off):
-``tectum.run`` with the operator inline and offloaded to a worker thread,
-:class:`tectum.Stepper` (ports' packets pushed in a random interleaving)
+``tectum.run`` with the operator inline (run without trio where nothing
+needs it, and under trio through ``tectum.arun``) and offloaded to a worker
+thread, :class:`tectum.Stepper` (ports' packets pushed in a random interleaving)
 and :class:`tectum.ThreadedPipeline`. Outputs are collected by an in-memory
 :class:`~tectum.testing.ListSink`. The operators and their streams are the
 conformance check's (``helpers.conformance_case``), plus windowed cases
@@ -21,6 +22,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import trio
 
 import tectum
 from tectum import Packet
@@ -35,7 +37,7 @@ CASES = [(name, {}) for name in builtin_operators()] + [
     ("repr.voxel_grid", {"count": 1000}),
     ("repr.motion_compensated", {"window_us": 15_000}),
 ]
-RUNNERS = ["run", "run-offloaded", "stepper", "threaded"]
+RUNNERS = ["run", "run-trio", "run-offloaded", "stepper", "threaded"]  # run: without trio where it can
 
 
 def _case_id(case: tuple[str, dict[str, Any]]) -> str:
@@ -96,7 +98,9 @@ def test_scheduler_equals_feed(case: tuple[str, dict[str, Any]], runner: str) ->
         pieces = _cut(stream, rng)
     max_events = int(rng.choice([1, 3, 50, 65536]))
     p, sink, ids = _pipeline(name, params, pieces, max_events=max_events, offload=runner == "run-offloaded")
-    if runner.startswith("run"):
+    if runner == "run-trio":
+        trio.run(tectum.arun, p)
+    elif runner.startswith("run"):
         tectum.run(p)
     elif runner == "stepper":
         _step(p, ids, pieces, rng)
