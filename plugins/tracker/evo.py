@@ -9,7 +9,9 @@ One name for two nodes and their two-way wiring (see ``tectum run
   ``delay_us`` late (the loop's delayed edge), its ``poses`` port the
   source's poses when there are any (the bootstrap, ``bootstrap_us``);
 * ``<id>.mapper``: ``map.emvs`` builds those maps from the events and the
-  tracker's poses (rows the tracker flags lost are not used).
+  tracker's poses (rows the tracker flags lost are not used; lost for 20 ms
+  or more, they end the map in progress, which goes to the tracker at once,
+  and a new reference view starts when tracking is back).
 
 The node ``<id>`` hands on both outputs: poses (``--sink traj.tum``) and
 maps with their point clouds (``--sink maps.npz``).
