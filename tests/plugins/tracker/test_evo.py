@@ -147,3 +147,32 @@ def test_the_mapper_leaves_out_the_rows_a_tracker_flags_lost() -> None:
     assert sum(len(q) for q in want if q.kind == Kind.MAPS) >= 1
     assert_streams_equal(want, got, "lost rows left out")
     assert op.counts["lost_poses"] == int(lost.sum())
+
+
+def test_a_tracker_without_a_map_after_the_bootstrap_gets_one() -> None:
+    """The bootstrap ends before the mapper's first reference view is done
+    (keyframe_baseline far off): the tracker has no map and sends lost rows;
+    the mapper takes them as a gap and hands the map in progress on at once,
+    so tracking starts (before, neither waited out the other: all lost)."""
+    sim = make_simulator(PLANE, 300_000, sensor="120x90", seed=1)
+    evs, poses = [], []
+    for ev, side in sim.windows(20_000):
+        evs.append(ev.without_columns(*ev.columns))
+        poses += [q for q in side if isinstance(q, PosePacket)]
+    ev, truth = tectum.concat(evs), tectum.concat(poses)
+    f, cx, cy = (float(v) for v in sim.truth["camera"])
+    boot = 150_000
+    p = tectum.Pipeline()
+    cam = p.source(ListSource([ev]), id="cam")
+    gt = p.source(ListSource([truth]), id="gt")
+    p.op("tracker.evo", events=cam, poses=gt, id="evo", calib=f"{f};{f};{cx};{cy}", bootstrap_us=boot,
+         window_events=3000, step_events=1000, planes=40, min_depth=1.0, max_depth=4.0, keyframe_baseline=0.5)
+    sink = ListSink()
+    p.sink(sink, "evo")
+    tectum.run(p)
+    est = tectum.concat([q for q in sink.packets if q.kind == Kind.POSES])
+    assert isinstance(est, PosePacket)
+    maps = [q for q in sink.packets if q.kind == Kind.MAPS]
+    assert maps and int(maps[0].t[0]) <= boot  # the bootstrap's map
+    after = (est.t > boot + 60_000) & (est.t <= truth.t[-1])
+    assert after.sum() > 10 and est.lost[after].mean() < 0.5
