@@ -80,22 +80,29 @@ PLANE: dict[str, Any] = {
 }
 
 
-@pytest.mark.slow
-def test_tracks_after_the_bootstrap_and_is_deterministic() -> None:
-    sim = make_simulator(PLANE, 800_000, sensor="240x180", seed=1)
+def _simulate(duration_us: int, sensor: str) -> tuple[tectum.EventPacket, PosePacket, str]:
+    """``PLANE``'s events, true poses and inline intrinsics (seed 1)."""
+    sim = make_simulator(PLANE, duration_us, sensor=sensor, seed=1)
     evs, poses = [], []
     for ev, side in sim.windows(20_000):
         evs.append(ev.without_columns(*ev.columns))
         poses += [q for q in side if isinstance(q, PosePacket)]
     ev, truth = tectum.concat(evs), tectum.concat(poses)
+    assert isinstance(ev, tectum.EventPacket) and isinstance(truth, PosePacket)
     f, cx, cy = (float(v) for v in sim.truth["camera"])
+    return ev, truth, f"{f};{f};{cx};{cy}"
+
+
+@pytest.mark.slow
+def test_tracks_after_the_bootstrap_and_is_deterministic() -> None:
+    ev, truth, calib = _simulate(800_000, "240x180")
     boot = 600_000
 
     def pipeline() -> tuple[tectum.Pipeline, ListSink]:
         p = tectum.Pipeline()
         cam = p.source(ListSource([ev]), id="cam")
         gt = p.source(ListSource([truth]), id="gt")
-        p.op("tracker.evo", events=cam, poses=gt, id="evo", calib=f"{f};{f};{cx};{cy}", bootstrap_us=boot)
+        p.op("tracker.evo", events=cam, poses=gt, id="evo", calib=calib, bootstrap_us=boot)
         sink = ListSink()
         p.sink(sink, "evo")
         return p, sink
@@ -154,19 +161,12 @@ def test_a_tracker_without_a_map_after_the_bootstrap_gets_one() -> None:
     (keyframe_baseline far off): the tracker has no map and sends lost rows;
     the mapper takes them as a gap and hands the map in progress on at once,
     so tracking starts (before, neither waited out the other: all lost)."""
-    sim = make_simulator(PLANE, 300_000, sensor="120x90", seed=1)
-    evs, poses = [], []
-    for ev, side in sim.windows(20_000):
-        evs.append(ev.without_columns(*ev.columns))
-        poses += [q for q in side if isinstance(q, PosePacket)]
-    ev, truth = tectum.concat(evs), tectum.concat(poses)
-    f, cx, cy = (float(v) for v in sim.truth["camera"])
+    ev, truth, calib = _simulate(300_000, "120x90")
     boot = 150_000
     p = tectum.Pipeline()
     cam = p.source(ListSource([ev]), id="cam")
     gt = p.source(ListSource([truth]), id="gt")
-    p.op("tracker.evo", events=cam, poses=gt, id="evo", calib=f"{f};{f};{cx};{cy}", bootstrap_us=boot,
-         window_events=3000, step_events=1000, planes=40, min_depth=1.0, max_depth=4.0, keyframe_baseline=0.5)
+    p.op("tracker.evo", events=cam, poses=gt, id="evo", calib=calib, bootstrap_us=boot, window_events=3000, step_events=1000, planes=40, min_depth=1.0, max_depth=4.0, keyframe_baseline=0.5)
     sink = ListSink()
     p.sink(sink, "evo")
     tectum.run(p)
