@@ -387,8 +387,8 @@ class Emvs(Operator):
         mids = np.array([(int(t[a]) + int(t[b - 1])) // 2 for a, b in segs], np.int64)
         ready = int(np.searchsorted(mids, int(self._kt[-1]), side="right")) if segs else 0
         gap = self._gaps()
-        if segs and gap[-1]:  # lost rows for gap_us after the last pose: everything after it is a gap
-            ready = len(segs)
+        if segs and gap[-1]:  # lost rows for gap_us after the last pose: a gap up to the last of them
+            ready = int(np.searchsorted(mids, int(self._klost[-1]), side="right"))
         if final and self._t.size:  # what no pose covers now never will be
             key = "skipped_after_poses" if self._kt.size else "skipped_before_poses"
             self.counts[key] += int(len(t) - (segs[ready][0] if ready < len(segs) else len(t)))
