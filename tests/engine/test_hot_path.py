@@ -7,6 +7,7 @@ import pytest
 
 import tectum
 from tectum import EventPacket
+from tectum._packet import join_consecutive
 from tectum.sinks.null import NullSink
 from tectum.testing import ListSource
 
@@ -73,3 +74,49 @@ def test_event_by_event_chain_counts_and_taps() -> None:
     with tectum.Stepper(build(), outputs=["a"]) as s:  # a tapped node still hands its outputs out
         got = s.push(pk.slice_time(0, 9))["a"]
     assert len(got) == 2 and all(len(q) == 3 for q in got)  # a Stepper pushes packets whole
+
+
+def _stream(n: int = 2000) -> EventPacket:
+    rng = np.random.default_rng(3)
+    t = np.sort(rng.integers(0, 50_000, n))
+    return EventPacket.from_arrays(t, rng.integers(0, 64, n), rng.integers(0, 48, n), rng.choice([-1, 1], n),
+                                   sensor=(64, 48), t_start=0, t_end=50_000).validate()
+
+
+def _same(a: EventPacket, b: EventPacket) -> None:
+    for k in ("t", "x", "y", "p"):
+        assert np.array_equal(getattr(a, k), getattr(b, k)) and getattr(a, k).dtype == getattr(b, k).dtype
+    assert (a.t_start, a.t_end, a.sensor, a.checked) == (b.t_start, b.t_end, b.sensor, b.checked)
+
+
+def test_joining_slices_that_lie_end_to_end_makes_a_view_else_a_copy() -> None:
+    ev = _stream()
+    cuts = [ev.slice_time(a, a + 1000) for a in range(0, 50_000, 1000)]
+    whole = ev.slice_time(cuts[3].t_start, cuts[40].t_end)
+    joined = join_consecutive(cuts[3:41])
+    _same(joined, whole)
+    assert all(np.shares_memory(getattr(joined, k), getattr(ev, k)) for k in ("t", "x", "y", "p"))  # no copy
+    # a gap (one packet left out), slices of separate arrays, strided views: copied, still right
+    gap = cuts[3:10] + cuts[11:20]
+    got = join_consecutive(gap)
+    _same(got, _concat_reference(gap))
+    assert not np.shares_memory(got.t, ev.t)
+    other = _stream()
+    mixed = [cuts[3], other.slice_time(cuts[4].t_start, cuts[4].t_end)]
+    _same(join_consecutive(mixed), _concat_reference(mixed))
+    every_other = EventPacket._trusted(ev.t[::2], ev.x[::2], ev.y[::2], ev.p[::2], ev.sensor, 0, 50_000, {})
+    halves = [every_other.slice_time(0, 25_000), every_other.slice_time(25_000, 50_000)]
+    got = join_consecutive(halves)
+    _same(got, every_other)
+    assert not np.shares_memory(got.t, ev.t)
+    # columns out of step (x cut elsewhere than t): copied
+    a, b = cuts[5], cuts[6]
+    skewed = EventPacket._trusted(b.t, ev.x[len(ev) - len(b):], b.y, b.p, b.sensor, b.t_start, b.t_end, {}, True)
+    got = join_consecutive([a, skewed])
+    assert np.array_equal(got.x, np.concatenate([a.x, skewed.x]))
+
+
+def _concat_reference(pkts: list[EventPacket]) -> EventPacket:
+    return EventPacket._trusted(*(np.concatenate([getattr(q, k) for q in pkts]) for k in ("t", "x", "y", "p")),
+                                pkts[0].sensor, pkts[0].t_start, pkts[-1].t_end, {},
+                                all(q.checked for q in pkts))
