@@ -579,6 +579,7 @@ def join_consecutive(pkts: list[EventPacket]) -> EventPacket:
     return EventPacket._trusted(t, x, y, p, first.sensor, first.t_start, pkts[-1].t_end, cols,
                                 all(q._checked for q in pkts))
 
+
 def _joined_view(pkts: list[EventPacket]) -> EventPacket | None:
     """``pkts`` as one view of the arrays they are slices of, when every
     column of every packet is a contiguous slice, at the same index, of one
