@@ -298,10 +298,7 @@ async def _sink_task(sid: str, sink: Sink, edge: Edge, stats: Stats) -> None:
         t0 = time.perf_counter_ns()
         for pkt, _ in items:
             st.packets_in += 1
-            if pkt.kind is _EVENTS:
-                st.events_in += pkt.t.shape[0]
-            else:
-                st.took(pkt)
+            st.took(pkt)
             try:
                 if sync_write is not None:
                     sync_write(pkt)
@@ -350,10 +347,7 @@ class _InlineSink:
     def write(self, pkt: Packet, arrival: float) -> None:
         st = self.st
         st.packets_in += 1
-        if pkt.kind is _EVENTS:
-            st.events_in += pkt.t.shape[0]
-        else:
-            st.took(pkt)
+        st.took(pkt)
         t0 = time.perf_counter_ns()
         try:
             self._write(pkt)
