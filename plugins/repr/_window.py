@@ -53,6 +53,8 @@ class Windowed(Operator):
         self._first = 0        # count mode: time of the window's first event
         self._last = 0         # time of the latest event seen
         self._out = 0          # watermark of the frame stream
+        # the frames of the packet being sliced, when a subclass puts them in blocks: (times, images) each
+        self._pending: list[tuple[np.ndarray, np.ndarray]] | None = None
 
     def memory_us(self) -> int | None:
         """Time windows: a frame holds its window's events only, so the
@@ -130,9 +132,22 @@ class Windowed(Operator):
             self._n += j - i
 
     def _emit_packets(self, frames: list[tuple[int, np.ndarray]], t_end: int) -> list[FramePacket]:
-        """The frames one packet completed, as packets (one here; a subclass
-        may cut them into several, back to back)."""
-        return [self._emit(frames, t_end)]
+        """The frames one packet completed, as packets: one, or when a
+        subclass put them in blocks (``_pending``, in order), one per block
+        (no copy), back to back: each but the last ends after its last
+        frame's time."""
+        blocks, self._pending = self._pending, None
+        if not blocks:
+            return [self._emit(frames, t_end)]
+        out = []
+        last = len(blocks) - 1
+        for i, (ts, images) in enumerate(blocks):
+            end = max(t_end, self._out) if i == last else int(ts[-1]) + 1
+            # built here from times in order inside [t_start, end) and frames of the stream's
+            # dtype and shape: the checks FramePacket() would repeat hold by construction
+            out.append(FramePacket._trusted(ts, {"images": images}, self._out, end))
+            self._out = end
+        return out
 
     def _emit(self, frames: list[tuple[int, np.ndarray]], t_end: int) -> FramePacket:
         t0 = self._out
@@ -151,7 +166,7 @@ class Windowed(Operator):
         else:
             stamp, image = max(self._last, self._out), self._frame(self._first, self._last)
         self._n = 0
-        return [self._emit([(stamp, image)], stamp + 1)]
+        return self._emit_packets([(stamp, image)], stamp + 1)
 
     def describe(self) -> dict[str, Any]:
         """The slicing parameters (for logs and sinks)."""

@@ -151,73 +151,123 @@ def surface_kernel(v, base, t_ref, tau_us, out):  # type: ignore[no-untyped-def]
 HISTOGRAM, SIGNED, COUNT = 0, 1, 2
 
 
+# The loops below are inlined (numba IR) into :func:`windows_kernel` once
+# per case with ``mode`` and ``full`` constants, so LLVM folds each case's
+# branches and strides into its own plain loop: with the case a runtime
+# value (strides in variables) the uint8 count ran 2.5x slower.
 @njit(cache=True, nogil=True, inline="always")
-def _index(w, chans, two, x, y, pe):  # type: ignore[no-untyped-def]
-    """An event's flat index (unsigned: no negative-index check)."""
-    return (np.uint64(y) * w + np.uint64(x)) * chans + np.uint64(pe > 0) * two
+def _at(mode, w, x, y, pe):  # type: ignore[no-untyped-def]
+    """An event's flat index (unsigned: no negative-index check): channel
+    ``p > 0`` of an (H, W, 2) image for :data:`HISTOGRAM`, else the pixel."""
+    i = np.uint64(y) * w + np.uint64(x)
+    if mode == HISTOGRAM:
+        return i * np.uint64(2) + np.uint64(pe > 0)
+    return i
 
 
-@njit(cache=True, nogil=True)
-def _fill(mode, width, vmin, vmax, x, y, p, img):  # type: ignore[no-untyped-def]
-    """Events into the flat image ``img`` (see :func:`_add_events`), one
-    plain loop per case: numba keeps a loop branch-free only when the case
-    is decided outside it (a uint8 count ran 3-4x slower with the case
-    inside)."""
-    chans = np.uint64(2 if mode == HISTOGRAM else 1)
-    two = np.uint64(mode == HISTOGRAM)
+@njit(cache=True, nogil=True, inline="always")
+def _step(mode, full, old, pe, vmin, vmax):  # type: ignore[no-untyped-def]
+    """A pixel's new value: ``+p`` (:data:`SIGNED`) or ``+1`` within
+    ``[vmin, vmax]`` (``full``: int32, no limit reached; a count stops at
+    ``vmax``: a compare, not a clip)."""
+    if mode == SIGNED:
+        return old + pe if full else min(max(old + pe, vmin), vmax)
+    return old + 1 if full else old + np.int64(old < vmax)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _fill(mode, full, width, vmin, vmax, x, y, p, img):  # type: ignore[no-untyped-def]
+    """Events into the flat image ``img`` (see :func:`windows_kernel`)."""
     w = np.uint64(width)
-    full = vmin <= -2147483648 and vmax >= 2147483647  # int32: 2^31 events a pixel do not come
-    if mode == SIGNED and full:
-        for e in range(x.shape[0]):
-            pe = np.int64(p[e])
-            img[_index(w, chans, two, x[e], y[e], pe)] += pe
-    elif mode == SIGNED:
-        for e in range(x.shape[0]):
-            pe = np.int64(p[e])
-            i = _index(w, chans, two, x[e], y[e], pe)
-            img[i] = min(max(np.int64(img[i]) + pe, vmin), vmax)
-    elif full:
-        for e in range(x.shape[0]):
-            img[_index(w, chans, two, x[e], y[e], np.int64(p[e]))] += 1
-    else:  # a count stops at vmax: a compare, not a clip
-        for e in range(x.shape[0]):
-            i = _index(w, chans, two, x[e], y[e], np.int64(p[e]))
-            old = np.int64(img[i])
-            img[i] = old + np.int64(old < vmax)
+    for e in range(x.shape[0]):
+        pe = np.int64(p[e])
+        i = _at(mode, w, x[e], y[e], pe)
+        img[i] = _step(mode, full, np.int64(img[i]), pe, vmin, vmax)
 
 
-@njit(cache=True, nogil=True)
-def _add_events(mode, width, vmin, vmax, x, y, p, img, touched, n):  # type: ignore[no-untyped-def]
-    """Events into the flat image ``img`` (``+1`` per event, ``+p`` for
-    :data:`SIGNED`), values saturating at ``vmin`` and ``vmax`` (not
-    checked for the int32 range); records the indices that leave zero in
-    ``touched[n:]`` and returns the new count (``n < 0``: no record; -1 too
-    when ``touched`` fills up). Indices are unsigned and the loops run over
-    whole arrays (slices): a signed index costs a negative-index check per
-    access."""
+@njit(cache=True, nogil=True, inline="always")
+def _fill_marked(mode, full, width, vmin, vmax, x, y, p, img, marks):  # type: ignore[no-untyped-def]
+    """:func:`_fill` that also writes each event's index into ``marks``
+    (as long as ``x``; one store per event, no test)."""
+    w = np.uint64(width)
+    for e in range(x.shape[0]):
+        pe = np.int64(p[e])
+        i = _at(mode, w, x[e], y[e], pe)
+        marks[e] = i
+        img[i] = _step(mode, full, np.int64(img[i]), pe, vmin, vmax)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _add_events(mode, full, width, vmin, vmax, x, y, p, img, touched, n):  # type: ignore[no-untyped-def]
+    """Events into the flat image ``img`` (see :func:`_fill`), recording the
+    indices that leave zero in ``touched[n:]``; returns the new count
+    (``n < 0``: no record; -1 too when ``touched`` fills up). Indices are
+    unsigned and the loops run over whole arrays (slices): a signed index
+    costs a negative-index check per access."""
     if n < 0:
-        _fill(mode, width, vmin, vmax, x, y, p, img)
+        _fill(mode, full, width, vmin, vmax, x, y, p, img)
         return n
-    chans = np.uint64(2 if mode == HISTOGRAM else 1)
-    two = np.uint64(mode == HISTOGRAM)
     w = np.uint64(width)
     cap = touched.shape[0]
     for e in range(x.shape[0]):
         pe = np.int64(p[e])
-        i = _index(w, chans, two, x[e], y[e], pe)
+        i = _at(mode, w, x[e], y[e], pe)
         old = np.int64(img[i])
         if old == 0:
             if n == cap:  # the list is full: the rest without it
-                _fill(mode, width, vmin, vmax, x[e:], y[e:], p[e:], img)
+                _fill(mode, full, width, vmin, vmax, x[e:], y[e:], p[e:], img)
                 return -1
             touched[n] = i
             n += 1
-        img[i] = min(max(old + (pe if mode == SIGNED else 1), vmin), vmax)
+        img[i] = _step(mode, full, old, pe, vmin, vmax)
     return n
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _windows(mode, full, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks,
+             n_marks):  # type: ignore[no-untyped-def]
+    """:func:`windows_kernel` for one case (``mode``, ``full``)."""
+    s_size = state.shape[0]
+    n_win = splits.shape[0]
+    cap = marks.shape[1]
+    for k in range(n_win):  # what the frame's last use left (a recycled block)
+        m = n_marks[k]
+        f = frames[k * s_size:(k + 1) * s_size]
+        if m < 0:
+            f[:] = 0
+        else:
+            for j in range(m):
+                f[marks[k, j]] = 0
+    m0 = 0  # indices frame 0 took from the state
+    if n_win > 0:
+        m0 = n_touched[0]
+        for j in range(m0 if m0 >= 0 else s_size):
+            i = touched[j] if m0 >= 0 else j
+            if state[i] != 0:  # a signed sum may list a pixel twice (it went back to zero)
+                frames[i] = state[i]
+                state[i] = 0
+        if 0 <= m0 <= cap:
+            for j in range(m0):
+                marks[0, j] = touched[j]
+        n_touched[0] = 0
+    lo = 0
+    for k in range(n_win):
+        hi = splits[k]
+        f = frames[k * s_size:(k + 1) * s_size]
+        first = m0 if k == 0 else 0
+        if 0 <= first and first + hi - lo <= cap:
+            _fill_marked(mode, full, width, vmin, vmax, x[lo:hi], y[lo:hi], p[lo:hi], f, marks[k, first:])
+            n_marks[k] = first + hi - lo
+        else:
+            _fill(mode, full, width, vmin, vmax, x[lo:hi], y[lo:hi], p[lo:hi], f)
+            n_marks[k] = -1
+        lo = hi
+    n_touched[0] = _add_events(mode, full, width, vmin, vmax, x[lo:], y[lo:], p[lo:], state, touched, n_touched[0])
+
+
 @njit(cache=True, nogil=True)
-def windows_kernel(mode, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames):  # type: ignore[no-untyped-def]
+def windows_kernel(mode, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks,
+                   n_marks):  # type: ignore[no-untyped-def]
     """One packet's events into consecutive windows of a per-window image.
 
     ``mode`` (:data:`HISTOGRAM`: ``+1`` at ``(y W + x) 2 + (p > 0)``;
@@ -225,24 +275,29 @@ def windows_kernel(mode, width, vmin, vmax, x, y, p, splits, state, touched, n_t
     ``width`` W (px), values saturate at ``vmin`` and ``vmax``. ``state``
     (S,) is the flat image of the window in progress, non-zero only at
     ``touched[:n_touched[0]]`` (-1: anywhere); ``frames`` (N S,) the flat
-    images of the ``N = len(splits)`` windows this packet completes, zero on
-    entry. Window ``k`` gets events ``[splits[k - 1], splits[k])`` (window
-    0 also what ``state`` held; ``state`` is zeroed where it was touched);
-    events from ``splits[-1]`` on go into ``state``."""
-    s_size = state.shape[0]
-    n_win = splits.shape[0]
-    if n_win > 0:
-        m = n_touched[0]
-        for j in range(m if m >= 0 else s_size):
-            i = touched[j] if m >= 0 else j
-            if state[i] != 0:  # a signed sum may list a pixel twice (it went back to zero)
-                frames[i] = state[i]
-                state[i] = 0
-        n_touched[0] = 0
-    lo = 0
-    for k in range(n_win):
-        hi = splits[k]
-        _add_events(mode, width, vmin, vmax, x[lo:hi], y[lo:hi], p[lo:hi], frames[k * s_size:(k + 1) * s_size],
-                    touched, -1)
-        lo = hi
-    n_touched[0] = _add_events(mode, width, vmin, vmax, x[lo:], y[lo:], p[lo:], state, touched, n_touched[0])
+    images of the ``N = len(splits)`` windows this packet completes. Window
+    ``k`` gets events ``[splits[k - 1], splits[k])`` (window 0 also what
+    ``state`` held; ``state`` is zeroed where it was touched); events from
+    ``splits[-1]`` on go into ``state``.
+
+    Frames may come from a recycled block: frame ``k`` is non-zero only at
+    ``marks[k, :n_marks[k]]`` (-1: anywhere; ``marks`` (N, C) uint32) and
+    is zeroed there first. On return ``n_marks[k]`` says where frame ``k``
+    was written: its indices in ``marks[k]`` when they fit (one per event
+    and per state pixel, not distinct), else -1."""
+    full = vmin <= -2147483648 and vmax >= 2147483647  # int32: 2^31 events a pixel do not come
+    if mode == HISTOGRAM and full:
+        _windows(HISTOGRAM, True, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks,
+                 n_marks)
+    elif mode == HISTOGRAM:
+        _windows(HISTOGRAM, False, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks,
+                 n_marks)
+    elif mode == SIGNED and full:
+        _windows(SIGNED, True, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks, n_marks)
+    elif mode == SIGNED:
+        _windows(SIGNED, False, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks,
+                 n_marks)
+    elif full:
+        _windows(COUNT, True, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks, n_marks)
+    else:
+        _windows(COUNT, False, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks, n_marks)

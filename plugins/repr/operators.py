@@ -14,6 +14,7 @@ from tectum import EventPacket, FramePacket
 
 from . import functional as F
 from . import kernels as K
+from ._pool import Block, pool
 from ._window import Windowed
 
 __all__ = ["EventFrame", "Accumulate", "CountImage", "TimeSurface", "Sae", "VoxelGrid", "Color"]
@@ -48,15 +49,20 @@ class _Image(Windowed):
         self._flat = self.state.reshape(-1)
         self._touched = np.empty(self._flat.shape[0], np.int64)  # state indices that left zero
         self._n_touched = np.zeros(1, np.int64)
-        self._pending: list[np.ndarray] | None = None  # the frame blocks of the packet being sliced
+        # a frame records where it was written (for its next zeroing) while that is
+        # cheaper than zeroing it whole: up to 1 index per 64 bytes of frame
+        self._pool = pool(self.state.shape, self.dtype, max(1, BLOCK_BYTES // self.state.nbytes),
+                          marks=self.state.nbytes // 64)
+        self._no_frames = Block(np.empty((0, *self.state.shape), self.dtype), 0)
+        self._width = sensor[0]
 
     def _by_time(self, pk: EventPacket, frames: list[tuple[int, np.ndarray]]) -> None:
-        w = int(self.window_us)  # type: ignore[arg-type]
-        n_win = (pk.t_end - self._end) // w + 1 if self._end <= pk.t_end else 0
-        ends = self._end + w * np.arange(n_win, dtype=np.int64)
-        splits = np.searchsorted(pk.t, ends, side="left") if n_win and len(pk) else np.zeros(n_win, np.int64)
-        self._end += n_win * w
-        self._run(pk, splits, ends - 1, frames)
+        w, end = int(self.window_us), self._end  # type: ignore[arg-type]
+        n_win = (pk.t_end - end) // w + 1 if end <= pk.t_end else 0
+        self._end = end + n_win * w
+        stamps = np.arange(end - 1, self._end - 1, w, dtype=np.int64)  # each window's last µs
+        # the first event of each next window: after the last at or before the stamp (times are integers)
+        self._run(pk, pk.t.searchsorted(stamps, "right"), stamps)
 
     def _by_count(self, pk: EventPacket, frames: list[tuple[int, np.ndarray]]) -> None:
         c, n = int(self.count), len(pk)  # type: ignore[arg-type]
@@ -64,61 +70,47 @@ class _Image(Windowed):
         rest = int(splits[-1]) if len(splits) else 0  # the first event of the window left open
         if rest < n and (len(splits) or self._n == 0):
             self._first = int(pk.t[rest])
-        self._run(pk, splits, pk.t[splits - 1], frames)
+        self._run(pk, splits, pk.t[splits - 1])
 
-    def _run(self, pk: EventPacket, splits: np.ndarray, stamps: np.ndarray,
-             frames: list[tuple[int, np.ndarray]]) -> None:
+    def _run(self, pk: EventPacket, splits: np.ndarray, stamps: np.ndarray) -> None:
         """Windows ending at event indices ``splits`` (stamped ``stamps``, µs)
         from the packet's events; the rest stays in the state. The frames
-        come in blocks of at most :data:`BLOCK_BYTES` (one packet each):
-        memory the allocator hands out again while it is still in cache,
-        where one block for a packet of many sparse windows would be fresh
-        pages, dearer than the events."""
-        n_win, n = len(splits), len(pk)
+        come in blocks of at most :data:`BLOCK_BYTES` (one packet each, in
+        ``_pending``), recycled from a pool once nobody holds them (see
+        :mod:`tectum.plugins.repr._pool`): memory still in cache, zeroed
+        only where its last frames were written, where fresh pages cost a
+        page fault and a zeroing each (a 720 kB frame: more than its 1000
+        events at 0.1 Mev/s)."""
+        n_win, n = splits.shape[0], pk.t.shape[0]
         self._n = n - int(splits[-1]) if n_win else self._n + n
-        if not (n_win or n):
-            return
         if not n_win:
-            self._kernel(pk.x, pk.y, pk.p, splits, np.zeros((0, *self.state.shape), self.dtype))
+            if n:
+                self._kernel(pk.x, pk.y, pk.p, splits, self._no_frames)
             return
-        g = max(1, BLOCK_BYTES // self.state.nbytes)
-        self._pending = []
+        g = self._pool.per_block
+        self._pending = pending = []
         for a in range(0, n_win, g):
             b = min(a + g, n_win)
-            block = np.zeros((b - a, *self.state.shape), self.dtype)
+            block = self._pool.take()
             if b - a == n_win:  # one block: no slicing
                 self._kernel(pk.x, pk.y, pk.p, splits, block)
             else:
                 lo = int(splits[a - 1]) if a else 0
                 hi = int(splits[b - 1]) if b < n_win else n
                 self._kernel(pk.x[lo:hi], pk.y[lo:hi], pk.p[lo:hi], splits[a:b] - lo, block)
-            self._pending.append(block)
-        frames.extend(zip(stamps.tolist(), (im for block in self._pending for im in block)))
+            pending.append((stamps[a:b], block.images if b - a == g else block.images[:b - a]))
 
-    def _kernel(self, x: np.ndarray, y: np.ndarray, p: np.ndarray, splits: np.ndarray, images: np.ndarray) -> None:
-        K.windows_kernel(self.mode, self.state.shape[1], *self._limits, x, y, p, splits, self._flat, self._touched,
-                         self._n_touched, images.reshape(-1))
+    def _kernel(self, x: np.ndarray, y: np.ndarray, p: np.ndarray, splits: np.ndarray, frames: Block) -> None:
+        """:func:`~tectum.plugins.repr.kernels.windows_kernel` into the first
+        ``len(splits)`` frames of ``frames``."""
+        K.windows_kernel(self.mode, self._width, *self._limits, x, y, p, splits, self._flat, self._touched,
+                         self._n_touched, frames.flat, frames.marks, frames.n_marks)
 
     def _frame(self, t0: int, t1: int) -> np.ndarray:
         """The window in progress as a new image (the state is zeroed)."""
-        out = np.zeros((1, *self.state.shape), self.dtype)
-        self._kernel(_NO_XY, _NO_XY, _NO_P, np.zeros(1, np.int64), out)
-        return out[0]
-
-    def _emit_packets(self, frames: list[tuple[int, np.ndarray]], t_end: int) -> list[FramePacket]:
-        """One packet per block of frames (no copy), back to back: each but
-        the last ends after its last frame's time."""
-        blocks, self._pending = self._pending, None
-        if not blocks:
-            return super()._emit_packets(frames, t_end)
-        out, k = [], 0
-        for i, block in enumerate(blocks):
-            ts = np.array([f[0] for f in frames[k:k + len(block)]], np.int64)
-            end = max(t_end, self._out) if i == len(blocks) - 1 else int(ts[-1]) + 1
-            out.append(FramePacket(ts, images=block, t_start=self._out, t_end=end))
-            self._out = end
-            k += len(block)
-        return out
+        out = Block(np.zeros((1, *self.state.shape), self.dtype), 0)
+        self._kernel(_NO_XY, _NO_XY, _NO_P, _ONE_SPLIT, out)
+        return out.images[0]
 
     def describe(self) -> dict[str, Any]:
         return {**super().describe(), "dtype": str(self.dtype)}
@@ -128,6 +120,7 @@ class _Image(Windowed):
 #: a core's cache, so the allocator's next block reuses warm memory
 BLOCK_BYTES = 1 << 21
 _NO_XY, _NO_P = np.empty(0, np.uint16), np.empty(0, np.int8)
+_ONE_SPLIT = np.zeros(1, np.int64)
 
 
 class EventFrame(_Image):
@@ -230,6 +223,10 @@ class TimeSurface(Windowed):
         self.v = np.zeros((sensor[1], sensor[0], 2), np.float64)
         self.base = np.zeros(1, np.int64)
         self._based = False
+        # frames written whole into recycled blocks (see _Image._run), one packet each
+        self._pool = pool(self.v.shape, np.dtype(np.float32), max(1, BLOCK_BYTES // (self.v.size * 4)))
+        self._blocks: list[np.ndarray] = []  # the blocks of the packet being sliced
+        self._k = 0  # frames in the last one
 
     def _add(self, t, x, y, p) -> None:  # type: ignore[no-untyped-def]
         if not self._based:
@@ -238,9 +235,23 @@ class TimeSurface(Windowed):
         K.decay_kernel(t, x, y, p, self.v, self.base, self.tau_us, int(min(40.0 * self.tau_us, 2**62)))
 
     def _frame(self, t0: int, t1: int) -> np.ndarray:
-        out = np.empty(self.v.shape, np.float32)
+        if not self._blocks or self._k == self._pool.per_block:
+            self._blocks.append(self._pool.take().images)
+            self._k = 0
+        out = self._blocks[-1][self._k]
+        self._k += 1
         K.surface_kernel(self.v, self.base, t1, self.tau_us, out)
         return out
+
+    def _emit_packets(self, frames: list[tuple[int, np.ndarray]], t_end: int) -> list[FramePacket]:
+        """The blocks :meth:`_frame` wrote, one packet each (the last holds
+        only the frames written in it)."""
+        blocks, self._blocks = self._blocks, []
+        if blocks:
+            g = self._pool.per_block
+            ts = np.array([f[0] for f in frames], np.int64)
+            self._pending = [(ts[i * g:(i + 1) * g], b[:len(ts) - i * g]) for i, b in enumerate(blocks)]
+        return super()._emit_packets(frames, t_end)
 
 
 class VoxelGrid(Windowed):

@@ -1,0 +1,113 @@
+"""Recycled blocks of frames for the ``repr`` operators.
+
+A block of frames handed out in a packet is the consumer's: nothing writes
+it while anyone can still read it. A pool keeps a reference to each block
+it made (up to :data:`POOL_BYTES`) and hands a block out again only when
+that reference is the last one: no packet, frame, view, buffer export
+(``memoryview``, a C extension's ``Py_buffer``) or weak reference to it is
+left anywhere. Every way to read an array's memory later holds a
+reference to the array that owns it (a view holds its base, an export its
+exporter), so the last reference means nobody can read the block again:
+reusing it is the allocator handing out freed memory, minus the page
+faults and the zeroing of fresh pages (a 720 kB frame is 176 fresh pages a
+window) that made frames cost more than the events in them.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import weakref
+from collections import OrderedDict
+
+import numpy as np
+
+__all__ = ["Block", "FramePool", "pool", "POOL_BYTES", "POOLS"]
+
+#: the most bytes of blocks one pool keeps for reuse
+POOL_BYTES = 1 << 26
+#: the most pools (frame shapes and dtypes) kept, the last used
+POOLS = 4
+
+
+class Block:
+    """``images`` (g, *frame shape) and ``flat``, the same as one flat view;
+    for images that must start at zero, where each frame was written:
+    ``marks[k, :n_marks[k]]`` (flat indices in frame ``k``; ``n_marks[k]``
+    -1: anywhere, 0: nowhere, as a new block)."""
+
+    __slots__ = ("images", "flat", "marks", "n_marks")
+
+    def __init__(self, images: np.ndarray, marks: int) -> None:
+        self.images, self.flat = images, images.reshape(-1)
+        self.marks = np.empty((images.shape[0], marks), np.uint32)
+        self.n_marks = np.zeros(images.shape[0], np.int64)
+
+
+def _refs(b: Block) -> int:
+    return sys.getrefcount(b.images)
+
+
+#: what :func:`_refs` says of a block's images that only the block holds
+#: (the pool's own reference plus what the call adds, measured here rather
+#: than assumed: interpreters differ in what a call's argument costs)
+_ALONE = _refs(Block(np.zeros(1), 0))
+
+
+def _unshared(b: Block) -> bool:
+    """Nobody but the pool holds ``b``'s images (nor a weak reference)."""
+    return _refs(b) == _ALONE and not weakref.getweakrefcount(b.images)
+
+
+class FramePool:
+    """Blocks of ``per_block`` frames of ``shape`` and ``dtype``. ``marks``:
+    how many written indices a frame records for its next zeroing (0: the
+    frames are overwritten whole, or start at zero some other way). Use
+    :func:`pool` (shared by the operators of a process, so a pipeline built
+    again finds the blocks the last one freed)."""
+
+    def __init__(self, shape: tuple[int, ...], dtype: np.dtype, per_block: int, marks: int, max_blocks: int) -> None:
+        self.shape, self.dtype, self.per_block, self.n_marks = shape, dtype, per_block, marks
+        self.max_blocks = max_blocks
+        self._blocks: list[Block] = []
+        self._next = 0  # where the search for a free block starts (the oldest handed out)
+        self._lock = threading.Lock()  # operators in several threads may share the pool
+
+    def take(self) -> Block:
+        """A block nobody else holds, dirty as its ``n_marks`` say; a new
+        zeroed one (kept for reuse while the pool has room) when there is none."""
+        with self._lock:
+            blocks = self._blocks
+            n = len(blocks)
+            for j in range(n):
+                b = blocks[(self._next + j) % n]
+                if _unshared(b):
+                    self._next = (self._next + j + 1) % n
+                    return b
+            b = Block(np.zeros((self.per_block, *self.shape), self.dtype), self.n_marks)
+            if n < self.max_blocks:
+                blocks.append(b)
+                self._next = 0
+            return b
+
+
+_POOLS: OrderedDict[tuple[object, ...], FramePool] = OrderedDict()
+_POOLS_LOCK = threading.Lock()
+
+
+def pool(shape: tuple[int, ...], dtype: np.dtype, per_block: int, marks: int = 0) -> FramePool:
+    """The process's pool of blocks of ``per_block`` frames of ``shape`` and
+    ``dtype`` (``marks``: see :class:`FramePool`). Pools last while they are
+    among the :data:`POOLS` used last; each keeps at most
+    :data:`POOL_BYTES` of blocks, and only as many as were out at once."""
+    key = (tuple(shape), np.dtype(dtype).str, per_block, marks)
+    with _POOLS_LOCK:
+        p = _POOLS.get(key)
+        if p is None:
+            frame_bytes = int(np.prod(shape)) * np.dtype(dtype).itemsize
+            p = _POOLS[key] = FramePool(tuple(shape), np.dtype(dtype), per_block, marks,
+                                        max(1, POOL_BYTES // max(frame_bytes * per_block, 1)))
+            while len(_POOLS) > POOLS:
+                _POOLS.popitem(last=False)
+        _POOLS.move_to_end(key)
+        return p

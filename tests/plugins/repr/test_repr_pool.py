@@ -1,0 +1,115 @@
+"""Frames recycled from the repr operators' pools: equal to fresh ones, and
+never written while anyone can still read them."""
+
+import gc
+import weakref
+
+import numpy as np
+import pytest
+
+from tectum import concat
+from tectum.plugins import repr as R
+from tectum.plugins.repr import _pool
+from tectum.testing import assert_stream_contract
+
+from helpers import bars
+
+MAKES = {
+    "event_frame": lambda: R.EventFrame(window_us=700),
+    "count_uint8": lambda: R.CountImage(window_us=700, dtype="uint8"),
+    "accumulate_int8": lambda: R.Accumulate(window_us=700, dtype="int8"),
+    "time_surface": lambda: R.TimeSurface(window_us=700, tau_us=2000.0),
+}
+REFERENCE = {"event_frame": R.event_frame, "count_uint8": lambda s: np.minimum(R.count_image(s), 255),
+             "accumulate_int8": R.accumulate}
+
+
+@pytest.fixture
+def ev():
+    # 16x10 px: an int32 event frame is 1280 bytes and records 20 indices, so windows
+    # of 700 µs are zeroed where they were written (few events) or whole (many)
+    return bars(duration_us=40_000, sensor="16x10", noise_hz=100.0, speed=300.0)
+
+
+@pytest.mark.parametrize("name", list(MAKES))
+def test_recycled_frames_equal_fresh_ones(ev, name):
+    """Fed in pieces whose frames are copied and dropped (so each next piece
+    gets recycled blocks), every frame equals the plain reference of its
+    window (time surface: the frames of a run that keeps every frame)."""
+    op = MAKES[name]()
+    got, stamps, bases = [], [], set()
+    for piece in ev.batches(53):
+        for pkt in op.process(piece):
+            if len(pkt):
+                bases.add(id(pkt.images.base if pkt.images.base is not None else pkt.images))
+                got.append(pkt.images.copy())
+                stamps.append(pkt.t.copy())
+        pkt = None
+    got_all, ts = np.concatenate(got), np.concatenate(stamps)
+    assert len(ts) > 40 and len(bases) < len(got) / 4  # the blocks went round
+    if name in REFERENCE:
+        per_window = [REFERENCE[name](ev.slice_time(t - 699, t + 1)) for t in ts]
+        assert np.array_equal(got_all, np.stack(per_window).astype(got_all.dtype))
+        if name == "event_frame":
+            n = np.array([len(ev.slice_time(t - 699, t + 1)) for t in ts])
+            assert (n <= 20).sum() > 5 and (n > 20).sum() > 5  # both ways of zeroing ran
+    else:
+        kept = concat(op_out for op_out in _feed_keeping(MAKES[name](), ev))
+        assert np.array_equal(kept.t[:len(ts)], ts) and np.array_equal(kept.images[:len(ts)], got_all)
+
+
+def _feed_keeping(op, ev):
+    out = []
+    for piece in ev.batches(53):
+        out += op.process(piece)
+    return out + op.finish()
+
+
+@pytest.mark.parametrize("name", list(MAKES))
+@pytest.mark.parametrize("hold", ["packet", "view", "memoryview", "weakref"])
+def test_frames_someone_holds_are_never_written(ev, name, hold):
+    """A frame kept by a packet, a view, a buffer export or a weak reference
+    keeps its values however many windows follow."""
+    op = MAKES[name]()
+    kept = []
+    pieces = list(ev.batches(53))
+    for piece in pieces[:len(pieces) // 2]:
+        for pkt in op.process(piece):
+            if not len(pkt):
+                continue
+            images = pkt.images
+            keep = {"packet": pkt, "view": images[-1:], "memoryview": memoryview(images)}.get(hold)
+            if hold == "weakref":
+                base = images.base if images.base is not None else images
+                keep = weakref.ref(base)
+            kept.append((keep, images[-1].copy()))
+        pkt = images = keep = base = None  # only what `kept` holds stays
+    gc.collect()
+    out = [q for piece in pieces[len(pieces) // 2:] for q in op.process(piece)] + op.finish()
+    assert_stream_contract(out)
+    assert sum(len(q) for q in out) > 20 and len(kept) > 5
+    for keep, copy in kept:
+        if hold == "weakref":
+            base = keep()
+            assert base is not None  # the pool keeps it alive: so it must not reuse it
+            now = base[-1] if base.shape[0] else None
+            # the last frame the packet held: find it among the block's frames by the copy
+            assert now is not None and any(np.array_equal(f, copy) for f in base)
+        else:
+            now = {"packet": lambda k: k.images[-1], "view": lambda k: k[-1],
+                   "memoryview": lambda k: np.asarray(k)[-1]}[hold](keep)
+            assert np.array_equal(now, copy)
+
+
+def test_a_pool_reuses_only_unshared_blocks():
+    p = _pool.FramePool((2, 3), np.dtype(np.int32), 2, 0, max_blocks=2)
+    a = p.take()
+    view = a.images[:1]
+    b = p.take()
+    assert b is not a  # a's images are held by a view
+    del view
+    assert p.take() in (a, b)
+    held = [a.images, b.images]
+    e = p.take()  # none free and no room: a new block, not kept
+    assert e is not a and e is not b and len(p._blocks) == 2
+    del held
