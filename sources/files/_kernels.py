@@ -120,7 +120,18 @@ _EVT3_RARE = sum(1 << k for k in (0x1, 0x3, 0x4, 0x5, 0x9, 0xA, 0xB, 0xC, 0xD))
 
 @njit(cache=True, nogil=True)
 def decode_evt3(words, state, strict, t, x, y, p, where, trig):  # pragma: no cover - numba
-    """The common words (ADDR_Y, ADDR_X, TIME_LOW, TIME_HIGH and the
+    """EVT 3.0 words to events: :func:`_evt3_packed` when ``where`` is empty
+    (the fast path), else :func:`_evt3_tracked`; both give the same events,
+    state and return values."""
+    if where.shape[0] > 0:
+        return _evt3_tracked(words, state, strict, t, x, y, p, where, trig)
+    return _evt3_packed(words, state, strict, t, x, y, p, trig)
+
+
+@njit(cache=True, nogil=True)
+def _evt3_tracked(words, state, strict, t, x, y, p, where, trig):  # pragma: no cover - numba
+    """The reference decoder, recording each event's word in ``where``.
+    The common words (ADDR_Y, ADDR_X, TIME_LOW, TIME_HIGH and the
     ignored ones) update the registers with arithmetic instead of a branch
     per type, whose mispredictions cost more than the decoding on a mixed
     stream; an ADDR_X event is written every time and counted when valid.
@@ -202,6 +213,173 @@ def decode_evt3(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
             where[k] = i - 1
         n += is_x * have
         dropped += is_x * (1 - have)
+    state[0] = high
+    state[1] = low
+    state[2] = wraps
+    state[3] = have
+    state[4] = cy
+    state[5] = bx
+    state[6] = vp
+    state[7] = dropped
+    return n, nt, bad, nbad, i
+
+
+#: Words per block of :func:`_evt3_packed` (its wrap count fits 15 bits).
+_EVT3_BLOCK = 1 << 14
+#: Per word type: the bits of the packed record of :func:`_evt3_packed` it
+#: sets (ADDR_Y 12-22, TIME_LOW 24-35, TIME_HIGH 36-47; none for the others),
+#: the word's bits it keeps and their shift, whether it is an event (ADDR_X),
+#: and -1 for TIME_HIGH
+_EVT3_FIELD = np.array([0x7FF << 12, 0, 0, 0, 0, 0, 0xFFF << 24, 0, 0xFFF << 36, 0, 0, 0, 0, 0, 0, 0], np.int64)
+_EVT3_KEEP = np.array([0x7FF, 0, 0, 0, 0, 0, 0xFFF, 0, 0xFFF, 0, 0, 0, 0, 0, 0, 0], np.int64)
+_EVT3_SHIFT = np.array([12, 0, 0, 0, 0, 0, 24, 0, 36, 0, 0, 0, 0, 0, 0, 0], np.int64)
+_EVT3_IS_X = np.array([0, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0], np.int64)
+_EVT3_HIGH = np.array([0, 0, 0, 0, 0, 0, 0, 0, -1, 0, 0, 0, 0, 0, 0, 0], np.int64)
+
+
+@njit(cache=True, nogil=True)
+def _evt3_block(words, i, e, exact, cur, base, n, nt, bad, nbad, bx, vp, strict, t, trig):  # pragma: no cover
+    """Words ``[i, e)`` of :func:`_evt3_packed` as packed records into
+    ``t[n:]``; ``cur`` holds the latest ADDR_Y, TIME_LOW and TIME_HIGH in
+    their fields. Without ``exact`` no wrap is counted, only the largest
+    TIME_HIGH fall (a wrap when above 2048: the caller decodes the block
+    again with ``exact``). Returns (i, n, nt, bad, nbad, bx, vp, cur, wraps
+    << 48, largest fall, stopped at a bad word, stopped at a wide vector)."""
+    wq = np.int64(0)
+    fall = np.int64(0)
+    while i < e:
+        w = np.int64(words[np.uint64(i)])
+        typ = w >> 12
+        if (_EVT3_RARE >> typ) & 1:
+            if typ == 0x4 or typ == 0x5:
+                nb = 12 if typ == 0x4 else 8
+                if bx < 0 or bx + nb > 4096:
+                    return i, n, nt, bad, nbad, bx, vp, cur, wq, fall, False, True
+                head = wq | cur | (np.int64(vp > 0) << 11)
+                for b in range(nb):
+                    xb = bx + b
+                    t[np.uint64(n)] = head | (xb & 0x7FF) | ((xb & 0x800) << 12)
+                    n += (w >> b) & 1
+                bx += nb
+            elif typ == 0x3:
+                bx = w & 0x7FF
+                vp = 1 if (w >> 11) & 1 else -1
+            elif typ == 0xA:
+                trig[nt, 0] = base + ((wq | cur) >> 24)
+                trig[nt, 1] = (w >> 8) & 0xF
+                trig[nt, 2] = w & 1
+                nt += 1
+            else:
+                if bad < 0:
+                    bad = i
+                nbad += 1
+                if strict:
+                    return i, n, nt, bad, nbad, bx, vp, cur, wq, fall, True, False
+            i += 1
+            continue
+        i += 1
+        v = w & 0xFFF
+        drop = ((cur >> 36) - v) & _EVT3_HIGH[typ]  # how far a TIME_HIGH falls
+        if exact:  # loop-invariant: compiled as two loops
+            wq += np.int64(drop > 2048) << 48
+        else:
+            fall = max(fall, drop)
+        cur = (cur & ~_EVT3_FIELD[typ]) | ((w & _EVT3_KEEP[typ]) << _EVT3_SHIFT[typ])
+        t[np.uint64(n)] = wq | cur | v
+        n += _EVT3_IS_X[typ]
+    return i, n, nt, bad, nbad, bx, vp, cur, wq, fall, False, False
+
+
+@njit(cache=True, nogil=True)
+def _evt3_packed(words, state, strict, t, x, y, p, trig):  # pragma: no cover - numba
+    """:func:`decode_evt3` without ``where``, in blocks of words
+    (:func:`_evt3_block`): one pass writes each word as a packed 64-bit
+    record into ``t`` (bits 0-10 x, 11 polarity, 12-22 y, 23 x's bit 11,
+    24-35 TIME_LOW, 36-47 TIME_HIGH, 48-62 wraps since the block began),
+    at the slot of the next event and counted only for ADDR_X: no branch
+    but the one for rare types (vectors, triggers, undefined), the
+    registers merged into one record through masks looked up by type, one
+    store per word. Wraps (one per 16.8 s of recording) are counted only in
+    a block that has one, decoded again. A second pass unpacks the block's
+    events into the columns while they are in cache. A vector reaching x
+    past 12 bits (only in a corrupt stream) ends the block and is decoded
+    unpacked."""
+    n = 0
+    nt = 0
+    bad = -1
+    nbad = 0
+    high = state[0]
+    low = state[1]
+    wraps = state[2]
+    have = state[3]
+    cy = state[4]
+    bx = state[5]
+    vp = state[6] if state[6] != 0 else -1
+    dropped = state[7]
+    cap = t.shape[0] - 12
+    m = words.shape[0]
+    i = 0
+    while have == 0 and i < m and n <= cap:  # no time base yet: events dropped, counted
+        w = np.int64(words[i])
+        typ = w >> 12
+        if typ == 0x8:
+            high = w & 0xFFF
+            have = 1
+        elif typ == 0x0:
+            cy = w & 0x7FF
+        elif typ == 0x6:
+            low = w & 0xFFF
+        elif typ == 0x2:
+            dropped += 1
+        elif typ == 0x3:
+            bx = w & 0x7FF
+            vp = 1 if (w >> 11) & 1 else -1
+        elif typ == 0x4 or typ == 0x5:
+            bx += 12 if typ == 0x4 else 8
+            dropped += 1
+        elif (_EVT3_RARE >> typ) & 1 and typ != 0xA:
+            if bad < 0:
+                bad = i
+            nbad += 1
+            if strict:
+                m = i
+                break
+        i += 1
+    cur = (cy << 12) | (low << 24) | (high << 36)
+    while have == 1 and i < m and n <= cap:
+        n0 = n
+        base = wraps << 24
+        e = min(m, i + _EVT3_BLOCK, i + (cap - n) // 12 + 1)  # each word starts with n <= cap
+        r = _evt3_block(words, i, e, False, cur, base, n, nt, bad, nbad, bx, vp, strict, t, trig)
+        if r[9] > 2048:  # a wrap in the block
+            r = _evt3_block(words, i, e, True, cur, base, n, nt, bad, nbad, bx, vp, strict, t, trig)
+        i, n, nt, bad, nbad, bx, vp, cur, wq, _, stop, wide = r
+        for k in range(n0, n):  # unpack
+            q = t[k]
+            x[k] = np.uint16((q & 0x7FF) | ((q >> 12) & 0x800))
+            y[k] = np.uint16((q >> 12) & 0x7FF)
+            p[k] = np.int8(((q >> 10) & 2) - 1)
+            t[k] = base + (q >> 24)
+        wraps += wq >> 48
+        if stop:
+            break
+        if wide:  # the vector word at i, decoded unpacked
+            w = np.int64(words[i])
+            i += 1
+            nb = 12 if (w >> 12) == 0x4 else 8
+            tb = (wraps << 24) | (cur >> 24)
+            for b in range(nb):
+                k = np.uint64(n)
+                t[k] = tb
+                x[k] = bx + b
+                y[k] = (cur >> 12) & 0x7FF
+                p[k] = vp
+                n += (w >> b) & 1
+            bx += nb
+    if have == 1:
+        high = cur >> 36
+        low = (cur >> 24) & 0xFFF
+        cy = (cur >> 12) & 0x7FF
     state[0] = high
     state[1] = low
     state[2] = wraps

@@ -81,6 +81,84 @@ def test_evt3_kernel_matches_reference(words):
         assert run(K.decode_evt3, w, K.EVT3_STATE, 12) == ref_evt3(w)
 
 
+def decode_evt3_calls(words, strict, cap, fast, state=None):
+    """decode_evt3 over all of ``words`` in calls of at most ``cap`` output
+    events (resuming after each), on the fast path (empty ``where``) or the
+    tracked one: every call's return values and the state after it, the
+    events, the triggers."""
+    st_ = np.zeros(K.EVT3_STATE, np.int64) if state is None else state.copy()
+    calls, events, trig, i = [], [], [], 0
+    while i < len(words):
+        t, x, y = np.empty(cap, np.int64), np.empty(cap, np.uint16), np.empty(cap, np.uint16)
+        p, tr = np.empty(cap, np.int8), np.empty((len(words), 3), np.int64)
+        where = np.empty(0 if fast else cap, np.int64)
+        n, nt, bad, nbad, used = K.decode_evt3(words[i:], st_, strict, t, x, y, p, where, tr)
+        calls.append((n, nt, bad, nbad, used, st_.tolist()))
+        events += zip(t[:n].tolist(), x[:n].tolist(), y[:n].tolist(), p[:n].tolist())
+        trig += tr[:nt].tolist()
+        if used == 0 or (strict and bad >= 0):
+            break
+        i += used
+    return calls, events, trig
+
+
+#: EVT 3.0 words of every type, the common ones more often, TIME_HIGH
+#: values near the ends of their range (wraps) and vector bases anywhere
+evt3_any_word = st.one_of(
+    st.tuples(st.sampled_from([0, 2, 6, 7, 14, 15]), st.integers(0, 4095)).map(lambda a: (a[0] << 12) | a[1]),
+    st.sampled_from([0, 1, 2, 4093, 4094, 4095, 2047, 2048, 2049]).map(lambda v: (8 << 12) | v),
+    st.integers(0, 0xFFFF))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(evt3_any_word, max_size=300), st.booleans(), st.integers(0, 80),
+       st.lists(st.integers(-(1 << 20), 1 << 20), min_size=8, max_size=8))
+def test_evt3_fast_path_equals_tracked_path(words, strict, cap, state):
+    """The packed fast path (no ``where``) gives what the tracked path gives
+    (events, triggers, return values, state after each call) on any words:
+    undefined types, wraps, vectors past x 2047 or 4095, output full after
+    any word, any state to start from."""
+    w = np.array(words, np.uint16)
+    st0 = np.array(state + [0], np.int64)
+    st0[3] = st0[3] & 1  # have: 0 or 1
+    st0[6] = 1 if st0[6] > 0 else (-1 if st0[6] < 0 else 0)
+    st0[0], st0[1], st0[4] = st0[0] & 0xFFF, st0[1] & 0xFFF, st0[4] & 0x7FF
+    st0[2] = abs(int(st0[2])) >> 8
+    assert decode_evt3_calls(w, strict, cap, True, st0) == decode_evt3_calls(w, strict, cap, False, st0)
+
+
+def test_evt3_fast_path_long_streams_and_blocks():
+    """Blocks of the fast path: 100k words of every type (triggers, many
+    wraps, wide vectors) decode as on the tracked path, with output room for
+    all or for a few events per call."""
+    rng = np.random.default_rng(7)
+    typ = rng.choice([0, 2, 2, 3, 4, 5, 6, 6, 7, 8, 10, 14, 15], 100_000)
+    val = rng.integers(0, 4096, typ.shape[0])
+    val[typ == 8] = np.cumsum(rng.integers(0, 2, int((typ == 8).sum()))) * 1500 % 4096  # wraps
+    w = ((typ << 12) | val).astype(np.uint16)
+    for cap in (12 * w.shape[0], 500):
+        fast = decode_evt3_calls(w, False, cap, True)
+        assert fast == decode_evt3_calls(w, False, cap, False)
+        assert len(fast[1]) > 50_000 and len(fast[2]) > 1000
+        assert max(e[0] for e in fast[1]) >> 24 > 100  # wrapped many times
+
+
+def test_evt3_fast_path_at_the_edges():
+    """Wraps at a TIME_HIGH fall of exactly 2048 (none) and 2049 (one);
+    vectors from base 2040 running on past x 2047, 4095 and 65535 (a corrupt
+    stream; x keeps its bits as on the tracked path)."""
+    hi, lo, y = 8 << 12, 6 << 12, 5
+    words = [hi | 4095, lo | 1, y, (2 << 12) | 9, hi | 2047, (2 << 12) | 9, hi | 4095, hi | 2046, (2 << 12) | 9]
+    words += [(3 << 12) | (1 << 11) | 2040] + [(4 << 12) | 0xFFF] * 5500 + [(5 << 12) | 0x81, (2 << 12) | 3]
+    w = np.array(words, np.uint16)
+    fast = decode_evt3_calls(w, True, 12 * len(words), True)
+    assert fast == decode_evt3_calls(w, True, 12 * len(words), False)
+    ev = fast[1]
+    assert [e[0] >> 24 for e in ev[:3]] == [0, 0, 1]
+    xs = [e[1] for e in ev[3:-3]]
+    assert xs[:2] == [2040, 2041] and 4096 in xs and 0 in xs[10:] and len(xs) == 66000
+
+
 def test_evt3_wrap_is_unrolled():
     words = np.array([(8 << 12) | 4095, (6 << 12) | 10, 0x0005, (2 << 12) | 7,
                       (8 << 12) | 0, (6 << 12) | 3, (2 << 12) | 8], np.uint16)
