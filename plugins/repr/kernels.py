@@ -112,7 +112,8 @@ def decay_kernel(t, x, y, p, v, base, tau_us, rebase_after):  # type: ignore[no-
     """Time-surface state in factored form: ``v[y, x, p > 0] = exp((t -
     base) / tau_us)`` per event, so that the surface at any ``t_ref`` is
     ``v * exp(-(t_ref - base) / tau_us)`` (:func:`surface_kernel`).
-    ``v`` (H, W, 2) float64 (0 = never fired), ``base`` int64[1] (µs). When
+    ``v`` (H, W, 2) float32 or float64 (0 = never fired; at most e^40
+    times the value at ``base``), ``base`` int64[1] (µs). When
     an event comes more than ``rebase_after`` µs after ``base``, ``v`` is
     rescaled to that event's time first (keeps ``v`` finite; depends only
     on timestamps, so it is batch invariant). One exp per distinct timestamp

@@ -76,7 +76,7 @@ def test_time_surface_persists_across_windows(ev):
     sae = concat(feed(R.Sae(window_us=5000), [ev]))
     for t, ts, s in zip(out.t, out.images, sae.images):
         exp = np.where(s < -(10**15), 0.0, np.exp(-(t - s.astype(float)) / 2000.0))
-        assert np.allclose(ts, exp, atol=1e-6)
+        assert np.allclose(ts, exp, rtol=1.25e-7, atol=0)  # within one float32 ulp
 
 
 def _hot(n_hot: int):
