@@ -6,10 +6,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._packet import EventPacket, Packet
+from ._packet import EventPacket, Kind, Packet
 from .errors import PacketError
 
 __all__ = ["Guard", "Repair"]
+
+_EVENTS = Kind.EVENTS
 
 
 class Guard:
@@ -28,6 +30,11 @@ class Guard:
         self._marks: dict[str, int] = {}
 
     def __call__(self, pkt: Packet) -> Packet:
+        if type(pkt) is EventPacket and pkt._checked:  # validated by the source: only the order to see
+            prev = self._marks.get(_EVENTS)
+            if prev is None or pkt.t_start >= prev:
+                self._marks[_EVENTS] = pkt.t_end
+                return pkt
         try:
             if isinstance(pkt, EventPacket):
                 pkt.validate()

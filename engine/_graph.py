@@ -45,7 +45,7 @@ END: Any = _End()
 Delivery = tuple[str, Any]  # (sink id, "tap:" + id or "offload:" + id; packet, port batch or END)
 Batch = dict[str, Packet]  # one packet per port
 K = TypeVar("K", bound=Hashable)
-_OP, _SINK, _MERGE, _PORT, _FEEDBACK = 0, 1, 2, 3, 4
+_OP, _SINK, _MERGE, _PORT, _FEEDBACK, _WRITE = 0, 1, 2, 3, 4, 5
 _EVENTS = Kind.EVENTS
 
 
@@ -354,8 +354,8 @@ class Merger:
 class _Node:
     """A node's wiring for the hot path (one attribute load per field)."""
 
-    __slots__ = ("id", "op", "consumes", "st", "routes", "chain", "tapped", "join", "ports", "offload", "ticks",
-                 "advances", "settles", "feedback_from", "feedback_ports", "done")
+    __slots__ = ("id", "op", "consumes", "st", "routes", "chain", "writer", "tapped", "join", "ports", "offload",
+                 "ticks", "advances", "settles", "feedback_from", "feedback_ports", "done")
 
     def __init__(self, nid: str) -> None:
         self.id = nid
@@ -364,6 +364,7 @@ class _Node:
         self.consumes: tuple[Kind, ...] = ()
         self.routes: tuple[tuple[int, Any, Any], ...] = ()
         self.chain: _Node | None = None  # the only route, when it is a one-input operator and no tap
+        self.writer: Any = None  # the only route, when it is a sink written through (every kind) and no tap
         self.tapped = False
         self.join: PortJoin[str] | Merger | None = None
         self.ports: Mapping[str, str] = {}
@@ -435,11 +436,25 @@ class Graph:
         rec = self._recs[node_id]
         if rec.chain is not None:
             self._run(rec.chain, pkt, out)
+        elif rec.writer is not None:
+            rec.writer(pkt)
         else:
             self._emit(rec, pkt, out)
         if self._deferred:
             self._drain(out)
         return out
+
+    def write_through(self, writers: Mapping[str, Any]) -> None:
+        """Write what reaches the sinks of ``writers`` (sink id to a callable
+        taking a packet) at once, by calling the writer, instead of
+        returning it as a delivery (the scheduler's sinks written inline:
+        no list, tuple or hand-over per packet). Their ends are still
+        delivered."""
+        for rec in self._recs.values():
+            rec.routes = tuple((_WRITE, writers[c], x) if how == _SINK and c in writers else (how, c, x)
+                               for how, c, x in rec.routes)
+            if len(rec.routes) == 1 and rec.routes[0][0] == _WRITE and rec.routes[0][2] is None and not rec.tapped:
+                rec.writer = rec.routes[0][1]
 
     def end(self, node_id: str) -> list[Delivery]:
         """``node_id``'s stream has ended: flush and propagate end of stream."""
@@ -578,6 +593,11 @@ class Graph:
         for how, child, extra in rec.routes:
             if how == _OP:
                 self._run(child, pkt, out)
+            elif how == _WRITE:
+                if extra is None or pkt.kind in extra:
+                    child(pkt)
+                else:
+                    self.stats.nodes[child.sid].refuse(pkt.kind, pkt.t.shape[0])
             elif how == _SINK:
                 if extra is None or pkt.kind in extra:
                     out.append((child, pkt))
@@ -622,7 +642,7 @@ class Graph:
         except Exception as e:
             raise NodeError(rec.id, e) from e
         st.busy_ns += perf_counter_ns() - t0
-        nxt = rec.chain
+        nxt, writer = rec.chain, rec.writer
         for q in res if type(res) is list else as_packets(res):
             st.packets_out += 1
             if q.kind is _EVENTS:
@@ -631,6 +651,8 @@ class Graph:
                 st.gave(q)
             if nxt is not None:
                 self._run(nxt, q, out)
+            elif writer is not None:
+                writer(q)
             else:
                 self._emit(rec, q, out)
 

@@ -236,12 +236,12 @@ class Packet:
                 if len(runs) == n - 1:  # one event per timestamp: rows of (n, 1) views cost less than slices
                     for hi, a, b, c, d in zip([*ts, self.t_end], t.reshape(-1, 1), x.reshape(-1, 1),
                                               y.reshape(-1, 1), p.reshape(-1, 1)):
-                        yield build(a, b, c, d, sensor, lo, hi, _NO_COLUMNS, checked)
+                        yield build(a, b, c, d, sensor, lo, hi, _NO_COLUMNS, checked, -1)
                         lo = hi
                     return
                 for stop, hi in zip(runs, ts):
                     yield build(t[start:stop], x[start:stop], y[start:stop], p[start:stop], sensor, lo, hi,
-                                _NO_COLUMNS, checked)
+                                _NO_COLUMNS, checked, -1)
                     start, lo = stop, hi
             else:
                 for stop, hi in zip(runs, ts):
@@ -291,7 +291,7 @@ class EventPacket(Packet):
         Extra per-event columns, each with one row per event.
     """
 
-    __slots__ = ("t", "x", "y", "p", "sensor", "columns", "_checked")
+    __slots__ = ("t", "x", "y", "p", "sensor", "columns", "_checked", "_at")
     kind = Kind.EVENTS
     x: np.ndarray
     y: np.ndarray
@@ -299,6 +299,12 @@ class EventPacket(Packet):
     sensor: tuple[int, int]
     columns: Mapping[str, np.ndarray]
     _checked: bool
+    #: Where the events start in the arrays the base columns are views of
+    #: (``t.base``, ``x.base``, ...): every one a contiguous slice of its
+    #: 1-D owner at this index; -1 when not known. Set by slicing
+    #: (:meth:`slice_time`, :meth:`batches`), so that :func:`join_consecutive`
+    #: joins a source's slices as a view without looking at pointers.
+    _at: int
 
     def __init__(
         self,
@@ -337,19 +343,21 @@ class EventPacket(Packet):
         set_(self, "sensor", (w, h))
         set_(self, "columns", MappingProxyType(cols))
         set_(self, "_checked", False)
+        set_(self, "_at", -1)
         self._init_interval(t, t_start, t_end)
 
     # -- construction -------------------------------------------------------
     @classmethod
     def _trusted(cls, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, sensor: tuple[int, int],
-                 t_start: int, t_end: int, columns: Mapping[str, np.ndarray], checked: bool = False) -> EventPacket:
+                 t_start: int, t_end: int, columns: Mapping[str, np.ndarray], checked: bool = False,
+                 at: int = -1) -> EventPacket:
         """Internal: build from arrays already known to satisfy the contract
         (views and selections of a valid packet); skips every check.
         ``checked``: the arrays are views or selections of a packet that
-        :meth:`validate` passed (see :attr:`checked`)."""
+        :meth:`validate` passed (see :attr:`checked`); ``at``: see :attr:`_at`."""
         cols = MappingProxyType(dict(columns)) if columns else _NO_COLUMNS
         if cls is EventPacket:
-            return _Build(t, x, y, p, sensor, t_start, t_end, cols, checked)
+            return _Build(t, x, y, p, sensor, t_start, t_end, cols, checked, at)
         pkt = _new(cls)
         _set_t(pkt, t)
         _set_x(pkt, x)
@@ -360,6 +368,7 @@ class EventPacket(Packet):
         _set_t_start(pkt, t_start)
         _set_t_end(pkt, t_end)
         _set_checked(pkt, checked)
+        _set_at(pkt, at)
         return pkt
 
     @classmethod
@@ -475,9 +484,15 @@ class EventPacket(Packet):
     # -- views ----------------------------------------------------------------
     def _take_slice(self, i: int, j: int, t_start: int, t_end: int) -> EventPacket:
         cols = self.columns
+        t, x, y, p = self.t, self.x, self.y, self.p
+        at = self._at
+        if at >= 0:
+            at += i
+        elif t.base is None and x.base is None and y.base is None and p.base is None:
+            at = i  # 1-D arrays that own their data: the slices' owners
         return EventPacket._trusted(
-            self.t[i:j], self.x[i:j], self.y[i:j], self.p[i:j], self.sensor, t_start, t_end,
-            {k: v[i:j] for k, v in cols.items()} if cols else cols, self._checked,
+            t[i:j], x[i:j], y[i:j], p[i:j], self.sensor, t_start, t_end,
+            {k: v[i:j] for k, v in cols.items()} if cols else cols, self._checked, at,
         )
 
     def select(self, mask: np.ndarray) -> EventPacket:
@@ -505,6 +520,7 @@ class EventPacket(Packet):
             t_start=self.t_start, t_end=self.t_end, columns=cols,
         )
         _set_checked(pkt, self._checked)  # the same base columns and interval
+        _set_at(pkt, self._at)
         return pkt
 
     def without_columns(self, *names: str) -> EventPacket:
@@ -515,6 +531,7 @@ class EventPacket(Packet):
             t_start=self.t_start, t_end=self.t_end, columns=cols,
         )
         _set_checked(pkt, self._checked)  # the same base columns and interval
+        _set_at(pkt, self._at)
         return pkt
 
     def with_interval(self, t_start: int, t_end: int) -> EventPacket:
@@ -597,14 +614,16 @@ def _joined_view(pkts: list[EventPacket]) -> EventPacket | None:
     for q in pkts:
         if q.t.base is not ot or q.x.base is not ox or q.y.base is not oy or q.p.base is not op:
             return None
-        i = _slice_index(q.t, q.x, q.y, q.p, ot, ox, oy, op)
+        i = q._at  # known where the packet was sliced; else found from the pointers
+        if i < 0:
+            i = _slice_index(q.t, q.x, q.y, q.p, ot, ox, oy, op)
         if i < 0 or (at >= 0 and i != at):
             return None
         if start < 0:
             start = i
         at = i + q.t.shape[0]
     return EventPacket._trusted(ot[start:at], ox[start:at], oy[start:at], op[start:at], first.sensor,
-                                first.t_start, pkts[-1].t_end, _NO_COLUMNS, all(q._checked for q in pkts))
+                                first.t_start, pkts[-1].t_end, _NO_COLUMNS, all(q._checked for q in pkts), start)
 
 
 @njit(cache=True, nogil=True)
@@ -637,7 +656,7 @@ class _Build(EventPacket):
 
     def __init__(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray,
                  sensor: tuple[int, int], t_start: int, t_end: int, columns: Mapping[str, np.ndarray],
-                 checked: bool) -> None:
+                 checked: bool, at: int = -1) -> None:
         self.t = t
         self.x = x
         self.y = y
@@ -647,13 +666,14 @@ class _Build(EventPacket):
         self.t_start = t_start
         self.t_end = t_end
         self._checked = checked
+        self._at = at
         self.__class__ = EventPacket  # type: ignore[assignment]
 
 
 # Slot setters for EventPacket._trusted of subclasses (faster than object.__setattr__).
 _new = object.__new__
-_set_t, _set_x, _set_y, _set_p, _set_sensor, _set_columns, _set_checked = (
-    EventPacket.__dict__[n].__set__ for n in ("t", "x", "y", "p", "sensor", "columns", "_checked")
+_set_t, _set_x, _set_y, _set_p, _set_sensor, _set_columns, _set_checked, _set_at = (
+    EventPacket.__dict__[n].__set__ for n in ("t", "x", "y", "p", "sensor", "columns", "_checked", "_at")
 )
 _set_t_start, _set_t_end = (Packet.__dict__[n].__set__ for n in ("t_start", "t_end"))
 

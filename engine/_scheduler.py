@@ -16,6 +16,7 @@ import math
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping
 from contextlib import asynccontextmanager
+from time import perf_counter_ns
 from typing import Any
 
 import trio
@@ -126,7 +127,8 @@ def _run_inline(plan: Plan) -> Stats:
                 raise NodeError(sid, e) from e
             opened.append(sid)
         now = time.perf_counter
-        out = _Outbox({}, inline={sid: _InlineSink(sid, sink, stats, now) for sid, sink in sinks.items()})
+        out = _Outbox({})
+        out.write_inline(graph, sinks, stats, now)
         task = _source_task(plan.of_role("source")[0], plan.batch, graph, out, checkpoint=_no_wait, now=now)
         try:
             task.send(None)
@@ -136,7 +138,8 @@ def _run_inline(plan: Plan) -> Stats:
             task.close()
             raise TectumError("internal error: a pipeline run without trio waited")
         if plan.loops:  # every source has ended: loops that wait on themselves run on (as _LoopWatch does)
-            out.add(graph.unstall(), now())
+            out.arrival = now()
+            out.add(graph.unstall(), out.arrival)
         ok = True
     finally:
         for sid in opened:
@@ -247,9 +250,10 @@ async def _main(plan: Plan, graph: Graph, edges: dict[str, Edge], scope: trio.Ca
                 raise NodeError(sid, e) from e
             opened.append(sid)
         now = trio.lowlevel.current_clock().current_time
-        inline = {sid: _InlineSink(sid, sink, graph.stats, now) for sid, sink in sinks.items()
-                  if _writes_inline(sink, plan.nodes[sid].spec.policy)}
-        outbox = _Outbox(edges, loops, inline)
+        outbox = _Outbox(edges, loops)
+        outbox.write_inline(graph, {sid: sink for sid, sink in sinks.items()
+                                    if _writes_inline(sink, plan.nodes[sid].spec.policy)}, graph.stats, now)
+        inline = outbox.inline
         watch = _LoopWatch(graph, edges, outbox, len(plan.of_role("source"))) if plan.loops else None
         async with trio.open_nursery() as nursery:
             for sid, sink in sinks.items():
@@ -333,28 +337,36 @@ class _InlineSink:
     edge, the task switch and the wait until the pushing task yields: each
     packet is written and freed while its arrays are still in the cache (a
     packet held for a burst pushes the operator's state and its next output
-    out of it), and its latency is the engine's alone."""
+    out of it), and its latency is the engine's alone.
 
-    __slots__ = ("sid", "_write", "st", "lat", "now")
+    The graph calls it as the packet reaches the sink
+    (:meth:`Graph.write_through`); the latency counts from ``out.arrival``,
+    which the pushing task sets before each push."""
 
-    def __init__(self, sid: str, sink: Sink, stats: Stats, now: Callable[[], float]) -> None:
+    __slots__ = ("sid", "_write", "st", "lat", "now", "out")
+
+    def __init__(self, sid: str, sink: Sink, stats: Stats, now: Callable[[], float], out: _Outbox) -> None:
         self.sid = sid
         self._write = sink.write
         self.st = stats.node(sid)
         self.lat = stats.latency_of(sid)
         self.now = now  # trio's clock
+        self.out = out
 
-    def write(self, pkt: Packet, arrival: float) -> None:
+    def __call__(self, pkt: Packet) -> None:
         st = self.st
         st.packets_in += 1
-        st.took(pkt)
-        t0 = time.perf_counter_ns()
+        if pkt.kind is _EVENTS:
+            st.events_in += pkt.t.shape[0]
+        else:
+            st.took(pkt)
+        t0 = perf_counter_ns()
         try:
             self._write(pkt)
         except Exception as e:
             raise NodeError(self.sid, e) from e
-        st.busy_ns += time.perf_counter_ns() - t0
-        self.lat.add(self.now() - arrival)
+        st.busy_ns += perf_counter_ns() - t0
+        self.lat.add(self.now() - self.out.arrival)
 
 
 class _Outbox:
@@ -375,21 +387,25 @@ class _Outbox:
     task waits for room *before* it takes their items out of the outbox, so
     nobody holds items while waiting and the order stays that of the graph."""
 
-    def __init__(self, edges: Mapping[str, Edge], loops: Mapping[str, int] | None = None,
-                 inline: Mapping[str, _InlineSink] | None = None) -> None:
+    def __init__(self, edges: Mapping[str, Edge], loops: Mapping[str, int] | None = None) -> None:
         self.edges = edges
         self.pending: dict[str, list[Any]] = {}
         self._locks = {t: trio.StrictFIFOLock() for t in edges}
         self.loops = dict(loops or {})
-        self.inline = dict(inline or {})
+        self.inline: dict[str, _InlineSink] = {}
+        #: When the data of the push under way arrived (trio's clock, s): set
+        #: by the pushing task before it pushes, read by the sinks written inline.
+        self.arrival = 0.0
+
+    def write_inline(self, graph: Graph, sinks: Mapping[str, Sink], stats: Stats, now: Callable[[], float]) -> None:
+        """Write ``sinks`` inline (:class:`_InlineSink`): the graph calls them."""
+        self.inline = {sid: _InlineSink(sid, sink, stats, now, self) for sid, sink in sinks.items()}
+        graph.write_through(self.inline)
 
     def add(self, deliveries: list[Delivery], arrival: float) -> None:
         pending, inline = self.pending, self.inline
         for target, pkt in deliveries:
-            sink = inline.get(target)
-            if sink is not None:
-                if pkt is not END:  # an inline sink is closed by _main, after every task
-                    sink.write(pkt, arrival)
+            if target in inline:  # only its end: an inline sink is closed by _main, after every task
                 continue
             item = _CLOSE if pkt is END else (pkt, arrival)
             items = pending.get(target)
@@ -480,12 +496,14 @@ async def _offload_task(nid: str, graph: Graph, edge: Edge, out: _Outbox, watch:
         # round trip costs tens of µs: not one per packet)
         results = await trio.to_thread.run_sync(call_all, items)
         for (_, arrival), (res, mark) in zip(items, results):
+            out.arrival = arrival
             out.add(forward(nid, res, mark=mark), arrival)
         await out.flush(loop)
         if watch is not None:
             watch.busy -= 1
     res = await trio.to_thread.run_sync(finish, nid)
-    out.add(forward(nid, res, ended=True), trio.current_time())
+    out.arrival = trio.current_time()
+    out.add(forward(nid, res, ended=True), out.arrival)
     await out.flush(loop)
     if watch is not None:
         await watch.ended(nid, loop)
@@ -517,7 +535,8 @@ class _LoopWatch:
         # an offloaded node is still at work while its edge holds items or has closed (it is finishing)
         if self.sources or self.busy or self.outbox.pending or any(len(e) or e.closed for e in self.edges.values()):
             return
-        self.outbox.add(self.graph.unstall(), trio.current_time())
+        self.outbox.arrival = trio.current_time()
+        self.outbox.add(self.graph.unstall(), self.outbox.arrival)
         await self.outbox.flush(loop)  # loop: the calling task's own (it never waits on its own edge)
 
 
@@ -550,6 +569,10 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
         arrival = trio_now()
         held: list[EventPacket] = []  # small event packets waiting to go in as one
         held_n = 0
+        held_sensor: Any = None
+        held_cols: Any = None
+        # other tasks to let run: yield every _SLICE_S of work (run alone: never)
+        sliced = checkpoint is not _no_wait
         async for raw in _read(source, out, st):
             for pkt in repair(raw) if repair is not None else (raw,):
                 pkt = guard(pkt)
@@ -557,6 +580,7 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                     async for piece, due in pacer.release(pkt):
                         st.packets_out += 1
                         st.gave(piece)
+                        out.arrival = due
                         add(push(sid, piece), due)
                         await out.flush()  # paced: hand over at once, latency counts
                         # the pacer releases a piece whenever time has moved on, without
@@ -578,38 +602,43 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                     st.events_out += n
                 else:
                     st.gave(pkt)
-                if type(pkt) is EventPacket and n < small and held_n + n <= max_events and (
-                        not held or (pkt.sensor == held[0].sensor and pkt.columns.keys() == held[0].columns.keys())):
+                if n < small and type(pkt) is EventPacket and held_n + n <= max_events and (
+                        not held or ((pkt.sensor is held_sensor or pkt.sensor == held_sensor) and (
+                            pkt.columns is held_cols or pkt.columns.keys() == held_cols.keys()))):
+                    if not held:
+                        held_sensor, held_cols = pkt.sensor, pkt.columns
                     held.append(pkt)
                     held_n += n
                 else:
                     if held:
                         st.packets_out += 1
+                        out.arrival = arrival
                         add(push(sid, join_consecutive(held)), arrival)
                         held, held_n = [], 0
                     arrival = trio_now()
                     if n <= max_events:  # goes in whole (the usual case: no cutting)
                         st.packets_out += 1
+                        out.arrival = arrival
                         add(push(sid, pkt), arrival)
-                        pieces: Iterable[Packet] = ()
                     else:
-                        pieces = pkt.batches(max_events)
-                    k = 0
-                    for piece in pieces:
-                        st.packets_out += 1
-                        add(push(sid, piece), arrival)
-                        k += 1
-                        # a packet cut in many pieces (event by event) yields on the same
-                        # schedule: what it delivered is written and freed while young,
-                        # not held to the packet's end (and promoted by the GC)
-                        if not k & _CHECK_EVERY and clock() - last_yield > _SLICE_S:
-                            await out.flush()
-                            await checkpoint()
-                            last_yield = clock()
-                            arrival = trio_now()
-                if clock() - last_yield > _SLICE_S:
+                        k = 0
+                        for piece in pkt.batches(max_events):
+                            st.packets_out += 1
+                            out.arrival = arrival
+                            add(push(sid, piece), arrival)
+                            k += 1
+                            # a packet cut in many pieces (event by event) yields on the same
+                            # schedule: what it delivered is written and freed while young,
+                            # not held to the packet's end (and promoted by the GC)
+                            if sliced and not k & _CHECK_EVERY and clock() - last_yield > _SLICE_S:
+                                await out.flush()
+                                await checkpoint()
+                                last_yield = clock()
+                                arrival = trio_now()
+                if sliced and clock() - last_yield > _SLICE_S:
                     if held:
                         st.packets_out += 1
+                        out.arrival = arrival
                         add(push(sid, join_consecutive(held)), arrival)
                         held, held_n = [], 0
                     await out.flush()
@@ -618,11 +647,14 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                     arrival = trio_now()
         if held:
             st.packets_out += 1
+            out.arrival = arrival
             add(push(sid, join_consecutive(held)), arrival)
         if repair is not None:
             for pkt in repair.flush():
-                out.add(graph.push(sid, guard(pkt)), trio_now())
-        out.add(graph.end(sid), trio_now())
+                out.arrival = trio_now()
+                out.add(graph.push(sid, guard(pkt)), out.arrival)
+        out.arrival = trio_now()
+        out.add(graph.end(sid), out.arrival)
         await out.flush()
         if watch is not None:
             await watch.source_ended()

@@ -120,3 +120,75 @@ def _concat_reference(pkts: list[EventPacket]) -> EventPacket:
     return EventPacket._trusted(*(np.concatenate([getattr(q, k) for q in pkts]) for k in ("t", "x", "y", "p")),
                                 pkts[0].sensor, pkts[0].t_start, pkts[-1].t_end, {},
                                 all(q.checked for q in pkts))
+
+
+def test_slices_know_where_they_lie_so_a_join_needs_no_pointers(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Slices (and slices of slices, and of a packet with columns added or
+    removed) record their index in the owner arrays: joining them is a view
+    found without the pointer kernel, equal to the slice of the whole."""
+    import tectum._packet as packet_module
+
+    def no_pointers(*args: object) -> int:
+        raise AssertionError("the join looked at pointers")
+
+    monkeypatch.setattr(packet_module, "_slice_index", no_pointers)
+    ev = _stream()
+    part = ev.with_columns(w=np.zeros(len(ev))).without_columns("w").slice_time(7_000, 41_000)
+    cuts = [part.slice_time(a, a + 700) for a in range(7_000, 41_000, 700)]
+    joined = join_consecutive(cuts[2:30])
+    _same(joined, ev.slice_time(cuts[2].t_start, cuts[29].t_end))
+    assert all(np.shares_memory(getattr(joined, k), getattr(ev, k)) for k in ("t", "x", "y", "p"))
+    again = join_consecutive([joined.slice_time(None, 20_000), joined.slice_time(20_000, None), cuts[30]])
+    _same(again, ev.slice_time(cuts[2].t_start, cuts[30].t_end))
+    # arrays not known to be slices (built by hand): the pointer kernel decides
+    hand = [EventPacket._trusted(q.t, q.x, q.y, q.p, q.sensor, q.t_start, q.t_end, {}, True) for q in cuts[:2]]
+    with pytest.raises(AssertionError, match="pointers"):
+        join_consecutive(hand)
+
+
+@pytest.mark.parametrize("checked", [False, True])
+def test_a_packet_that_goes_back_in_time_is_stopped_checked_or_not(checked: bool) -> None:
+    ev = _stream()
+    a, b = ev.slice_time(0, 20_000), ev.slice_time(10_000, 30_000)  # b starts before a ends
+    if not checked:
+        a, b = (EventPacket(q.t, q.x, q.y, q.p, sensor=q.sensor, t_start=q.t_start, t_end=q.t_end) for q in (a, b))
+    assert a.checked is checked and b.checked is checked
+    p = tectum.Pipeline()
+    p.sink(NullSink(), p.source(ListSource([a, b]), id="cam"), id="sink")
+    with pytest.raises(tectum.NodeError, match="source 'cam': events packet \\[10000, 30000\\) starts before the "
+                                               "previous one ended \\(20000 µs\\)"):
+        tectum.run(p)
+
+
+class _ImuOnly(tectum.Sink):
+    """Takes IMU samples only (events reaching it are counted as not written)."""
+
+    name = "imu_only_hot_path_test"
+    consumes = (tectum.Kind.IMU,)
+
+    def __init__(self) -> None:
+        self.got: list[tectum.Packet] = []
+
+    def write(self, packet: tectum.Packet) -> None:
+        self.got.append(packet)
+
+
+@pytest.mark.parametrize("trio", [False, True])
+def test_a_sink_written_through_takes_its_kinds_and_counts_the_others(trio: bool) -> None:
+    ev = _stream()
+    imu = tectum.ImuPacket(np.arange(0, 50_000, 1000), gyro=np.zeros((50, 3)), accel=np.zeros((50, 3)),
+                           t_start=0, t_end=50_000)
+    sink, every = _ImuOnly(), tectum.testing.ListSink()
+    p = tectum.Pipeline(max_events=300)
+    if trio:  # two sources merged by an operator: tasks under trio, the sinks still written inline
+        up = p.op(_Twice(), [p.source(ListSource([ev]), id="ev"), p.source(ListSource([imu]), id="imu")])
+    else:
+        up = p.op(_Twice(), p.source(ListSource([imu, ev]), id="ev"))
+    p.sink(sink, up, id="sink")
+    p.sink(every, up, id="every")
+    stats = tectum.run(p)
+    assert stats.nodes["sink"].not_written == {"events": 2 * len(ev)}  # _Twice: each packet twice
+    assert [len(q) for q in sink.got] == [50]
+    assert stats.nodes["every"].events_in == 2 * len(ev) and stats.latency["every"].count == len(every.packets)
+    got = [q for q in every.packets if isinstance(q, EventPacket)]
+    tectum.testing.assert_streams_equal([ev], got[::2])
