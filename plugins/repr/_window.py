@@ -18,7 +18,7 @@ boundaries: the output is batch invariant.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -139,13 +139,13 @@ class Windowed(Operator):
         blocks, self._pending = self._pending, None
         if not blocks:
             return [self._emit(frames, t_end)]
-        out = []
+        out: list[FramePacket] = []
         last = len(blocks) - 1
         for i, (ts, images) in enumerate(blocks):
             end = max(t_end, self._out) if i == last else int(ts[-1]) + 1
             # built here from times in order inside [t_start, end) and frames of the stream's
             # dtype and shape: the checks FramePacket() would repeat hold by construction
-            out.append(FramePacket._trusted(ts, {"images": images}, self._out, end))
+            out.append(cast(FramePacket, FramePacket._trusted(ts, {"images": images}, self._out, end)))
             self._out = end
         return out
 

@@ -225,8 +225,8 @@ def _add_events(mode, full, width, vmin, vmax, x, y, p, img, touched, n):  # typ
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _windows(mode, full, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks,
-             n_marks):  # type: ignore[no-untyped-def]
+def _windows(mode, full, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks,  # type: ignore[no-untyped-def]
+             n_marks):
     """:func:`windows_kernel` for one case (``mode``, ``full``)."""
     s_size = state.shape[0]
     n_win = splits.shape[0]
@@ -267,8 +267,8 @@ def _windows(mode, full, width, vmin, vmax, x, y, p, splits, state, touched, n_t
 
 
 @njit(cache=True, nogil=True)
-def windows_kernel(mode, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks,
-                   n_marks):  # type: ignore[no-untyped-def]
+def windows_kernel(mode, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks,  # type: ignore[no-untyped-def]
+                   n_marks):
     """One packet's events into consecutive windows of a per-window image.
 
     ``mode`` (:data:`HISTOGRAM`: ``+1`` at ``(y W + x) 2 + (p > 0)``;
