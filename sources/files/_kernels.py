@@ -495,12 +495,18 @@ DAT_STATE = 3
 @njit(cache=True, nogil=True)
 def decode_dat(records, state, t, x, y, p):  # pragma: no cover - numba
     """``records`` are little-endian uint64 (low word time, high word data);
-    returns n_events. Blocks without a wrap are decoded in a vectorised loop."""
+    returns (n_events, times never decrease, largest x, largest y) (the
+    bounds of :meth:`EventAssembler.commit`; the first time is compared
+    with the previous call's last). Blocks without a wrap are decoded in a
+    vectorised loop."""
     wraps = state[0]
     last = state[1]
     have = state[2]
     m = records.shape[0]
     half = np.int64(1) << 31
+    dec = np.int64(0)  # times that fell
+    mx = np.uint16(0)
+    my = np.uint16(0)
     i = 0
     while i < m:
         j = min(i + 4096, m)
@@ -514,33 +520,44 @@ def decode_dat(records, state, t, x, y, p):  # pragma: no cover - numba
         # unrolled to the one nearest the previous, so one bad record cannot
         # shift every later time by 2^32 µs
         prev = last if have == 1 else np.int64(r[0] & np.uint64(0xFFFFFFFF))
+        before = (wraps << 32) + prev  # the time before the block's first
         jump = np.int64(0)
+        fell = np.int64(0)
         hi = wraps << 32
-        for k in range(j - i):  # one pass: times as if no wrap, the largest jump, the data word
+        for k in range(j - i):  # one pass: times as if no wrap, the largest jump, the data word, the bounds
             rec = r[k]
             raw = np.int64(rec & np.uint64(0xFFFFFFFF))
             jump = max(jump, abs(prev - raw))
+            fell += np.int64(raw < prev)
             prev = raw
             to[k] = hi + raw
             d = np.uint32(rec >> np.uint64(32))
-            xo[k] = np.uint16(d & np.uint32(0x3FFF))
-            yo[k] = np.uint16((d >> np.uint32(14)) & np.uint32(0x3FFF))
+            xk = np.uint16(d & np.uint32(0x3FFF))
+            yk = np.uint16((d >> np.uint32(14)) & np.uint32(0x3FFF))
+            mx = max(mx, xk)
+            my = max(my, yk)
+            xo[k] = xk
+            yo[k] = yk
             po[k] = np.int8((d >> np.uint32(28)) != 0) * np.int8(2) - np.int8(1)
         if jump > half:  # a wrap in the block: its times again, unrolled one by one
+            fell = 0
             for k in range(j - i):
                 raw = np.int64(r[k] & np.uint64(0xFFFFFFFF))
                 wraps += _wrap_step(have, last, raw, half)
                 last = raw
                 have = 1
                 to[k] = (wraps << 32) + raw
+                fell += np.int64(to[k] < before)
+                before = to[k]
         else:
             last = prev
             have = 1
+        dec += fell
         i = j
     state[0] = wraps
     state[1] = last
     state[2] = have
-    return m
+    return m, dec == 0, mx, my
 
 
 # --- jAER AEDAT 2.0 (big-endian int32 address, int32 timestamp) -----------------------

@@ -101,6 +101,36 @@ def test_error_offset_from_a_later_chunk(tmp_path: Path, files) -> None:
     assert src.skipped_events == 1
 
 
+@pytest.mark.parametrize(("what", "at"), [(w, a) for w in ("time", "x", "y") for a in (0, 1, 127, 128, 129, 2999)
+                                           if (w, a) != ("time", 0)])  # the first time has nothing before it
+def test_dat_bad_record_at_any_piece_boundary(tmp_path: Path, files, monkeypatch, what: str, at: int) -> None:
+    """A DAT record whose time goes back or whose x or y lies outside the
+    sensor is found (offset, skip_bad count) wherever it falls against the
+    pieces the records are read in (128 here) and the packets (chunk_bytes):
+    the decoder's bounds that spare the check pass never hide it."""
+    from tectum.sources.files import prophesee
+
+    monkeypatch.setattr(prophesee, "_PIECE_BYTES", 128 * 8)
+    data = bytearray(files["dat"].read_bytes())
+    start = len(data) - 3000 * 8
+    rec = start + 8 * at
+    word = int.from_bytes(data[rec + 4:rec + 8], "little")
+    if what == "time":
+        data[rec:rec + 4] = (0).to_bytes(4, "little")
+    else:
+        word = (word & ~(0x3FFF << 14)) | (48 << 14) if what == "y" else (word & ~0x3FFF) | 64
+        data[rec + 4:rec + 8] = word.to_bytes(4, "little")
+    f = tmp_path / "bad.dat"
+    f.write_bytes(bytes(data))
+    for chunk in (1 << 20, 256 * 8, 129 * 8):
+        with pytest.raises(FormatError, match="decreases" if what == "time" else "outside") as e:
+            list(open_file(str(f), chunk_bytes=chunk).packets())
+        assert e.value.offset == rec
+        src = open_file(str(f), chunk_bytes=chunk, skip_bad=True)
+        assert len(concat([q for q in src.packets() if isinstance(q, EventPacket)])) == 2999
+        assert src.skipped_events == 1
+
+
 def test_evt3_kernel_resumes_when_the_output_is_full() -> None:
     rng = np.random.default_rng(3)
     words = [(8 << 12) | 1, (6 << 12) | 2]
