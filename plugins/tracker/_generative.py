@@ -19,14 +19,29 @@ view around ``m``), so the predicted increment at ``u1`` is
 ``ΔL_pred = L_map(m) - L_map(m')``: to first order the papers'
 ``-∇L · u̇ Δt`` (brightness gradient dotted with the motion), without the
 linearisation, so the camera may move several pixels from the reference
-view.
+view (at the map's own view ``m' = u1``: exact).
+
+**Silent pixels.** A pixel with no event yet, or none for twice its last
+interval, has a change since its last event that its timing cannot tell,
+only bound: it did not fire, so ``|ΔL| < C`` since that event. For such
+a pixel the observation is the model's own change within that bound,
+``ΔL_obs + clip(ΔL_pred - ΔL_obs, -C, C)`` (``ΔL_obs`` holding the last
+event's level): no residual while the model keeps it below the
+threshold, the excess when the model says it should have fired. At a
+point whose blur mixes firing and silent pixels (share ``q`` of silent
+ones), ``q`` of it is so treated (``r = (1 - q)(ΔL_obs - ΔL_pred)``
+inside the bound). A pixel silent since before a reference view other
+than the start is held to ``C`` from that view's level too (its level
+there taken as its last event's; ``2C``, the strict bound, measured no
+different).
 
 **Estimation.** ``T1 = T1 exp(δ)`` (δ = (ω, v), camera frame) minimises a
 robust sum over the map's points of ``r = ΔL_obs(u1) - ΔL_pred`` by
 Gauss-Newton with analytic Jacobians
 ``∂r/∂δ = (∇ΔL_obs(u1) + Aᵀ ∇L_map(m'))ᵀ ∂u1/∂δ``,
 ``∂u1/∂δ = ∂π/∂X [ [X]ₓ  -I ]``, a Huber weight per point (scale from the
-median absolute residual: the inlier/outlier mixture made robust), and a
+median absolute residual of the points mostly seen by firing pixels: the
+inlier/outlier mixture made robust), and a
 small Levenberg damping. The fit's quality is the correlation of observed
 and predicted increments over the points in view
 (``Σ obs·pred / sqrt(Σ obs² Σ pred²)``).
@@ -116,7 +131,7 @@ def _residue(p, tl, d, t_now, c):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def residue_image(last, tlast, dtp, t_now, c, base, out):  # type: ignore[no-untyped-def]
+def residue_image(last, tlast, dtp, t_now, c, base, out, quiet):  # type: ignore[no-untyped-def]
     """``out`` (H, W): the sub-threshold change of each pixel at ``t_now``
     (µs) beyond the ``c/2`` of :func:`event_weights`, log intensity, less
     ``base`` (H, W; e.g. the same at the reference view). A pixel
@@ -127,24 +142,36 @@ def residue_image(last, tlast, dtp, t_now, c, base, out):  # type: ignore[no-unt
     2``. Other pixels keep ``c/2`` (0 here). A pixel firing steadily so
     holds its true residue rather than half a threshold; one the motion
     has left (at a turn of the camera) no longer claims a change it does
-    not have."""
+    not have.
+
+    The pixels whose change this cannot tell, those without an event yet
+    and those past twice their interval (their estimate is their last
+    event's level), get 1 in ``quiet`` (H, W; 0 elsewhere; empty: not
+    computed)."""
     H, W = out.shape
+    with_quiet = quiet.shape[0] > 0
     for y in range(H):
         for x in range(W):
-            out[y, x] = _residue(last[y, x], tlast[y, x], dtp[y, x], t_now, c) - base[y, x]
+            p = last[y, x]
+            tl = tlast[y, x]
+            d = dtp[y, x]
+            out[y, x] = _residue(p, tl, d, t_now, c) - base[y, x]
+            if with_quiet:
+                quiet[y, x] = 1.0 if p == 0 or (d > 0 and t_now - tl >= 2 * d) else 0.0
 
 
 @njit(cache=True, nogil=True)
 def point_corrections(P, R, t, fx, fy, cx, cy, sensor_at, diff, sigma, out):  # type: ignore[no-untyped-def]
-    """``out[i]``: ``diff`` (H, W, sensor pixels; the change of
-    :func:`residue_image` since the reference view) blurred by a normalised Gaussian of
+    """``out[m, i]``: image ``diff[m]`` (n, H, W, sensor pixels; e.g. the
+    change of :func:`residue_image` since the reference view and its silent
+    pixels) blurred by a normalised Gaussian of
     ``sigma`` px (cut at 3σ), at where world point ``P[i]`` lands seen from
     pose ``(R, t)`` (world-from-camera): its pinhole pixel ``u``, taken to
     the sensor by ``sensor_at`` (H, W, 2: the sensor position of each
     pinhole pixel, bilinear; empty: the identity). 0 out of view. What
     :func:`splat` of those pixels would add there, the lens's local stretch
     ignored."""
-    H, W = diff.shape
+    nimg, H, W = diff.shape
     r = int(math.ceil(3.0 * sigma))
     n = 2 * r + 1
     inv = 1.0 / (2.0 * sigma * sigma)
@@ -161,7 +188,8 @@ def point_corrections(P, R, t, fx, fy, cx, cy, sensor_at, diff, sigma, out):  # 
             d = i - r - f
             taps[b, i] = math.exp(-d * d * inv)
     for k in range(P.shape[0]):
-        out[k] = 0.0
+        for m in range(nimg):
+            out[m, k] = 0.0
         u, v, _, _, _, front = _project(P, k, R, t, fx, fy, cx, cy)
         if not (front and 0.0 <= u < W - 1.0 and 0.0 <= v < H - 1.0):
             continue
@@ -183,14 +211,17 @@ def point_corrections(P, R, t, fx, fy, cx, cy, sensor_at, diff, sigma, out):  # 
         ys = int(cv) - r
         i0 = max(0, -xs)
         i1 = min(n, W - xs)
-        acc = 0.0
-        for j in range(max(0, -ys), min(n, H - ys)):
-            row = diff[ys + j]
-            a = 0.0
-            for i in range(i0, i1):
-                a += row[xs + i] * wx[i]
-            acc += a * wy[j]
-        out[k] = acc * norm
+        j0 = max(0, -ys)
+        j1 = min(n, H - ys)
+        for m in range(nimg):
+            acc = 0.0
+            for j in range(j0, j1):
+                y = ys + j
+                a = 0.0
+                for i in range(i0, i1):
+                    a += diff[m, y, xs + i] * wx[i]
+                acc += a * wy[j]
+            out[m, k] = acc * norm
 
 
 @njit(cache=True, nogil=True)
@@ -265,11 +296,15 @@ def _project(P, i, R, t, fx, fy, cx, cy):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def _residuals(P, Xr, Lm, obs_img, corr, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy, with_jac, res, obs, jac, ok,  # type: ignore[no-untyped-def]
-               disp):
-    """Per map point: residual ``r``, the observed increment ``obs`` (and
-    with ``with_jac`` the residual's 6 Jacobian entries); ``ok`` false where the point is out of view (either pose), or
-    its ``m'`` off the map. Returns the number of points in view."""
+def _residuals(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy, with_jac, res, obs,  # type: ignore[no-untyped-def]
+               prd, jac, ok, disp):
+    """Per map point: residual ``r``, the observed increment ``obs`` (before
+    the silent pixels' share takes the model's values: the fit's
+    correlation uses it, so a wrong map or pose cannot look right through
+    the model's own numbers), the predicted ``prd`` (and with ``with_jac``
+    the residual's 6 Jacobian entries); ``ok`` false where the point is
+    out of view (either pose), or its ``m'`` off the map. Returns the
+    number of points in view."""
     H, W = obs_img.shape
     Hm, Wm = map_img.shape
     n_ok = 0
@@ -307,8 +342,21 @@ def _residuals(P, Xr, Lm, obs_img, corr, map_img, R0, t0, R1, t1, R_0r, fx, fy, 
         lm2, gmx, gmy = _bilinear(map_img, mx, my)
         e, gex, gey = _bilinear(obs_img, u1, v1)
         e += corr[i]
-        res[i] = e - (Lm[i] - lm2)
+        pred = Lm[i] - lm2
         obs[i] = e
+        prd[i] = pred
+        scale = 1.0
+        q = quiet[i]
+        if q > 0.0:  # pixels that did not fire: the model's change for them, within the threshold
+            gap = pred - e
+            if gap >= c:
+                e += q * c
+            elif gap <= -c:
+                e -= q * c
+            else:
+                e += q * gap
+                scale = 1.0 - q
+        res[i] = e - pred
         disp[i] = math.sqrt(du * du + dv * dv)
         ok[i] = True
         n_ok += 1
@@ -328,6 +376,8 @@ def _residuals(P, Xr, Lm, obs_img, corr, map_img, R0, t0, R1, t1, R_0r, fx, fy, 
             dv_w0 = jy1 * Z + jy2 * (-Y)
             dv_w1 = jy2 * X
             dv_w2 = jy1 * (-X)
+            gu *= scale
+            gv *= scale
             jac[i, 0] = gu * du_w0 + gv * dv_w0
             jac[i, 1] = gu * du_w1 + gv * dv_w1
             jac[i, 2] = gu * du_w2 + gv * dv_w2
@@ -346,18 +396,21 @@ def _rel(R0, t0, R_wr, out):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def fit_batch(P, Xr, Lm, obs_img, corr, map_img, R0, t0, R1, t1, R_wr, fx, fy, cx, cy, iters, huber_k, damping,  # type: ignore[no-untyped-def]
-              stats):
+def fit_batch(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_wr, fx, fy, cx, cy, iters, huber_k,  # type: ignore[no-untyped-def]
+              damping, stats):
     """Refine ``(R1, t1)`` in place (see the module). ``P`` (M, 3) world
     points, ``Xr`` (M, 3) their map pixel (x, y) and depth (m), ``Lm`` (M,)
     their map log intensity (blurred as ``map_img``), ``corr`` (M,) added to
     the observed increment at each point (:func:`point_corrections`: held
-    through the iterations). ``stats`` gets
+    through the iterations), ``quiet`` (M,) the share of the point's
+    observation from silent pixels (:func:`residue_image`'s ``quiet``
+    blurred at the points; zeros: none), ``c`` the contrast threshold. ``stats`` gets
     ``[points in view, correlation, rms residual, iterations, last step,
     median displacement (px) of the points in view from T0 to T1]``."""
     M = P.shape[0]
     res = np.zeros(M)
     obs = np.zeros(M)
+    prd = np.zeros(M)
     disp = np.zeros(M)
     jac = np.zeros((M, 6))
     ok = np.zeros(M, np.bool_)
@@ -372,17 +425,17 @@ def fit_batch(P, Xr, Lm, obs_img, corr, map_img, R0, t0, R1, t1, R_wr, fx, fy, c
     s = 1.0
     absr = np.empty(M)
     for it in range(iters):
-        n_ok = _residuals(P, Xr, Lm, obs_img, corr, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy, True, res, obs, jac,
-                          ok, disp)
+        n_ok = _residuals(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy, True, res,
+                          obs, prd, jac, ok, disp)
         if n_ok < 12:
             break
         if it == 0:  # robust scale: 1.4826 x median |r| over the points in view, at the start
             k = 0
             for i in range(M):
-                if ok[i]:
+                if ok[i] and quiet[i] <= 0.5:
                     absr[k] = abs(res[i])
                     k += 1
-            s = max(1.4826 * np.median(absr[:k]), 1e-6)
+            s = max(1.4826 * np.median(absr[:k]), 1e-6) if k else 1.0
         thr = huber_k * s
         H[:, :] = 0.0
         g[:] = 0.0
@@ -415,8 +468,8 @@ def fit_batch(P, Xr, Lm, obs_img, corr, map_img, R0, t0, R1, t1, R_wr, fx, fy, c
         step = math.sqrt((delta * delta).sum())
         if step < 1e-5:  # rad and m: a few thousandths of a pixel
             break
-    n_ok = _residuals(P, Xr, Lm, obs_img, corr, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy, False, res, obs, jac, ok,
-                      disp)
+    n_ok = _residuals(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy, False, res,
+                      obs, prd, jac, ok, disp)
     k = 0
     for i in range(M):
         if ok[i]:
@@ -430,7 +483,7 @@ def fit_batch(P, Xr, Lm, obs_img, corr, map_img, R0, t0, R1, t1, R_wr, fx, fy, c
     for i in range(M):
         if ok[i]:
             e = obs[i]
-            pred = e - res[i]
+            pred = prd[i]
             so += e * e
             sp += pred * pred
             sop += e * pred

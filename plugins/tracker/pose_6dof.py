@@ -24,11 +24,14 @@ first), by the events alone, so the output does not depend on how the
 stream is packed. The events accumulate (``contrast`` × polarity, blurred
 by σ, plus each pixel's change still below the threshold: with
 ``timed_residue`` estimated from the time since its last event and its
-last interval between events, else half a threshold) into the brightness
-increment since a reference view (the start,
-then the pose where the image has moved ``keyframe_px`` from the last
-one); per batch the pose at its last event is predicted at the velocity of
-the last ``velocity_us``, then refined by Gauss-Newton on the robust
+last interval between events, else half a threshold; with
+``unseen_bound`` a pixel silent too long for that to tell counts as the
+model's change for it, within the threshold its silence bounds) into the
+brightness increment since a reference view (the start, then the pose
+where the image has moved ``keyframe_px`` from the last one, or
+``map_view_px`` from the start when that is the map's own view); per
+batch the pose at its last event is predicted at the velocity of the
+last ``velocity_us``, then refined by Gauss-Newton on the robust
 difference between that increment and the one the map predicts between
 the reference pose and this one, coarse to fine over ``sigmas`` px. Counting
 from a reference view rather than from the last batch keeps the pose tied
@@ -48,7 +51,8 @@ confident guess. The next batches try to relocalise from the last good pose
 with a wider blur (``sigmas`` with ``4 × sigmas[0]`` in front), the
 increments counting again from the loss; tracking resumes when a fit
 reaches ``recover_fit``. ``counts`` holds ``batches``,
-``lost``, ``relocalised`` and ``skipped_before_map``.
+``lost``, ``relocalised``, ``skipped_before_map`` and ``references`` (the
+reference views, the start's included).
 
 Cost per batch: a Gaussian splat per event and level (a (6σ+1)² window),
 then per iteration a projection, two bilinear samples and a 6x6 update per
@@ -130,7 +134,11 @@ class Pose6Dof(Operator):
         Fewest map points in view for a trusted pose.
     keyframe_px:
         A new reference view when the image has moved this far (median over
-        the map points in view), px.
+        the map points in view) from one, px.
+    map_view_px:
+        The same from the map's own view (the start at the map's pose),
+        px: there the predicted increment is exact (no local warp), so the
+        first switch may come later.
     velocity_us:
         The velocity (output and prediction) is the motion over the good
         poses of this last stretch, µs.
@@ -139,6 +147,12 @@ class Pose6Dof(Operator):
         time since its last event and its last interval between events
         (:func:`._generative.residue_image`); false: half a threshold in
         the last event's direction, always.
+    unseen_bound:
+        With ``timed_residue``: a pixel without an event yet, or silent for
+        twice its last interval, counts as the change the model predicts
+        for it, clipped to the threshold ``contrast`` from its last event
+        (it did not fire), rather than no change (:mod:`._generative`,
+        "Silent pixels").
     """
 
     name = "tracker.pose_6dof"
@@ -154,7 +168,8 @@ class Pose6Dof(Operator):
                  batch_events: int = 1500, batch_us: int = 20_000, sigmas: tuple[float, ...] = (1.0,),
                  iterations: int = 4, max_points: int = 2000, min_gradient: float = 0.02, huber: float = 1.345,
                  min_fit: float = 0.35, recover_fit: float = 0.5, min_points: int = 100,
-                 keyframe_px: float = 8.0, velocity_us: int = 10_000, timed_residue: bool = True) -> None:
+                 keyframe_px: float = 8.0, velocity_us: int = 10_000, timed_residue: bool = True,
+                 unseen_bound: bool = True, map_view_px: float = 24.0) -> None:
         where = "tracker.pose_6dof"
         if not contrast > 0:
             raise ValueError(f"{where}: contrast must be > 0 (log intensity per event), got {contrast}")
@@ -183,7 +198,7 @@ class Pose6Dof(Operator):
             self.init = (np.asarray(quat_to_rot(m.orientation)), m.position)
         self.map: PhotoMap | None = None
         self._levels: list[_Level] = []
-        self.counts = {"batches": 0, "lost": 0, "relocalised": 0, "skipped_before_map": 0}
+        self.counts = {"batches": 0, "lost": 0, "relocalised": 0, "skipped_before_map": 0, "references": 0}
         self._sensor: tuple[int, int] | None = None
         self._lut: np.ndarray | None = None  # (H, W, 2) undistorted pixel of each sensor pixel
         # events waiting for their batch to close: t (µs), undistorted x, y (px), polarity
@@ -197,9 +212,14 @@ class Pose6Dof(Operator):
         self._tlast = np.zeros((0, 0), np.int64)  # (H, W) its time, µs
         self._dtp = np.zeros((0, 0), np.int64)  # (H, W) the interval before it (same polarity), µs; -1 unknown
         self.timed_residue = bool(timed_residue)
-        # the sub-threshold residues (residue_image) at the reference view, and their change since at the last batch
+        # the sub-threshold residues (residue_image) at the reference view; per pixel at the last batch: their change
+        # since, and the silent pixels (1)
         self._dref = np.zeros((0, 0))
-        self._ddiff = np.zeros((0, 0))
+        self._pix = np.zeros((2, 0, 0))
+        self.unseen_bound = bool(unseen_bound)
+        if not map_view_px > 0:
+            raise ValueError(f"{where}: map_view_px must be > 0, got {map_view_px}")
+        self.map_view_px = float(map_view_px)
         self._sensor_at = np.zeros((0, 0, 2))  # (H, W, 2) sensor position of each pinhole pixel; empty: identity
         self._mark = -(1 << 62)
         # state: the last good pose (R, t) and its time (µs); the body twist per µs of the last good batch
@@ -212,6 +232,7 @@ class Pose6Dof(Operator):
         # the reference view (R, t) the increments count from, and the events since, accumulated: unblurred
         # (bilinear) and blurred at each tracking level
         self._ref: tuple[np.ndarray, np.ndarray] | None = None
+        self._ref_is_map = False  # it is the map's own view
         self._raw: np.ndarray | None = None
         self._obs: list[np.ndarray] = []
         if map:
@@ -243,14 +264,16 @@ class Pose6Dof(Operator):
         blur_and_gradients(img, 1.0, out)
         P = np.array([[0.0, 0.0, 1.0]] * 16)
         Xr = np.array([[3.5, 3.5, 1.0]] * 16)
-        fit_batch(P, Xr, np.zeros(16), img, np.zeros(16), img, np.eye(3), np.zeros(3), np.eye(3), np.zeros(3),
-                  np.eye(3), 4.0, 4.0, 3.5, 3.5, 1, 1.345, 1e-3, np.zeros(6))
+        z = np.zeros(16)
+        fit_batch(P, Xr, z, img, z, z, 0.2, img, np.eye(3), np.zeros(3), np.eye(3), np.zeros(3), np.eye(3), 4.0, 4.0,
+                  3.5, 3.5, 1, 1.345, 1e-3, np.zeros(6))
         splat_bilinear(np.array([3.5]), np.array([3.5]), np.array([1.0]), 0.2, img)
         one = np.zeros((1, 1), np.int64)
         event_weights(np.zeros(1, np.uint16), np.zeros(1, np.uint16), np.zeros(1, np.int64), np.ones(1, np.int8), 0.2,
                       np.zeros((1, 1), np.int8), one, one, np.empty(1))
-        residue_image(np.zeros((1, 1), np.int8), one, one, 0, 0.2, np.zeros((1, 1)), np.empty((1, 1)))
-        point_corrections(P, np.eye(3), np.zeros(3), 4.0, 4.0, 3.5, 3.5, np.zeros((0, 0, 2)), img, 1.0, np.empty(16))
+        residue_image(np.zeros((1, 1), np.int8), one, one, 0, 0.2, np.zeros((1, 1)), np.empty((1, 1)), np.empty((1, 1)))
+        point_corrections(P, np.eye(3), np.zeros(3), 4.0, 4.0, 3.5, 3.5, np.zeros((0, 0, 2)), img[None], 1.0,
+                          np.empty((1, 16)))
 
     # -- the map ----------------------------------------------------------------------
     def _set_map(self, m: PhotoMap) -> None:
@@ -359,7 +382,7 @@ class Pose6Dof(Operator):
         self._tlast = np.zeros((h, w), np.int64)
         self._dtp = np.full((h, w), -1, np.int64)
         self._dref = np.zeros((h, w))
-        self._ddiff = np.zeros((h, w))
+        self._pix = np.zeros((2, h, w))
 
     # -- batches -----------------------------------------------------------------------
     def _advance(self, final: bool) -> list[Packet]:
@@ -401,15 +424,19 @@ class Pose6Dof(Operator):
         if self._pose is None:
             R, p = self._initial(int(self._t[a]))
             self._pose = (R, p, int(self._t[a]))
-            self._new_reference(R, p)
+            assert self.map is not None
+            self._new_reference(R, p, bool(np.allclose(p, self.map.position) and np.allclose(R, self._R_wr)))
         assert self._ref is not None and self._raw is not None
         self.counts["batches"] += 1
         x, y = self._x[a:b], self._y[a:b]
         wgt = np.empty(b - a)
         event_weights(self._ix[a:b], self._iy[a:b], self._t[a:b], self._p[a:b], self.contrast, self._last, self._tlast,
                       self._dtp, wgt)
+        # per sensor pixel: the residues' change since the reference view and the silent pixels (1)
+        pix = self._pix if self.unseen_bound else self._pix[:1]
         if self.timed_residue:
-            residue_image(self._last, self._tlast, self._dtp, t_end, self.contrast, self._dref, self._ddiff)
+            residue_image(self._last, self._tlast, self._dtp, t_end, self.contrast, self._dref, pix[0],
+                          pix[1] if self.unseen_bound else np.empty((0, 0)))
         splat_bilinear(x, y, wgt, 1.0, self._raw)
         for lv, img in zip(self._levels[1:], self._obs):
             splat(x, y, wgt, 1.0, lv.sigma, img)
@@ -428,20 +455,20 @@ class Pose6Dof(Operator):
         Ra, ta = self._ref
         K = self._K
         stats = np.zeros(6)
-        corr = np.zeros(len(self._P))
+        at = np.zeros((2, len(self._P)))  # at the points: the residues' change, the share of silent pixels
         for k, (lv, img) in enumerate(levels):
             if self.timed_residue and (k or not self._lost):  # at the prediction; none at a relocalising coarse level
-                point_corrections(self._P, R1, t1, K[0, 0], K[1, 1], K[0, 2], K[1, 2], self._sensor_at, self._ddiff,
-                                  lv.sigma, corr)
-            fit_batch(self._P, self._Xr, lv.Lm, img, corr, lv.image, Ra, ta, R1, t1, self._R_wr, K[0, 0], K[1, 1],
-                      K[0, 2], K[1, 2], self.iterations, self.huber, 1e-3, stats)
+                point_corrections(self._P, R1, t1, K[0, 0], K[1, 1], K[0, 2], K[1, 2], self._sensor_at, pix, lv.sigma,
+                                  at[:len(pix)])
+            fit_batch(self._P, self._Xr, lv.Lm, img, at[0], at[1], self.contrast, lv.image, Ra, ta, R1, t1, self._R_wr,
+                      K[0, 0], K[1, 1], K[0, 2], K[1, 2], self.iterations, self.huber, 1e-3, stats)
         fit = float(stats[1])
         good = stats[0] >= self.min_points and fit >= (self.recover_fit if self._lost else self.min_fit) \
             and bool(np.isfinite(t1).all())
         if not good:
             self.counts["lost"] += 1
             if not self._lost:  # the increments count again from the last good pose
-                self._new_reference(Rp, tp)
+                self._new_reference(Rp, tp, False)
             self._lost = True
             self._pose = (Rp, tp, t_end)
             self._twist = np.zeros(6)
@@ -452,8 +479,8 @@ class Pose6Dof(Operator):
             self._history.clear()
         self._lost = False
         self._pose = (R1, t1, t_end)
-        if stats[5] > self.keyframe_px:
-            self._new_reference(R1, t1)
+        if stats[5] > (self.map_view_px if self._ref_is_map else self.keyframe_px):
+            self._new_reference(R1, t1, False)
         # the velocity: the motion since the oldest good pose at most velocity_us back (one batch's is noisy)
         self._history = [h for h in self._history if h[2] >= t_end - self.velocity_us]
         Ro, to, t_old = self._history[0] if self._history else (Rp, tp, tprev)
@@ -463,13 +490,16 @@ class Pose6Dof(Operator):
         self._twist = xi / span
         return t_end, t1, rot_to_quat(R1), (t1 - to) / (span * 1e-6), xi[:3] / (span * 1e-6), False, fit
 
-    def _new_reference(self, R: np.ndarray, t: np.ndarray) -> None:
+    def _new_reference(self, R: np.ndarray, t: np.ndarray, map_view: bool) -> None:
         """The increments count from here: the reference pose is ``(R, t)``
-        and the accumulated event images start again at zero."""
+        (``map_view``: the map's own), and the accumulated
+        event images start again at zero."""
         assert self._sensor is not None
         w, h = self._sensor
         self._ref = (np.ascontiguousarray(R), np.ascontiguousarray(t))
-        self._dref += self._ddiff  # the residues now
-        self._ddiff[:] = 0.0
+        self._ref_is_map = map_view
+        self.counts["references"] += 1
+        self._dref += self._pix[0]  # the residues now
+        self._pix[0] = 0.0
         self._raw = np.zeros((h, w))
         self._obs = [np.zeros((h, w)) for _ in self._levels[1:]]
