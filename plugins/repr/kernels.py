@@ -9,12 +9,12 @@ Layouts are channels-last, like :class:`tectum.FramePacket` images:
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import literally, njit
 
 __all__ = [
     "NEVER", "histogram_kernel", "signed_kernel", "count_kernel", "sae_kernel",
     "time_surface_kernel", "decay_kernel", "surface_kernel", "voxel_kernel", "last_polarity_kernel",
-    "render_polarity_kernel", "windows_kernel", "HISTOGRAM", "SIGNED", "COUNT",
+    "render_polarity_kernel", "windows_kernel", "WINDOWS", "HISTOGRAM", "SIGNED", "COUNT",
 ]
 
 #: SAE value of a pixel that never fired (µs).
@@ -152,10 +152,10 @@ def surface_kernel(v, base, t_ref, tau_us, out):  # type: ignore[no-untyped-def]
 HISTOGRAM, SIGNED, COUNT = 0, 1, 2
 
 
-# The loops below are inlined (numba IR) into :func:`windows_kernel` once
-# per case with ``mode`` and ``full`` constants, so LLVM folds each case's
-# branches and strides into its own plain loop: with the case a runtime
-# value (strides in variables) the uint8 count ran 2.5x slower.
+# ``mode`` is a compile-time constant (:func:`numba.literally`) in the
+# loops below: each case compiles to its own plain loop with constant
+# strides (with the case a runtime value the uint8 count ran 2.5x slower),
+# and only the cases used are compiled.
 @njit(cache=True, nogil=True, inline="always")
 def _at(mode, w, x, y, pe):  # type: ignore[no-untyped-def]
     """An event's flat index (unsigned: no negative-index check): channel
@@ -167,46 +167,49 @@ def _at(mode, w, x, y, pe):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _step(mode, full, old, pe, vmin, vmax):  # type: ignore[no-untyped-def]
-    """A pixel's new value: ``+p`` (:data:`SIGNED`) or ``+1`` within
-    ``[vmin, vmax]`` (``full``: int32, no limit reached; a count stops at
-    ``vmax``: a compare, not a clip)."""
+def _step(mode, old, pe, vmin, vmax):  # type: ignore[no-untyped-def]
+    """A pixel's new value: ``+p`` (:data:`SIGNED`) or ``+1``, within
+    ``[vmin, vmax]`` (a count stops at ``vmax``: a compare, not a clip; as
+    fast as no limit in int32, where it is not reached)."""
     if mode == SIGNED:
-        return old + pe if full else min(max(old + pe, vmin), vmax)
-    return old + 1 if full else old + np.int64(old < vmax)
+        return min(max(old + pe, vmin), vmax)
+    return old + np.int64(old < vmax)
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _fill(mode, full, width, vmin, vmax, x, y, p, img):  # type: ignore[no-untyped-def]
+@njit(cache=True, nogil=True)
+def _fill(mode, width, vmin, vmax, x, y, p, img):  # type: ignore[no-untyped-def]
     """Events into the flat image ``img`` (see :func:`windows_kernel`)."""
+    literally(mode)
     w = np.uint64(width)
     for e in range(x.shape[0]):
         pe = np.int64(p[e])
         i = _at(mode, w, x[e], y[e], pe)
-        img[i] = _step(mode, full, np.int64(img[i]), pe, vmin, vmax)
+        img[i] = _step(mode, np.int64(img[i]), pe, vmin, vmax)
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _fill_marked(mode, full, width, vmin, vmax, x, y, p, img, marks):  # type: ignore[no-untyped-def]
+@njit(cache=True, nogil=True)
+def _fill_marked(mode, width, vmin, vmax, x, y, p, img, marks):  # type: ignore[no-untyped-def]
     """:func:`_fill` that also writes each event's index into ``marks``
     (as long as ``x``; one store per event, no test)."""
+    literally(mode)
     w = np.uint64(width)
     for e in range(x.shape[0]):
         pe = np.int64(p[e])
         i = _at(mode, w, x[e], y[e], pe)
         marks[e] = i
-        img[i] = _step(mode, full, np.int64(img[i]), pe, vmin, vmax)
+        img[i] = _step(mode, np.int64(img[i]), pe, vmin, vmax)
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _add_events(mode, full, width, vmin, vmax, x, y, p, img, touched, n):  # type: ignore[no-untyped-def]
+@njit(cache=True, nogil=True)
+def _add_events(mode, width, vmin, vmax, x, y, p, img, touched, n):  # type: ignore[no-untyped-def]
     """Events into the flat image ``img`` (see :func:`_fill`), recording the
     indices that leave zero in ``touched[n:]``; returns the new count
     (``n < 0``: no record; -1 too when ``touched`` fills up). Indices are
     unsigned and the loops run over whole arrays (slices): a signed index
     costs a negative-index check per access."""
+    literally(mode)
     if n < 0:
-        _fill(mode, full, width, vmin, vmax, x, y, p, img)
+        _fill(mode, width, vmin, vmax, x, y, p, img)
         return n
     w = np.uint64(width)
     cap = touched.shape[0]
@@ -216,18 +219,21 @@ def _add_events(mode, full, width, vmin, vmax, x, y, p, img, touched, n):  # typ
         old = np.int64(img[i])
         if old == 0:
             if n == cap:  # the list is full: the rest without it
-                _fill(mode, full, width, vmin, vmax, x[e:], y[e:], p[e:], img)
+                _fill(mode, width, vmin, vmax, x[e:], y[e:], p[e:], img)
                 return -1
             touched[n] = i
             n += 1
-        img[i] = _step(mode, full, old, pe, vmin, vmax)
+        img[i] = _step(mode, old, pe, vmin, vmax)
     return n
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _windows(mode, full, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks,  # type: ignore[no-untyped-def]
+@njit(cache=True, nogil=True)
+def _windows(mode, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks,  # type: ignore[no-untyped-def]
              n_marks):
-    """:func:`windows_kernel` for one case (``mode``, ``full``)."""
+    """:func:`windows_kernel` for one ``mode``, a compile-time constant
+    (the entry point takes it at run time: :func:`numba.literally` there
+    would cost a dispatch of milliseconds a call)."""
+    literally(mode)
     s_size = state.shape[0]
     n_win = splits.shape[0]
     cap = marks.shape[1]
@@ -257,16 +263,15 @@ def _windows(mode, full, width, vmin, vmax, x, y, p, splits, state, touched, n_t
         f = frames[k * s_size:(k + 1) * s_size]
         first = m0 if k == 0 else 0
         if 0 <= first and first + hi - lo <= cap:
-            _fill_marked(mode, full, width, vmin, vmax, x[lo:hi], y[lo:hi], p[lo:hi], f, marks[k, first:])
+            _fill_marked(mode, width, vmin, vmax, x[lo:hi], y[lo:hi], p[lo:hi], f, marks[k, first:])
             n_marks[k] = first + hi - lo
         else:
-            _fill(mode, full, width, vmin, vmax, x[lo:hi], y[lo:hi], p[lo:hi], f)
+            _fill(mode, width, vmin, vmax, x[lo:hi], y[lo:hi], p[lo:hi], f)
             n_marks[k] = -1
         lo = hi
-    n_touched[0] = _add_events(mode, full, width, vmin, vmax, x[lo:], y[lo:], p[lo:], state, touched, n_touched[0])
+    n_touched[0] = _add_events(mode, width, vmin, vmax, x[lo:], y[lo:], p[lo:], state, touched, n_touched[0])
 
 
-@njit(cache=True, nogil=True)
 def windows_kernel(mode, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks,  # type: ignore[no-untyped-def]
                    n_marks):
     """One packet's events into consecutive windows of a per-window image.
@@ -285,20 +290,30 @@ def windows_kernel(mode, width, vmin, vmax, x, y, p, splits, state, touched, n_t
     ``marks[k, :n_marks[k]]`` (-1: anywhere; ``marks`` (N, C) uint32) and
     is zeroed there first. On return ``n_marks[k]`` says where frame ``k``
     was written: its indices in ``marks[k]`` when they fit (one per event
-    and per state pixel, not distinct), else -1."""
-    full = vmin <= -2147483648 and vmax >= 2147483647  # int32: 2^31 events a pixel do not come
-    if mode == HISTOGRAM and full:
-        _windows(HISTOGRAM, True, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks,
-                 n_marks)
-    elif mode == HISTOGRAM:
-        _windows(HISTOGRAM, False, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks,
-                 n_marks)
-    elif mode == SIGNED and full:
-        _windows(SIGNED, True, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks, n_marks)
-    elif mode == SIGNED:
-        _windows(SIGNED, False, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks,
-                 n_marks)
-    elif full:
-        _windows(COUNT, True, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks, n_marks)
-    else:
-        _windows(COUNT, False, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks, n_marks)
+    and per state pixel, not distinct), else -1.
+
+    One compiled function per mode (:data:`WINDOWS` ``[mode]``, what the
+    operators call): a dtype compiles only the case it is used with."""
+    WINDOWS[mode](width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks, n_marks)
+
+
+@njit(cache=True, nogil=True)
+def _windows_histogram(width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks,  # type: ignore[no-untyped-def]
+                       n_marks):
+    _windows(HISTOGRAM, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks, n_marks)
+
+
+@njit(cache=True, nogil=True)
+def _windows_signed(width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks,  # type: ignore[no-untyped-def]
+                    n_marks):
+    _windows(SIGNED, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks, n_marks)
+
+
+@njit(cache=True, nogil=True)
+def _windows_count(width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks,  # type: ignore[no-untyped-def]
+                   n_marks):
+    _windows(COUNT, width, vmin, vmax, x, y, p, splits, state, touched, n_touched, frames, marks, n_marks)
+
+
+#: :func:`windows_kernel` of each mode, without its ``mode`` argument
+WINDOWS = {HISTOGRAM: _windows_histogram, SIGNED: _windows_signed, COUNT: _windows_count}

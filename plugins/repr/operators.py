@@ -99,10 +99,10 @@ class _Image(Windowed):
             pending.append((stamps[a:b], block.images if b - a == g else block.images[:b - a]))
 
     def _kernel(self, x: np.ndarray, y: np.ndarray, p: np.ndarray, splits: np.ndarray, frames: Block) -> None:
-        """:func:`~tectum.plugins.repr.kernels.windows_kernel` into the first
-        ``len(splits)`` frames of ``frames``."""
-        K.windows_kernel(self.mode, self._width, *self._limits, x, y, p, splits, self._flat, self._touched,
-                         self._n_touched, frames.flat, frames.marks, frames.n_marks)
+        """:func:`~tectum.plugins.repr.kernels.windows_kernel` (its mode's
+        compiled function) into the first ``len(splits)`` frames of ``frames``."""
+        K.WINDOWS[self.mode](self._width, *self._limits, x, y, p, splits, self._flat, self._touched,
+                             self._n_touched, frames.flat, frames.marks, frames.n_marks)
 
     def _frame(self, t0: int, t1: int) -> np.ndarray:
         """The window in progress as a new image (the state is zeroed)."""
