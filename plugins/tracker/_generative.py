@@ -429,13 +429,19 @@ def fit_batch(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_wr,
                           obs, prd, jac, ok, disp)
         if n_ok < 12:
             break
-        if it == 0:  # robust scale: 1.4826 x median |r| over the points in view, at the start
+        if it == 0:  # robust scale: 1.4826 x median |r|, points in view mostly seen firing (else all), at the start
             k = 0
             for i in range(M):
                 if ok[i] and quiet[i] <= 0.5:
                     absr[k] = abs(res[i])
                     k += 1
-            s = max(1.4826 * np.median(absr[:k]), 1e-6) if k else 1.0
+            if k < 12:
+                k = 0
+                for i in range(M):
+                    if ok[i]:
+                        absr[k] = abs(res[i])
+                        k += 1
+            s = max(1.4826 * np.median(absr[:k]), 1e-6)
         thr = huber_k * s
         H[:, :] = 0.0
         g[:] = 0.0
