@@ -72,11 +72,13 @@ class FramePool:
         self._blocks: list[Block] = []
         self._lock = threading.Lock()  # operators in several threads may share the pool
 
-    def take(self) -> Block:
+    def take(self) -> tuple[Block, np.ndarray]:
         """The free block handed out last (the likeliest still in cache: a
         720 kB frame written cold costs 4x one written in cache), else a new
         zeroed one (kept while the pool has room). Free: nobody else holds
-        it; it is dirty as its ``n_marks`` say."""
+        it; it is dirty as its ``n_marks`` say. Returned with a reference to
+        its images, taken under the lock: hold it (or views of it) while
+        the block is in use, so no other thread takes the block meanwhile."""
         with self._lock:
             blocks = self._blocks
             for j in range(len(blocks) - 1, -1, -1):  # blocks in the order they went out
@@ -84,11 +86,11 @@ class FramePool:
                 if _unshared(b):
                     del blocks[j]
                     blocks.append(b)
-                    return b
+                    return b, b.images
             b = Block(np.zeros((self.per_block, *self.shape), self.dtype), self.n_marks)
             if len(blocks) < self.max_blocks:
                 blocks.append(b)
-            return b
+            return b, b.images
 
 
 _POOLS: OrderedDict[tuple[object, ...], FramePool] = OrderedDict()

@@ -89,14 +89,14 @@ class _Image(Windowed):
         self._pending = pending = []
         for a in range(0, n_win, g):
             b = min(a + g, n_win)
-            block = self._pool.take()
+            block, images = self._pool.take()  # images: ours until handed out
             if b - a == n_win:  # one block: no slicing
                 self._kernel(pk.x, pk.y, pk.p, splits, block)
             else:
                 lo = int(splits[a - 1]) if a else 0
                 hi = int(splits[b - 1]) if b < n_win else n
                 self._kernel(pk.x[lo:hi], pk.y[lo:hi], pk.p[lo:hi], splits[a:b] - lo, block)
-            pending.append((stamps[a:b], block.images if b - a == g else block.images[:b - a]))
+            pending.append((stamps[a:b], images if b - a == g else images[:b - a]))
 
     def _kernel(self, x: np.ndarray, y: np.ndarray, p: np.ndarray, splits: np.ndarray, frames: Block) -> None:
         """:func:`~tectum.plugins.repr.kernels.windows_kernel` (its mode's
@@ -244,7 +244,7 @@ class TimeSurface(Windowed):
 
     def _frame(self, t0: int, t1: int) -> np.ndarray:
         if not self._blocks or self._k == self._pool.per_block:
-            self._blocks.append(self._pool.take().images)
+            self._blocks.append(self._pool.take()[1])
             self._k = 0
         out = self._blocks[-1][self._k]
         self._k += 1

@@ -103,13 +103,45 @@ def test_frames_someone_holds_are_never_written(ev, name, hold):
 
 def test_a_pool_reuses_only_unshared_blocks():
     p = _pool.FramePool((2, 3), np.dtype(np.int32), 2, 0, max_blocks=2)
-    a = p.take()
-    view = a.images[:1]
-    b = p.take()
-    assert b is not a  # a's images are held by a view
+    a, view = p.take()
+    b, held_b = p.take()
+    assert b is not a  # a's images are held by the reference take() gave
     del view
-    assert p.take() in (a, b)
+    c, _ = p.take()
+    assert c is a  # free again; b is still held
     held = [a.images, b.images]
-    e = p.take()  # none free and no room: a new block, not kept
+    e, _ = p.take()  # none free and no room: a new block, not kept
     assert e is not a and e is not b and len(p._blocks) == 2
-    del held
+    del held, held_b
+
+
+def test_a_block_is_not_taken_twice_across_threads():
+    """Threads taking blocks of one shared pool at once never get the same
+    block while the first still holds what take() returned."""
+    import sys
+    import threading
+    import time
+
+    p = _pool.FramePool((4,), np.dtype(np.int32), 1, 0, max_blocks=8)
+    clashes = []
+
+    def work(k):
+        for _ in range(300):
+            _, images = p.take()  # the block itself holds no reference to its images for us
+            images[0, 0] = k  # ours alone: nobody else may write it before we read it back
+            time.sleep(0)
+            if images[0, 0] != k:
+                clashes.append(k)
+            images = None
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)
+    try:
+        threads = [threading.Thread(target=work, args=(k,)) for k in range(1, 5)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    finally:
+        sys.setswitchinterval(interval)
+    assert not clashes
