@@ -369,11 +369,11 @@ def _evt3_packed(words, state, strict, t, x, y, p, trig):  # pragma: no cover - 
             nb = 12 if (w >> 12) == 0x4 else 8
             tb = (wraps << 24) | (cur >> 24)
             for b in range(nb):
-                k = np.uint64(n)
-                t[k] = tb
-                x[k] = bx + b
-                y[k] = (cur >> 12) & 0x7FF
-                p[k] = vp
+                at = np.uint64(n)
+                t[at] = tb
+                x[at] = bx + b
+                y[at] = (cur >> 12) & 0x7FF
+                p[at] = vp
                 n += (w >> b) & 1
             bx += nb
     if have == 1:
@@ -540,7 +540,7 @@ def decode_dat(records, state, t, x, y, p):  # pragma: no cover - numba
             yo[k] = yk
             po[k] = np.int8((d >> np.uint32(28)) != 0) * np.int8(2) - np.int8(1)
         if jump > half:  # a wrap in the block: its times again, unrolled one by one
-            fell = 0
+            fell = np.int64(0)
             for k in range(j - i):
                 raw = np.int64(r[k] & np.uint64(0xFFFFFFFF))
                 wraps += _wrap_step(have, last, raw, half)
