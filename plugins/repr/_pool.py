@@ -22,12 +22,14 @@ from collections import OrderedDict
 
 import numpy as np
 
-__all__ = ["Block", "FramePool", "pool", "POOL_BYTES", "POOLS"]
+__all__ = ["Block", "FramePool", "pool", "POOL_BYTES", "POOLS", "SHARED_BYTES"]
 
 #: the most bytes of blocks one pool keeps for reuse
 POOL_BYTES = 1 << 26
 #: the most pools (frame shapes and dtypes) kept, the last used
 POOLS = 4
+#: frames smaller than this (bytes) are not pooled across operators
+SHARED_BYTES = 1 << 14
 
 
 class Block:
@@ -101,14 +103,18 @@ def pool(shape: tuple[int, ...], dtype: np.dtype, per_block: int, marks: int = 0
     """The process's pool of blocks of ``per_block`` frames of ``shape`` and
     ``dtype`` (``marks``: see :class:`FramePool`). Pools last while they are
     among the :data:`POOLS` used last; each keeps at most
-    :data:`POOL_BYTES` of blocks, and only as many as were out at once."""
+    :data:`POOL_BYTES` of blocks, and only as many as were out at once.
+    Frames under :data:`SHARED_BYTES` get a pool of their own (an
+    operator's warm-up on a tiny sensor, tests), not shared."""
+    frame_bytes = int(np.prod(shape)) * np.dtype(dtype).itemsize
+    max_blocks = max(1, POOL_BYTES // max(frame_bytes * per_block, 1))
+    if frame_bytes < SHARED_BYTES:  # the operator's own: small frames do not push others out
+        return FramePool(tuple(shape), np.dtype(dtype), per_block, marks, max_blocks)
     key = (tuple(shape), np.dtype(dtype).str, per_block, marks)
     with _POOLS_LOCK:
         p = _POOLS.get(key)
         if p is None:
-            frame_bytes = int(np.prod(shape)) * np.dtype(dtype).itemsize
-            p = _POOLS[key] = FramePool(tuple(shape), np.dtype(dtype), per_block, marks,
-                                        max(1, POOL_BYTES // max(frame_bytes * per_block, 1)))
+            p = _POOLS[key] = FramePool(tuple(shape), np.dtype(dtype), per_block, marks, max_blocks)
             while len(_POOLS) > POOLS:
                 _POOLS.popitem(last=False)
         _POOLS.move_to_end(key)

@@ -145,3 +145,16 @@ def test_a_block_is_not_taken_twice_across_threads():
     finally:
         sys.setswitchinterval(interval)
     assert not clashes
+
+
+def test_pools_are_shared_by_shape_but_small_frames_keep_their_own():
+    """A pipeline built again finds the blocks the last one freed; a tiny
+    frame (an operator's warm-up) does not push a shared pool out."""
+    big = ((130, 173, 2), np.dtype(np.int32), 11, 8)
+    assert _pool.pool(*big) is _pool.pool(*big)
+    small = ((8, 8), np.dtype(np.uint8), 4096, 1)
+    assert _pool.pool(*small) is not _pool.pool(*small)
+    kept = _pool.pool(*big)
+    for k in range(_pool.POOLS + 3):
+        _pool.pool((8, 8 + k), np.dtype(np.int32), 10, 0)
+    assert _pool.pool(*big) is kept
