@@ -118,6 +118,7 @@ def _run_inline(plan: Plan) -> Stats:
     ok = False
     failure: list[BaseException] = []
     t_wall = time.perf_counter()
+    out = _Outbox({})
     try:
         for sid, sink in sinks.items():
             try:
@@ -127,7 +128,6 @@ def _run_inline(plan: Plan) -> Stats:
                 raise NodeError(sid, e) from e
             opened.append(sid)
         now = time.perf_counter
-        out = _Outbox({})
         out.write_inline(graph, sinks, stats, now)
         task = _source_task(plan.of_role("source")[0], plan.batch, graph, out, checkpoint=_no_wait, now=now)
         try:
@@ -142,6 +142,7 @@ def _run_inline(plan: Plan) -> Stats:
             out.add(graph.unstall(), out.arrival)
         ok = True
     finally:
+        out.flush_latency()
         for sid in opened:
             sink = sinks[sid]
             try:
@@ -241,6 +242,7 @@ async def _main(plan: Plan, graph: Graph, edges: dict[str, Edge], scope: trio.Ca
     sinks = {n.id: n.instantiate() for n in plan.of_role("sink")}
     opened: list[str] = []
     ok = False
+    outbox = _Outbox(edges, loops)
     try:
         for sid, sink in sinks.items():
             try:
@@ -250,7 +252,6 @@ async def _main(plan: Plan, graph: Graph, edges: dict[str, Edge], scope: trio.Ca
                 raise NodeError(sid, e) from e
             opened.append(sid)
         now = trio.lowlevel.current_clock().current_time
-        outbox = _Outbox(edges, loops)
         outbox.write_inline(graph, {sid: sink for sid, sink in sinks.items()
                                     if _writes_inline(sink, plan.nodes[sid].spec.policy)}, graph.stats, now)
         inline = outbox.inline
@@ -270,6 +271,7 @@ async def _main(plan: Plan, graph: Graph, edges: dict[str, Edge], scope: trio.Ca
                     edge.close()
         ok = True
     finally:
+        outbox.flush_latency()
         for sid in opened:
             sink = sinks[sid]
             try:
@@ -341,9 +343,14 @@ class _InlineSink:
 
     The graph calls it as the packet reaches the sink
     (:meth:`Graph.write_through`); the latency counts from ``out.arrival``,
-    which the pushing task sets before each push."""
+    which the pushing task sets before each push. Packets written one after
+    another with the same arrival (the pieces of one packet cut event by
+    event) are recorded as one run at the last one's latency, as the sink
+    task records a burst (one histogram update per run, not per event;
+    paced pieces each have their own arrival): :meth:`flush` records the
+    run under way."""
 
-    __slots__ = ("sid", "_write", "st", "lat", "now", "out")
+    __slots__ = ("sid", "_write", "st", "lat", "now", "out", "run_arrival", "run", "run_done")
 
     def __init__(self, sid: str, sink: Sink, stats: Stats, now: Callable[[], float], out: _Outbox) -> None:
         self.sid = sid
@@ -352,6 +359,15 @@ class _InlineSink:
         self.lat = stats.latency_of(sid)
         self.now = now  # trio's clock
         self.out = out
+        self.run_arrival = 0.0
+        self.run = 0
+        self.run_done = 0.0
+
+    def flush(self) -> None:
+        """Record the latency of the run of packets under way."""
+        if self.run:
+            self.lat.add(self.run_done - self.run_arrival, self.run)
+            self.run = 0
 
     def __call__(self, pkt: Packet) -> None:
         st = self.st
@@ -366,7 +382,12 @@ class _InlineSink:
         except Exception as e:
             raise NodeError(self.sid, e) from e
         st.busy_ns += perf_counter_ns() - t0
-        self.lat.add(self.now() - self.out.arrival)
+        arrival = self.out.arrival
+        if arrival != self.run_arrival or not self.run:
+            self.flush()
+            self.run_arrival = arrival
+        self.run += 1
+        self.run_done = self.now()
 
 
 class _Outbox:
@@ -401,6 +422,11 @@ class _Outbox:
         """Write ``sinks`` inline (:class:`_InlineSink`): the graph calls them."""
         self.inline = {sid: _InlineSink(sid, sink, stats, now, self) for sid, sink in sinks.items()}
         graph.write_through(self.inline)
+
+    def flush_latency(self) -> None:
+        """Record the latency of the runs under way in the sinks written inline."""
+        for sink in self.inline.values():
+            sink.flush()
 
     def add(self, deliveries: list[Delivery], arrival: float) -> None:
         pending, inline = self.pending, self.inline
@@ -625,7 +651,9 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                         for piece in pkt.batches(max_events):
                             st.packets_out += 1
                             out.arrival = arrival
-                            add(push(sid, piece), arrival)
+                            got = push(sid, piece)
+                            if got:  # (sinks written inline leave nothing to hand over)
+                                add(got, arrival)
                             k += 1
                             # a packet cut in many pieces (event by event) yields on the same
                             # schedule: what it delivered is written and freed while young,
