@@ -272,7 +272,7 @@ class Pose6Dof(Operator):
         event_weights(np.zeros(1, np.uint16), np.zeros(1, np.uint16), np.zeros(1, np.int64), np.ones(1, np.int8), 0.2,
                       np.zeros((1, 1), np.int8), one, one, np.empty(1))
         residue_image(np.zeros((1, 1), np.int8), one, one, 0, 0.2, np.zeros((1, 1)), np.empty((1, 1)), np.empty((1, 1)))
-        point_corrections(P, np.eye(3), np.zeros(3), 4.0, 4.0, 3.5, 3.5, np.zeros((0, 0, 2)), img[None], 1.0,
+        point_corrections(P, np.eye(3), np.zeros(3), 4.0, 4.0, 3.5, 3.5, np.zeros((0, 0, 2)), img[None], 1.0, 1,
                           np.empty((1, 16)))
 
     # -- the map ----------------------------------------------------------------------
@@ -459,7 +459,7 @@ class Pose6Dof(Operator):
         for k, (lv, img) in enumerate(levels):
             if self.timed_residue and (k or not self._lost):  # at the prediction; none at a relocalising coarse level
                 point_corrections(self._P, R1, t1, K[0, 0], K[1, 1], K[0, 2], K[1, 2], self._sensor_at, pix, lv.sigma,
-                                  at[:len(pix)])
+                                  1, at[:len(pix)])
             fit_batch(self._P, self._Xr, lv.Lm, img, at[0], at[1], self.contrast, lv.image, Ra, ta, R1, t1, self._R_wr,
                       K[0, 0], K[1, 1], K[0, 2], K[1, 2], self.iterations, self.huber, 1e-3, stats)
         fit = float(stats[1])

@@ -323,13 +323,15 @@ def test_point_corrections_are_the_splat_of_the_residues(lens: bool) -> None:
         at = np.ascontiguousarray(cam.project(rays).reshape(H, W, 2))
     pts = np.stack([rng.uniform(20, 220, 300), rng.uniform(20, 160, 300)], 1)
     P = 1.5 * np.stack([(pts[:, 0] - cam.cx) / cam.fx, (pts[:, 1] - cam.cy) / cam.fy, np.ones(300)], 1)
-    out = np.empty((2, 300))  # two images at once: the second is minus twice the first
-    point_corrections(P, np.eye(3), np.zeros(3), cam.fx, cam.fy, cam.cx, cam.cy, at, np.stack([diff, -2 * diff]), 1.0,
-                      out)
+    out = np.empty((3, 300))  # three images at once: the second minus twice the first, the third only sampled
+    point_corrections(P, np.eye(3), np.zeros(3), cam.fx, cam.fy, cam.cx, cam.cy, at, np.stack([diff, -2 * diff, diff]),
+                      1.0, 2, out)
     ref = np.array([_bilinear(img, a, b)[0] for a, b in pts])
     assert np.median(np.abs(out[0] - ref)) < 0.05 * np.median(np.abs(ref))
     assert np.corrcoef(out[0], ref)[0, 1] > 0.999
     assert np.allclose(out[1], -2 * out[0])
+    if not lens:  # sampled bilinearly at the point's pixel
+        assert np.allclose(out[2], [_bilinear(diff, a, b)[0] for a, b in pts])
 
 
 def test_silent_pixels_bound_the_start() -> None:
