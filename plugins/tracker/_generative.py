@@ -28,9 +28,9 @@ a pixel the observation is the model's own change within that bound,
 ``ΔL_obs + clip(ΔL_pred - ΔL_obs, -C, C)`` (``ΔL_obs`` holding the last
 event's level): no residual while the model keeps it below the
 threshold, the excess when the model says it should have fired. At a
-point whose blur mixes firing and silent pixels (share ``q`` of silent
-ones), ``q`` of it is so treated (``r = (1 - q)(ΔL_obs - ΔL_pred)``
-inside the bound). A pixel silent since before a reference view other
+point between firing and silent pixels (share ``q`` of silent ones,
+sampled bilinearly), ``q`` of it is so treated (``r = (1 - q)(ΔL_obs -
+ΔL_pred)`` inside the bound). A pixel silent since before a reference view other
 than the start is held to ``C`` from that view's level too (its level
 there taken as its last event's; ``2C``, the strict bound, measured no
 different).
@@ -410,9 +410,9 @@ def fit_batch(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_wr,
     points, ``Xr`` (M, 3) their map pixel (x, y) and depth (m), ``Lm`` (M,)
     their map log intensity (blurred as ``map_img``), ``corr`` (M,) added to
     the observed increment at each point (:func:`point_corrections`: held
-    through the iterations), ``quiet`` (M,) the share of the point's
-    observation from silent pixels (:func:`residue_image`'s ``quiet``
-    blurred at the points; zeros: none), ``c`` the contrast threshold. ``stats`` gets
+    through the iterations), ``quiet`` (M,) the share of silent pixels at
+    each point (:func:`residue_image`'s ``quiet`` sampled at the points;
+    zeros: none), ``c`` the contrast threshold. ``stats`` gets
     ``[points in view, correlation, rms residual, iterations, last step,
     median displacement (px) of the points in view from T0 to T1]``."""
     M = P.shape[0]
