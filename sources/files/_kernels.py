@@ -119,6 +119,28 @@ _EVT3_RARE = sum(1 << k for k in (0x1, 0x3, 0x4, 0x5, 0x9, 0xA, 0xB, 0xC, 0xD))
 
 
 @njit(cache=True, nogil=True)
+def _evt3_registers(state):  # pragma: no cover - numba
+    """The EVT 3.0 decoder registers in ``state``: (time high, time low,
+    wraps, have a time high, y, vector base x, vector polarity (no
+    VECT_BASE_X seen yet: OFF, as a zeroed register would say), events
+    dropped before the first time high)."""
+    return state[0], state[1], state[2], state[3], state[4], state[5], state[6] if state[6] != 0 else -1, state[7]
+
+
+@njit(cache=True, nogil=True)
+def _evt3_keep(state, high, low, wraps, have, cy, bx, vp, dropped):  # pragma: no cover - numba
+    """Store the registers of :func:`_evt3_registers` back into ``state``."""
+    state[0] = high
+    state[1] = low
+    state[2] = wraps
+    state[3] = have
+    state[4] = cy
+    state[5] = bx
+    state[6] = vp
+    state[7] = dropped
+
+
+@njit(cache=True, nogil=True)
 def decode_evt3(words, state, strict, t, x, y, p, where, trig):  # pragma: no cover - numba
     """EVT 3.0 words to events: :func:`_evt3_packed` when ``where`` is empty
     (the fast path), else :func:`_evt3_tracked`; both give the same events,
@@ -140,14 +162,7 @@ def _evt3_tracked(words, state, strict, t, x, y, p, where, trig):  # pragma: no 
     nt = 0
     bad = -1
     nbad = 0
-    high = state[0]
-    low = state[1]
-    wraps = state[2]
-    have = state[3]
-    cy = state[4]
-    bx = state[5]
-    vp = state[6] if state[6] != 0 else -1  # no VECT_BASE_X seen yet: OFF, as a zeroed register would say
-    dropped = state[7]
+    high, low, wraps, have, cy, bx, vp, dropped = _evt3_registers(state)
     track = where.shape[0] > 0
     cap = t.shape[0] - 12  # room for a vector word's events
     i = 0
@@ -213,14 +228,7 @@ def _evt3_tracked(words, state, strict, t, x, y, p, where, trig):  # pragma: no 
             where[k] = i - 1
         n += is_x * have
         dropped += is_x * (1 - have)
-    state[0] = high
-    state[1] = low
-    state[2] = wraps
-    state[3] = have
-    state[4] = cy
-    state[5] = bx
-    state[6] = vp
-    state[7] = dropped
+    _evt3_keep(state, high, low, wraps, have, cy, bx, vp, dropped)
     return n, nt, bad, nbad, i
 
 
@@ -308,14 +316,7 @@ def _evt3_packed(words, state, strict, t, x, y, p, trig):  # pragma: no cover - 
     nt = 0
     bad = -1
     nbad = 0
-    high = state[0]
-    low = state[1]
-    wraps = state[2]
-    have = state[3]
-    cy = state[4]
-    bx = state[5]
-    vp = state[6] if state[6] != 0 else -1
-    dropped = state[7]
+    high, low, wraps, have, cy, bx, vp, dropped = _evt3_registers(state)
     cap = t.shape[0] - 12
     m = words.shape[0]
     i = 0
@@ -380,14 +381,7 @@ def _evt3_packed(words, state, strict, t, x, y, p, trig):  # pragma: no cover - 
         high = cur >> 36
         low = (cur >> 24) & 0xFFF
         cy = (cur >> 12) & 0x7FF
-    state[0] = high
-    state[1] = low
-    state[2] = wraps
-    state[3] = have
-    state[4] = cy
-    state[5] = bx
-    state[6] = vp
-    state[7] = dropped
+    _evt3_keep(state, high, low, wraps, have, cy, bx, vp, dropped)
     return n, nt, bad, nbad, i
 
 
