@@ -45,6 +45,12 @@ def decode_evt2(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
     while i < m:
         # a run of CD events sharing one time base: a branch-free, vectorisable loop
         k = i
+        while k + 8 <= m:  # 8 words at a time: all are CD when their OR is (cd_end is a power of two)
+            if (words[np.uint64(k)] | words[np.uint64(k + 1)] | words[np.uint64(k + 2)] | words[np.uint64(k + 3)]
+                    | words[np.uint64(k + 4)] | words[np.uint64(k + 5)] | words[np.uint64(k + 6)]
+                    | words[np.uint64(k + 7)]) >= cd_end:
+                break
+            k += 8
         while k < m:  # not ``while k < m and ...``: numba compiles that loop several times slower
             if words[np.uint64(k)] >= cd_end:
                 break

@@ -66,6 +66,20 @@ def test_evt2_kernel_matches_reference(words):
     assert run(K.decode_evt2, w, K.EVT2_STATE, 1) == ref_evt2(w) or _has_wrap(w)
 
 
+def test_evt2_long_runs_end_at_any_offset():
+    """A run of CD words ends (at a TIME_HIGH, a trigger, an OTHERS word or
+    an undefined type) at any offset from the words the run scan takes 8 at a
+    time, and the words after it decode as the reference says."""
+    rng = np.random.default_rng(5)
+    for enders in ((8 << 28) | 7, (0xA << 28) | (3 << 22) | (2 << 8) | 1, 0xE << 28, 0x5 << 28):
+        for length in range(26):
+            cd = [(int(rng.integers(0, 2)) << 28) | int(rng.integers(0, 1 << 28)) for _ in range(length + 30)]
+            w = np.array([(8 << 28) | 5] + cd[:length] + [enders] + cd[length:], np.uint32)
+            want = ref_evt2(w)
+            assert run(K.decode_evt2, w, K.EVT2_STATE, 1) == want, (hex(enders), length)
+            assert len(want) == length + 30
+
+
 def _has_wrap(w):
     highs = [int(v) & 0x0FFFFFFF for v in w if int(v) >> 28 == 8]
     return any(b < a and a - b > (1 << 27) for a, b in zip(highs, highs[1:]))
