@@ -29,7 +29,7 @@ from ._operator import Sink, Source
 from ._packet import EventPacket, Kind, Packet, join_consecutive
 from ._pipeline import BatchPolicy, EdgePolicy, Pipeline, Plan
 from ._registry import Registry
-from ._stats import Stats
+from ._stats import LatencyRecorder, Stats
 from .errors import NodeError, TectumError
 
 __all__ = ["run", "arun", "open_pipeline", "RunningPipeline"]
@@ -584,6 +584,9 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
     try:
         source = node.instantiate()
         pacer = _Pacer(batch) if batch.pace is not None and not source.live else None
+        late = LatencyRecorder()  # how late paced pieces are released after they are due
+        if pacer is not None:
+            graph.stats.released_late[sid] = late
         # a live source's packets go in as they come, and so do those of a
         # source feeding an operator that acts on each packet's tick
         small = _SMALL if not source.live and graph.joinable(sid) else 0
@@ -603,9 +606,10 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
             for pkt in repair(raw) if repair is not None else (raw,):
                 pkt = guard(pkt)
                 if pacer is not None:
-                    async for piece, due in pacer.release(pkt):
+                    async for piece, due, ready in pacer.release(pkt):
                         st.packets_out += 1
                         st.gave(piece)
+                        late.add(trio_now() - ready)
                         out.arrival = due
                         add(push(sid, piece), due)
                         await out.flush()  # paced: hand over at once, latency counts
@@ -775,7 +779,10 @@ class _Pacer:
     def sensor_now(self) -> float:
         return self.t0 + (trio.current_time() - self.c0) * 1e6 * self.speed  # type: ignore[operator]
 
-    async def release(self, pkt: Packet) -> AsyncIterator[tuple[Packet, float]]:
+    async def release(self, pkt: Packet) -> AsyncIterator[tuple[Packet, float, float]]:
+        """Pieces of ``pkt`` as they fall due: (piece, when its newest
+        sample was due, when its oldest data could go: its first window
+        closed, or its first sample was due)."""
         if self.t0 is None:
             self.t0 = pkt.t_start
             self.c0 = trio.current_time()
@@ -792,9 +799,14 @@ class _Pacer:
             if upto > cursor:
                 piece = pkt.slice_time(cursor, upto)
                 cursor = upto
+                # when its oldest data could go: its first window closed, or its first sample was due
+                if win:
+                    ready = self.clock(min(upto, self.t0 + (math.floor((piece.t_start - self.t0) / win) + 1) * win))
+                else:
+                    ready = self.clock(int(piece.t[0]) if len(piece) else upto - 1)
                 for b in piece.batches(self.batch.max_events):
                     due = self.clock(int(b.t[-1]) if len(b) else b.t_end - 1)
-                    yield b, due
+                    yield b, due, ready
                 continue
             if win:
                 nxt = self.t0 + (math.floor((now - self.t0) / win) + 1) * win

@@ -125,11 +125,16 @@ class LatencyRecorder:
 
 
 class Stats:
-    """Everything a run measured: nodes by id, latency by sink id."""
+    """Everything a run measured: nodes by id, latency by sink id and, for
+    paced sources, how late each piece was released after its oldest data
+    could go (its first window closed, or its first sample was due:
+    ``released_late``, by source id): time before the engine got to the
+    data, while other tasks or, under load, other processes ran."""
 
     def __init__(self) -> None:
         self.nodes: dict[str, NodeStats] = {}
         self.latency: dict[str, LatencyRecorder] = {}
+        self.released_late: dict[str, LatencyRecorder] = {}
         self.wall_s: float = 0.0
 
     def node(self, node_id: str) -> NodeStats:
@@ -149,6 +154,7 @@ class Stats:
             "wall_s": self.wall_s,
             "nodes": {k: v.as_dict() for k, v in self.nodes.items()},
             "latency_us": {k: v.percentiles() for k, v in self.latency.items()},
+            "released_late_us": {k: v.percentiles() for k, v in self.released_late.items()},
         }
 
     def report(self) -> str:
@@ -178,5 +184,10 @@ class Stats:
                     f"latency to {sid}: p50 {p['p50']:.0f} µs, p99 {p['p99']:.0f} µs, "
                     f"max {p['max']:.0f} µs ({rec.count} packets)"
                 )
+        for sid, rec in self.released_late.items():
+            p = rec.percentiles()
+            if p:
+                lines.append(f"paced source {sid} released its data late by: p50 {p['p50']:.0f} µs, "
+                             f"p99 {p['p99']:.0f} µs, max {p['max']:.0f} µs")
         lines.append(f"wall time {self.wall_s:.3f} s")
         return "\n".join(lines)
