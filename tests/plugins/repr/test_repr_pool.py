@@ -15,10 +15,10 @@ from tectum.testing import assert_stream_contract
 from helpers import bars
 
 MAKES = {
-    "event_frame": lambda: R.EventFrame(window_us=700),
-    "count_uint8": lambda: R.CountImage(window_us=700, dtype="uint8"),
-    "accumulate_int8": lambda: R.Accumulate(window_us=700, dtype="int8"),
-    "time_surface": lambda: R.TimeSurface(window_us=700, tau_us=2000.0),
+    "event_frame": lambda window_us=700, **w: R.EventFrame(window_us=window_us, **w),
+    "count_uint8": lambda window_us=700, **w: R.CountImage(window_us=window_us, dtype="uint8", **w),
+    "accumulate_int8": lambda window_us=700, **w: R.Accumulate(window_us=window_us, dtype="int8", **w),
+    "time_surface": lambda window_us=700, **w: R.TimeSurface(window_us=window_us, tau_us=2000.0, **w),
 }
 REFERENCE = {"event_frame": R.event_frame, "count_uint8": lambda s: np.minimum(R.count_image(s), 255),
              "accumulate_int8": R.accumulate}
@@ -158,3 +158,22 @@ def test_pools_are_shared_by_shape_but_small_frames_keep_their_own():
     for k in range(_pool.POOLS + 3):
         _pool.pool((8, 8 + k), np.dtype(np.int32), 10, 0)
     assert _pool.pool(*big) is kept
+
+
+@pytest.mark.parametrize("name", list(MAKES))
+@pytest.mark.parametrize("window", [{"window_us": 300}, {"window_us": None, "count": 20}])
+def test_frame_packets_built_on_the_trusted_path_pass_the_plain_checks(ev, name, window, monkeypatch):
+    """The operators build their frame packets without FramePacket()'s
+    checks: each passes them (the plain constructor and validate()), in
+    blocks of 1 or 2 frames (packets back to back)."""
+    from tectum import FramePacket
+    from tectum.plugins.repr import operators
+    from tectum.testing import feed
+
+    monkeypatch.setattr(operators, "BLOCK_BYTES", 2 * 16 * 10)  # 2 frames of 8 bits, 1 of 32 or 2 x 32
+    out = feed(MAKES[name](**window), list(ev.batches(97)))
+    assert sum(len(q) for q in out) > 10 and max(len(q) for q in out) <= 2
+    for q in out:
+        q.validate()
+        FramePacket(q.t, images=q.images, t_start=q.t_start, t_end=q.t_end)
+    assert_stream_contract(out)
