@@ -44,7 +44,6 @@ from ._common import (
     SampleTiler,
     byte_buffer,
     header_dict,
-    read_full,
     read_prefixed_header,
     record_offsets,
     sensor_from_header,
@@ -318,9 +317,6 @@ class RawSource(FileSource):
         return lambda: at + self._decode(words, state.copy())[4] * np.dtype(self.word).itemsize
 
 
-#: Bytes of DAT records read at a time: decoded while they are in cache.
-_PIECE_BYTES = 1 << 18
-
 #: Words an EVT 2.0 bisection probe reads (64 KB) looking for a TIME_HIGH word.
 _PROBE_WORDS = 1 << 14
 
@@ -467,28 +463,15 @@ class DatSource(FileSource):
         return w, h
 
     def _events(self, f: Any, pos: int, end: int, sensor: tuple[int, int]) -> Iterator[Packet]:
-        """A packet per ``chunk_bytes`` of records, read and decoded in
-        pieces of :data:`_PIECE_BYTES` (each decoded while it is in cache)."""
         state = np.zeros(K.DAT_STATE, np.int64)
         asm = EventAssembler(self, sensor, offset=self.t0_offset if self.apply_t0 else 0)
-        step = max(8, self.chunk_bytes // 8 * 8)
-        buf = byte_buffer(min(step, _PIECE_BYTES))
-        f.seek(pos)
-        while pos < end and not asm.past_end():
-            m = min(step, end - pos) // 8
+        for at, records in self._chunks(f, pos, end):
+            m = records.shape[0]
             t, x, y, p = asm.reserve(m)
-            k, ordered, mx, my = 0, True, 0, 0
-            while k < m:
-                got = read_full(f, buf[:min(buf.shape[0], 8 * (m - k))]) // 8
-                if not got:  # the file shrank since its size was taken
-                    break
-                s = slice(k, k + got)
-                _, ok, bx, by = K.decode_dat(np.frombuffer(buf, "<u8", count=got), state, t[s], x[s], y[s], p[s])
-                ordered, mx, my, k = ordered and ok, max(mx, bx), max(my, by), k + got
-            if not k:
+            _, ordered, mx, my = K.decode_dat(records, state, t, x, y, p)
+            yield from asm.commit(m, at, partial(record_offsets, at, 8, m), (ordered, mx, my))
+            if asm.past_end():
                 break
-            yield from asm.commit(k, pos, partial(record_offsets, pos, 8, k), (ordered, mx, my))
-            pos += 8 * k
         yield from asm.finish()
 
 

@@ -103,14 +103,11 @@ def test_error_offset_from_a_later_chunk(tmp_path: Path, files) -> None:
 
 @pytest.mark.parametrize(("what", "at"), [(w, a) for w in ("time", "x", "y") for a in (0, 1, 127, 128, 129, 2999)
                                            if (w, a) != ("time", 0)])  # the first time has nothing before it
-def test_dat_bad_record_at_any_piece_boundary(tmp_path: Path, files, monkeypatch, what: str, at: int) -> None:
+def test_dat_bad_record_at_any_chunk_boundary(tmp_path: Path, files, what: str, at: int) -> None:
     """A DAT record whose time goes back or whose x or y lies outside the
     sensor is found (offset, skip_bad count) wherever it falls against the
-    pieces the records are read in (128 here) and the packets (chunk_bytes):
-    the decoder's bounds that spare the check pass never hide it."""
-    from tectum.sources.files import prophesee
-
-    monkeypatch.setattr(prophesee, "_PIECE_BYTES", 128 * 8)
+    chunks the records are read and decoded in (128, 129, 256 records or
+    all): the decoder's bounds that spare the check pass never hide it."""
     data = bytearray(files["dat"].read_bytes())
     start = len(data) - 3000 * 8
     rec = start + 8 * at
@@ -122,7 +119,7 @@ def test_dat_bad_record_at_any_piece_boundary(tmp_path: Path, files, monkeypatch
         data[rec + 4:rec + 8] = word.to_bytes(4, "little")
     f = tmp_path / "bad.dat"
     f.write_bytes(bytes(data))
-    for chunk in (1 << 20, 256 * 8, 129 * 8):
+    for chunk in (1 << 20, 256 * 8, 129 * 8, 128 * 8):
         with pytest.raises(FormatError, match="decreases" if what == "time" else "outside") as e:
             list(open_file(str(f), chunk_bytes=chunk).packets())
         assert e.value.offset == rec
