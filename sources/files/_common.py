@@ -30,6 +30,8 @@ import numpy as np
 
 from tectum import EventPacket, FormatError, Kind, Packet, SamplePacket, Source
 
+from . import _kernels as K
+
 __all__ = ["FileSource", "EventAssembler", "SampleTiler", "ColumnPool", "parse_size", "byte_buffer",
            "read_full", "read_prefixed_header", "sensor_from_header", "thread_count", "workers",
            "DEFAULT_CHUNK_BYTES"]
@@ -294,8 +296,6 @@ class EventAssembler:
         decoder found while writing them, (times never decrease, largest x,
         largest y), sparing a pass over the columns when they show nothing
         wrong (a decoder may say False whenever unsure)."""
-        from . import _kernels as K
-
         cols, k = self._cols, self._k
         assert cols is not None, "commit() without reserve()"
         self._cols = None
@@ -370,8 +370,6 @@ class EventAssembler:
         """``skip_bad``: the held-back events and these, less the fewest that
         break time order or lie outside the sensor (counted as skipped), and
         how many of those kept were held back."""
-        from . import _kernels as K
-
         k = 0
         if self.carry is not None:  # judged again, with the events after them
             k = self.carry[0].shape[0]
