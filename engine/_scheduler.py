@@ -596,10 +596,13 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
         max_events = batch.max_events
         last_yield = clock()
         arrival = trio_now()
-        held: list[EventPacket] = []  # small event packets waiting to go in as one
+        held: list[EventPacket] = []  # event packets waiting to go in as one
         held_n = 0
+        held_big = False  # the run holds a packet of _SMALL events or more (slices end to end only)
+        held_end = -1  # the run's slices lie end to end in held_base's arrays up to here (else -1)
         held_sensor: Any = None
         held_cols: Any = None
+        held_base: Any = None
         # other tasks to let run: yield every _SLICE_S of work (run alone: never)
         sliced = checkpoint is not _no_wait
         async for raw in _read(source, out, st):
@@ -632,47 +635,57 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                     st.events_out += n
                 else:
                     st.gave(pkt)
-                if n < small and type(pkt) is EventPacket and held_n + n <= max_events and (
-                        not held or ((pkt.sensor is held_sensor or pkt.sensor == held_sensor) and (
-                            pkt.columns is held_cols or pkt.columns.keys() == held_cols.keys()))):
-                    if not held:
-                        held_sensor, held_cols = pkt.sensor, pkt.columns
+                # Held and joined: packets under _SMALL events (a copy, unless they
+                # are slices lying end to end), and slices of any size that continue
+                # the held run end to end in the same arrays (a view: no copy).
+                at = pkt._at if type(pkt) is EventPacket and not pkt.columns else -1
+                extends = at >= 0 and at == held_end and pkt.t.base is held_base
+                if held and held_n + n <= max_events and (extends or (n < small and not held_big)) and (
+                        type(pkt) is EventPacket and (pkt.sensor is held_sensor or pkt.sensor == held_sensor) and (
+                            pkt.columns is held_cols or pkt.columns.keys() == held_cols.keys())):
                     held.append(pkt)
                     held_n += n
+                    held_end = at + n if extends else -1
                 else:
                     if held:
                         st.packets_out += 1
                         out.arrival = arrival
                         add(push(sid, join_consecutive(held)), arrival)
-                        held, held_n = [], 0
-                    arrival = trio_now()
-                    if n <= max_events:  # goes in whole (the usual case: no cutting)
-                        st.packets_out += 1
-                        out.arrival = arrival
-                        add(push(sid, pkt), arrival)
+                        held, held_n, held_end = [], 0, -1
+                    if small and type(pkt) is EventPacket and n <= max_events and (n < small or at >= 0):
+                        held, held_n, held_big = [pkt], n, n >= small  # starts a run
+                        arrival = trio_now()
+                        held_sensor, held_cols, held_base = pkt.sensor, pkt.columns, pkt.t.base
+                        held_end = at + n if at >= 0 else -1
                     else:
-                        k = 0
-                        for piece in pkt.batches(max_events):
+                        arrival = trio_now()
+                        if n <= max_events:  # goes in whole (the usual case: no cutting)
                             st.packets_out += 1
                             out.arrival = arrival
-                            got = push(sid, piece)
-                            if got:  # (sinks written inline leave nothing to hand over)
-                                add(got, arrival)
-                            k += 1
-                            # a packet cut in many pieces (event by event) yields on the same
-                            # schedule: what it delivered is written and freed while young,
-                            # not held to the packet's end (and promoted by the GC)
-                            if sliced and not k & _CHECK_EVERY and clock() - last_yield > _SLICE_S:
-                                await out.flush()
-                                await checkpoint()
-                                last_yield = clock()
-                                arrival = trio_now()
+                            add(push(sid, pkt), arrival)
+                        else:
+                            k = 0
+                            for piece in pkt.batches(max_events):
+                                st.packets_out += 1
+                                out.arrival = arrival
+                                got = push(sid, piece)
+                                if got:  # (sinks written inline leave nothing to hand over)
+                                    add(got, arrival)
+                                k += 1
+                                # a packet cut in many pieces (event by event) yields on the same
+                                # schedule: what it delivered is written and freed while young,
+                                # not held to the packet's end (and promoted by the GC)
+                                if sliced and not k & _CHECK_EVERY and clock() - last_yield > _SLICE_S:
+                                    await out.flush()
+                                    await checkpoint()
+                                    last_yield = clock()
+                                    arrival = trio_now()
                 if sliced and clock() - last_yield > _SLICE_S:
                     if held:
                         st.packets_out += 1
                         out.arrival = arrival
                         add(push(sid, join_consecutive(held)), arrival)
-                        held, held_n = [], 0
+                        held, held_n, held_end = [], 0, -1
                     await out.flush()
                     await checkpoint()
                     last_yield = clock()

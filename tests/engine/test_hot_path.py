@@ -229,3 +229,41 @@ def test_a_paced_source_counts_how_late_it_released_each_piece() -> None:
     plain = tectum.Pipeline()
     plain.sink(NullSink(), plain.source(ListSource([ev]), id="src"))
     assert tectum.run(plain).released_late == {}
+
+
+class _Seen(tectum.Operator):
+    """Passes packets on and keeps them (what the engine handed it)."""
+
+    name = "filter.seen_hot_path_test"
+
+    def __init__(self) -> None:
+        self.seen: list[EventPacket] = []
+
+    def process(self, packet: EventPacket) -> list[EventPacket]:
+        self.seen.append(packet)
+        return [packet]
+
+
+def test_big_slices_lying_end_to_end_go_in_as_one_view_others_as_they_are() -> None:
+    from tectum._scheduler import _SMALL
+
+    rng = np.random.default_rng(5)
+    n = 12 * _SMALL
+    t = np.sort(rng.integers(0, 10 * n, n))
+    ev = EventPacket.from_arrays(t, rng.integers(0, 64, n), rng.integers(0, 48, n), rng.choice([-1, 1], n),
+                                 sensor=(64, 48), t_start=0, t_end=10 * n).validate()
+    step = int(ev.t[2 * _SMALL])  # about 2 x _SMALL events a slice
+    cuts = [ev.slice_time(a, a + step) for a in range(0, ev.t_end, step)]
+    copies = [EventPacket(q.t.copy(), q.x.copy(), q.y.copy(), q.p.copy(), sensor=q.sensor, t_start=q.t_start,
+                          t_end=q.t_end).validate() for q in cuts]
+    for packets, joined in ((cuts, True), (copies, False)):
+        op, sink = _Seen(), tectum.testing.ListSink()
+        p = tectum.Pipeline(max_events=5 * _SMALL)
+        p.sink(sink, p.op(op, p.source(ListSource(packets), id="src")), id="sink")
+        tectum.run(p)
+        tectum.testing.assert_streams_equal([ev], sink.packets)
+        if joined:  # slices end to end: views of the whole, as large as max_events allows
+            assert len(op.seen) < len(packets) and max(len(q) for q in op.seen) > 2 * _SMALL
+            assert all(len(q) <= 5 * _SMALL and np.shares_memory(q.t, ev.t) for q in op.seen)
+        else:  # separate arrays of _SMALL events or more: each goes in as it is (no copy)
+            assert len(op.seen) == len(packets) and all(a.t is b.t for a, b in zip(op.seen, packets))
