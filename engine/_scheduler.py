@@ -584,7 +584,7 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
     try:
         source = node.instantiate()
         pacer = _Pacer(batch) if batch.pace is not None and not source.live else None
-        late = LatencyRecorder()  # how late paced pieces are released after they are due
+        late = LatencyRecorder()  # how late paced pieces go out after their oldest data could
         if pacer is not None:
             graph.stats.released_late[sid] = late
         # a live source's packets go in as they come, and so do those of a
