@@ -135,7 +135,7 @@ class Packet:
     t: np.ndarray
 
     def __len__(self) -> int:
-        return int(self.t.shape[0])
+        return self.t.shape[0]  # a Python int already (no int() call: len() runs per packet)
 
     @property
     def duration(self) -> int:
