@@ -44,7 +44,9 @@ median absolute residual of the points mostly seen by firing pixels: the
 inlier/outlier mixture made robust), and a
 small Levenberg damping. The fit's quality is the correlation of observed
 and predicted increments over the points in view
-(``Σ obs·pred / sqrt(Σ obs² Σ pred²)``).
+(``Σ obs·pred / sqrt(Σ obs² Σ pred²)``), its support the pose's
+covariance from the last Gauss-Newton step (a faint texture or few firing
+pixels fit well yet pin the pose loosely: its σ says so).
 """
 
 from __future__ import annotations
@@ -404,6 +406,25 @@ def _rel(R0, t0, R_wr, out):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
+def _robust_scale(res, ok, quiet, work):  # type: ignore[no-untyped-def]
+    """1.4826 x the median ``|res|`` of the points in view (``ok``) mostly
+    seen by firing pixels (``quiet <= 0.5``), of all in view when fewer than
+    12 are (at least 1e-6); ``work`` (M,) scratch."""
+    k = 0
+    for i in range(res.shape[0]):
+        if ok[i] and quiet[i] <= 0.5:
+            work[k] = abs(res[i])
+            k += 1
+    if k < 12:
+        k = 0
+        for i in range(res.shape[0]):
+            if ok[i]:
+                work[k] = abs(res[i])
+                k += 1
+    return max(1.4826 * np.median(work[:k]), 1e-6) if k else 1e-6
+
+
+@njit(cache=True, nogil=True)
 def fit_batch(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_wr, fx, fy, cx, cy, iters, huber_k,  # type: ignore[no-untyped-def]
               damping, stats):
     """Refine ``(R1, t1)`` in place (see the module). ``P`` (M, 3) world
@@ -414,7 +435,15 @@ def fit_batch(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_wr,
     each point (:func:`residue_image`'s ``quiet`` sampled at the points;
     zeros: none), ``c`` the contrast threshold. ``stats`` gets
     ``[points in view, correlation, rms residual, iterations, last step,
-    median displacement (px) of the points in view from T0 to T1]``."""
+    median displacement (px) of the points in view from T0 to T1, the
+    pose's uncertainty (rad)]``: the 1σ angle by which the scene may move
+    within the covariance ``σ² (Jᵀ W J)⁻¹`` (``J`` and the Huber weights
+    ``W`` of the last iteration) at the events' own noise, ``σ = c / √12``
+    (an increment known to within one threshold; how well the model
+    explains the events is the correlation's job, so a wrong reference
+    does not inflate it), the position's σ over the
+    median depth of the points in view with the rotation's σ in quadrature
+    (inf when no step was taken)."""
     M = P.shape[0]
     res = np.zeros(M)
     obs = np.zeros(M)
@@ -425,6 +454,8 @@ def fit_batch(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_wr,
     R_0r = np.empty((3, 3))
     _rel(R0, t0, R_wr, R_0r)
     H = np.empty((6, 6))
+    Hu = np.zeros((6, 6))  # the last undamped normal matrix, for the covariance
+    have_h = False
     g = np.empty(6)
     dR = np.empty((3, 3))
     dt = np.empty(3)
@@ -437,19 +468,8 @@ def fit_batch(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_wr,
                           obs, prd, jac, ok, disp)
         if n_ok < 12:
             break
-        if it == 0:  # robust scale: 1.4826 x median |r|, points in view mostly seen firing (else all), at the start
-            k = 0
-            for i in range(M):
-                if ok[i] and quiet[i] <= 0.5:
-                    absr[k] = abs(res[i])
-                    k += 1
-            if k < 12:
-                k = 0
-                for i in range(M):
-                    if ok[i]:
-                        absr[k] = abs(res[i])
-                        k += 1
-            s = max(1.4826 * np.median(absr[:k]), 1e-6)
+        if it == 0:  # the robust scale at the start
+            s = _robust_scale(res, ok, quiet, absr)
         thr = huber_k * s
         H[:, :] = 0.0
         g[:] = 0.0
@@ -471,6 +491,8 @@ def fit_batch(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_wr,
             tr += H[a, a]
         if tr <= 0.0:
             break
+        Hu[:, :] = H
+        have_h = True
         for a in range(6):
             H[a, a] += damping * H[a, a] + 1e-9 * tr
         delta = -np.linalg.solve(H, g)
@@ -490,6 +512,22 @@ def fit_batch(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_wr,
             absr[k] = disp[i]
             k += 1
     stats[5] = np.median(absr[:k]) if k else 0.0
+    stats[6] = math.inf
+    if have_h and k:
+        k = 0
+        for i in range(M):
+            if ok[i]:
+                absr[k] = _in_camera(P, i, R1, t1)[2]
+                k += 1
+        z = np.median(absr[:k])
+        tr = 0.0
+        for a in range(6):
+            tr += Hu[a, a]
+        for a in range(6):
+            Hu[a, a] += 1e-9 * tr
+        cov = np.linalg.inv(Hu)
+        rot = cov[0, 0] + cov[1, 1] + cov[2, 2]
+        stats[6] = c / math.sqrt(12.0) * math.sqrt(rot + (cov[3, 3] + cov[4, 4] + cov[5, 5]) / (z * z))
     so = 0.0
     sp = 0.0
     sop = 0.0

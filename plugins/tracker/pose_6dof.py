@@ -44,13 +44,20 @@ event: ``position`` m, ``orientation`` (x, y, z, w), ``linear_velocity``
 (m/s, world), ``angular_velocity`` (rad/s, camera frame), ``lost``, and
 ``fit`` (the correlation of observed and predicted increments, 0..1).
 
-**Lost.** A batch whose fit is below ``min_fit`` (or with fewer than
-``min_points`` map points in view) is not trusted: its row carries the last
-good pose (the prediction, zero velocity) with ``lost`` true, never a
-confident guess. The next batches try to relocalise from the last good pose
-with a wider blur (``sigmas`` with ``4 × sigmas[0]`` in front), the
-increments counting again from the loss; tracking resumes when a fit
-reaches ``recover_fit``. ``counts`` holds ``batches``,
+**Lost.** A batch whose fit is below ``min_fit``, with fewer than
+``min_points`` map points in view, or whose pose the events pin down
+loosely (its 1σ uncertainty from the fit's covariance, as the angle the
+scene may move by, past ``max_sd_deg``: a faint texture fits well but
+says little; the reference pose's own uncertainty, none at the given
+start, grows by ``drift_deg_s`` per second and bounds it: the first
+batches, a few milliseconds from the start, are kept on it) is not
+trusted: its row carries the last good pose (the prediction, zero
+velocity) with ``lost`` true, never a confident guess. The next batches
+try to relocalise from the last good pose with a wider blur (``sigmas``
+with ``4 × sigmas[0]`` in front), the increments counting again from the
+loss (from a batch that fits but loosely: from its pose); tracking
+resumes when a fit reaches ``recover_fit`` and the uncertainty is within
+bounds. ``counts`` holds ``batches``,
 ``lost``, ``relocalised``, ``skipped_before_map`` and ``references`` (the
 reference views, the start's included).
 
@@ -130,6 +137,24 @@ class Pose6Dof(Operator):
         Below this fit a batch is lost.
     recover_fit:
         Fit that ends a loss.
+    max_sd_deg:
+        Largest uncertainty of a trusted pose, deg: the 1σ angle by which
+        the scene may move within the fit's covariance at the events' own
+        noise (a threshold's, ``contrast / √12``; the position's σ over the
+        median depth of the points in view, with the rotation's σ).
+        Measured: up to 0.07 on the simulated scenes of ``tectum bench
+        pose`` after their first batches (0.16 at the first), 0.04 on
+        ``slider_depth``, 0.14 with 20 Hz of shot noise; 0.25-0.78 on a
+        faint texture (log-contrast 0.1) that is 6-35 mm off when trusted;
+        0.2-0.3 in the first batches at log-contrast 0.25, kept by the
+        start's certainty (``drift_deg_s``).
+    drift_deg_s:
+        How fast the uncertainty of the reference pose (the start's: 0; a
+        trusted one's: its own) grows with the time since it, deg/s;
+        combined with the fit's as independent Gaussians (``1/σ² =
+        1/σ_fit² + 1/σ_ref²``: the fit sees only the events since the
+        reference) for ``max_sd_deg``. 20: a faint texture's first batch
+        (20 ms) is not kept by it, a textured one's (5-12 ms) is.
     min_points:
         Fewest map points in view for a trusted pose.
     keyframe_px:
@@ -169,7 +194,8 @@ class Pose6Dof(Operator):
                  iterations: int = 4, max_points: int = 2000, min_gradient: float = 0.02, huber: float = 1.345,
                  min_fit: float = 0.35, recover_fit: float = 0.5, min_points: int = 100,
                  keyframe_px: float = 8.0, velocity_us: int = 10_000, timed_residue: bool = True,
-                 unseen_bound: bool = True, map_view_px: float = 24.0) -> None:
+                 unseen_bound: bool = True, map_view_px: float = 24.0, max_sd_deg: float = 0.2,
+                 drift_deg_s: float = 20.0) -> None:
         where = "tracker.pose_6dof"
         if not contrast > 0:
             raise ValueError(f"{where}: contrast must be > 0 (log intensity per event), got {contrast}")
@@ -189,6 +215,13 @@ class Pose6Dof(Operator):
         self.iterations, self.max_points, self.min_gradient = int(iterations), int(max_points), float(min_gradient)
         self.huber, self.min_fit, self.recover_fit = float(huber), float(min_fit), float(recover_fit)
         self.min_points = int(min_points)
+        if not max_sd_deg > 0:
+            raise ValueError(f"{where}: max_sd_deg must be > 0 (deg), got {max_sd_deg}")
+        if not drift_deg_s >= 0:
+            raise ValueError(f"{where}: drift_deg_s must be >= 0 (deg/s), got {drift_deg_s}")
+        self.max_sd, self.drift = float(np.radians(max_sd_deg)), float(np.radians(drift_deg_s)) * 1e-6
+        self._sd_good = 0.0  # the last good pose's uncertainty, rad
+        self._sd_ref = (0.0, 0)  # the reference pose's uncertainty (rad) and time (µs)
         if not keyframe_px > 0:
             raise ValueError(f"{where}: keyframe_px must be > 0, got {keyframe_px}")
         self.keyframe_px = float(keyframe_px)
@@ -228,6 +261,8 @@ class Pose6Dof(Operator):
         self._history: list[tuple[np.ndarray, np.ndarray, int]] = []  # recent good poses (R, t, µs)
         self.velocity_us = int(velocity_us)
         self._lost = False
+        # where a relocalisation starts, when not the last good pose
+        self._seed: tuple[np.ndarray, np.ndarray] | None = None
         self._init_poses: PosePacket | None = None
         # the reference view (R, t) the increments count from, and the events since, accumulated: unblurred
         # (bilinear) and blurred at each tracking level
@@ -266,7 +301,7 @@ class Pose6Dof(Operator):
         Xr = np.array([[3.5, 3.5, 1.0]] * 16)
         z = np.zeros(16)
         fit_batch(P, Xr, z, img, z, z, 0.2, img, np.eye(3), np.zeros(3), np.eye(3), np.zeros(3), np.eye(3), 4.0, 4.0,
-                  3.5, 3.5, 1, 1.345, 1e-3, np.zeros(6))
+                  3.5, 3.5, 1, 1.345, 1e-3, np.zeros(7))
         splat_bilinear(np.array([3.5]), np.array([3.5]), np.array([1.0]), 0.2, img)
         one = np.zeros((1, 1), np.int64)
         event_weights(np.zeros(1, np.uint16), np.zeros(1, np.uint16), np.zeros(1, np.int64), np.ones(1, np.int8), 0.2,
@@ -425,7 +460,8 @@ class Pose6Dof(Operator):
             R, p = self._initial(int(self._t[a]))
             self._pose = (R, p, int(self._t[a]))
             assert self.map is not None
-            self._new_reference(R, p, bool(np.allclose(p, self.map.position) and np.allclose(R, self._R_wr)))
+            self._new_reference(R, p, bool(np.allclose(p, self.map.position) and np.allclose(R, self._R_wr)), 0.0,
+                                int(self._t[a]))
         assert self._ref is not None and self._raw is not None
         self.counts["batches"] += 1
         x, y = self._x[a:b], self._y[a:b]
@@ -442,8 +478,8 @@ class Pose6Dof(Operator):
             splat(x, y, wgt, 1.0, lv.sigma, img)
         Rp, tp, tprev = self._pose
         dt = max(t_end - tprev, 1)
-        if self._lost:  # relocalise from the last good pose, coarse to fine
-            R1, t1 = Rp.copy(), tp.copy()
+        if self._lost:  # relocalise from the last good pose (or the seed), coarse to fine
+            R1, t1 = (Rp.copy(), tp.copy()) if self._seed is None else (self._seed[0].copy(), self._seed[1].copy())
             coarse = np.empty((3, *self._raw.shape))
             blur_and_gradients(self._raw, self._levels[0].sigma, coarse)
             levels = [(self._levels[0], np.ascontiguousarray(coarse[0])), *zip(self._levels[1:], self._obs)]
@@ -454,7 +490,7 @@ class Pose6Dof(Operator):
         R1, t1 = np.ascontiguousarray(R1), np.ascontiguousarray(t1)
         Ra, ta = self._ref
         K = self._K
-        stats = np.zeros(6)
+        stats = np.zeros(7)
         at = np.zeros((2, len(self._P)))  # at the points: the residues' change, the share of silent pixels
         for k, (lv, img) in enumerate(levels):
             if self.timed_residue and (k or not self._lost):  # at the prediction; none at a relocalising coarse level
@@ -463,12 +499,19 @@ class Pose6Dof(Operator):
             fit_batch(self._P, self._Xr, lv.Lm, img, at[0], at[1], self.contrast, lv.image, Ra, ta, R1, t1, self._R_wr,
                       K[0, 0], K[1, 1], K[0, 2], K[1, 2], self.iterations, self.huber, 1e-3, stats)
         fit = float(stats[1])
+        # the uncertainty: the fit's, and the reference pose's grown by drift (independent: the events since it)
+        prior = self._sd_ref[0] + self.drift * (t_end - self._sd_ref[1])  # rad
+        sd = prior * stats[6] / float(np.hypot(prior, stats[6])) if prior > 0 and stats[6] < np.inf else prior
         good = stats[0] >= self.min_points and fit >= (self.recover_fit if self._lost else self.min_fit) \
-            and bool(np.isfinite(t1).all())
+            and sd <= self.max_sd and bool(np.isfinite(t1).all())
         if not good:
             self.counts["lost"] += 1
-            if not self._lost:  # the increments count again from the last good pose
-                self._new_reference(Rp, tp, False)
+            if sd > self.max_sd and stats[0] >= self.min_points and fit >= self.recover_fit \
+                    and bool(np.isfinite(t1).all()):  # fits, loosely: relocalise from there, counting again
+                self._seed = (R1, t1)
+                self._new_reference(R1, t1, False, float(stats[6]), t_end)
+            elif not self._lost:  # the increments count again from the last good pose
+                self._new_reference(Rp, tp, False, self._sd_good, tprev)
             self._lost = True
             self._pose = (Rp, tp, t_end)
             self._twist = np.zeros(6)
@@ -478,9 +521,11 @@ class Pose6Dof(Operator):
             self.counts["relocalised"] += 1
             self._history.clear()
         self._lost = False
+        self._seed = None
         self._pose = (R1, t1, t_end)
+        self._sd_good = sd
         if stats[5] > (self.map_view_px if self._ref_is_map else self.keyframe_px):
-            self._new_reference(R1, t1, False)
+            self._new_reference(R1, t1, False, sd, t_end)
         # the velocity: the motion since the oldest good pose at most velocity_us back (one batch's is noisy)
         self._history = [h for h in self._history if h[2] >= t_end - self.velocity_us]
         Ro, to, t_old = self._history[0] if self._history else (Rp, tp, tprev)
@@ -490,14 +535,15 @@ class Pose6Dof(Operator):
         self._twist = xi / span
         return t_end, t1, rot_to_quat(R1), (t1 - to) / (span * 1e-6), xi[:3] / (span * 1e-6), False, fit
 
-    def _new_reference(self, R: np.ndarray, t: np.ndarray, map_view: bool) -> None:
+    def _new_reference(self, R: np.ndarray, t: np.ndarray, map_view: bool, sd: float, t_us: int) -> None:
         """The increments count from here: the reference pose is ``(R, t)``
-        (``map_view``: the map's own), and the accumulated
-        event images start again at zero."""
+        (``map_view``: the map's own; its uncertainty ``sd`` rad at ``t_us``
+        µs), and the accumulated event images start again at zero."""
         assert self._sensor is not None
         w, h = self._sensor
         self._ref = (np.ascontiguousarray(R), np.ascontiguousarray(t))
         self._ref_is_map = map_view
+        self._sd_ref = (sd, t_us)
         self.counts["references"] += 1
         self._dref += self._pix[0]  # the residues now
         self._pix[0] = 0.0
