@@ -48,15 +48,15 @@ event: ``position`` m, ``orientation`` (x, y, z, w), ``linear_velocity``
 ``min_points`` map points in view, or whose pose the events pin down
 loosely (its 1σ uncertainty from the fit's covariance, as the angle the
 scene may move by, past ``max_sd_deg``: a faint texture fits well but
-says little; the reference pose's own uncertainty, none at the given
-start, grows by ``drift_deg_s`` per second and bounds it: the first
-batches, a few milliseconds from the start, are kept on it) is not
+says little; so does a relocalisation from a last good pose that was
+itself loose; the motion since the reference is also bounded by
+``drift_deg_s``: the first batches, a few milliseconds from the given
+start, are kept on it) is not
 trusted: its row carries the last good pose (the prediction, zero
 velocity) with ``lost`` true, never a confident guess. The next batches
 try to relocalise from the last good pose with a wider blur (``sigmas``
 with ``4 × sigmas[0]`` in front), the increments counting again from the
-loss (from a batch that fits but loosely: from its pose); tracking
-resumes when a fit reaches ``recover_fit`` and the uncertainty is within
+loss; tracking resumes when a fit reaches ``recover_fit`` and the uncertainty is within
 bounds. ``counts`` holds ``batches``,
 ``lost``, ``relocalised``, ``skipped_before_map`` and ``references`` (the
 reference views, the start's included).
@@ -149,12 +149,13 @@ class Pose6Dof(Operator):
         0.2-0.3 in the first batches at log-contrast 0.25, kept by the
         start's certainty (``drift_deg_s``).
     drift_deg_s:
-        How fast the uncertainty of the reference pose (the start's: 0; a
-        trusted one's: its own) grows with the time since it, deg/s;
-        combined with the fit's as independent Gaussians (``1/σ² =
-        1/σ_fit² + 1/σ_ref²``: the fit sees only the events since the
-        reference) for ``max_sd_deg``. 20: a faint texture's first batch
-        (20 ms) is not kept by it, a textured one's (5-12 ms) is.
+        How far the camera may have turned since the reference pose, deg/s
+        of the time since it: the motion since the reference is known to
+        ``1/σ² = 1/σ_fit² + 1/(drift Δt)²`` (the fit sees only the events
+        since), the pose to that and the reference pose's own σ (the given
+        start's: 0; a trusted pose's: its own) in quadrature, for
+        ``max_sd_deg``. 20: a faint texture's first batch (20 ms) is not
+        kept by it, a textured one's (5-12 ms) is.
     min_points:
         Fewest map points in view for a trusted pose.
     keyframe_px:
@@ -261,8 +262,6 @@ class Pose6Dof(Operator):
         self._history: list[tuple[np.ndarray, np.ndarray, int]] = []  # recent good poses (R, t, µs)
         self.velocity_us = int(velocity_us)
         self._lost = False
-        # where a relocalisation starts, when not the last good pose
-        self._seed: tuple[np.ndarray, np.ndarray] | None = None
         self._init_poses: PosePacket | None = None
         # the reference view (R, t) the increments count from, and the events since, accumulated: unblurred
         # (bilinear) and blurred at each tracking level
@@ -478,8 +477,8 @@ class Pose6Dof(Operator):
             splat(x, y, wgt, 1.0, lv.sigma, img)
         Rp, tp, tprev = self._pose
         dt = max(t_end - tprev, 1)
-        if self._lost:  # relocalise from the last good pose (or the seed), coarse to fine
-            R1, t1 = (Rp.copy(), tp.copy()) if self._seed is None else (self._seed[0].copy(), self._seed[1].copy())
+        if self._lost:  # relocalise from the last good pose, coarse to fine
+            R1, t1 = Rp.copy(), tp.copy()
             coarse = np.empty((3, *self._raw.shape))
             blur_and_gradients(self._raw, self._levels[0].sigma, coarse)
             levels = [(self._levels[0], np.ascontiguousarray(coarse[0])), *zip(self._levels[1:], self._obs)]
@@ -499,18 +498,16 @@ class Pose6Dof(Operator):
             fit_batch(self._P, self._Xr, lv.Lm, img, at[0], at[1], self.contrast, lv.image, Ra, ta, R1, t1, self._R_wr,
                       K[0, 0], K[1, 1], K[0, 2], K[1, 2], self.iterations, self.huber, 1e-3, stats)
         fit = float(stats[1])
-        # the uncertainty: the fit's, and the reference pose's grown by drift (independent: the events since it)
-        prior = self._sd_ref[0] + self.drift * (t_end - self._sd_ref[1])  # rad
-        sd = prior * stats[6] / float(np.hypot(prior, stats[6])) if prior > 0 and stats[6] < np.inf else prior
+        # the uncertainty (rad): the motion since the reference, from the fit and from how far it may have gone
+        # (independent: the fit sees only the events since), on top of the reference pose's own
+        prior = self.drift * (t_end - self._sd_ref[1])
+        rel = prior * stats[6] / float(np.hypot(prior, stats[6])) if prior > 0 and stats[6] < np.inf else prior
+        sd = float(np.hypot(self._sd_ref[0], rel))
         good = stats[0] >= self.min_points and fit >= (self.recover_fit if self._lost else self.min_fit) \
             and sd <= self.max_sd and bool(np.isfinite(t1).all())
         if not good:
             self.counts["lost"] += 1
-            if sd > self.max_sd and stats[0] >= self.min_points and fit >= self.recover_fit \
-                    and bool(np.isfinite(t1).all()):  # fits, loosely: relocalise from there, counting again
-                self._seed = (R1, t1)
-                self._new_reference(R1, t1, False, float(stats[6]), t_end)
-            elif not self._lost:  # the increments count again from the last good pose
+            if not self._lost:  # the increments count again from the last good pose
                 self._new_reference(Rp, tp, False, self._sd_good, tprev)
             self._lost = True
             self._pose = (Rp, tp, t_end)
@@ -521,7 +518,6 @@ class Pose6Dof(Operator):
             self.counts["relocalised"] += 1
             self._history.clear()
         self._lost = False
-        self._seed = None
         self._pose = (R1, t1, t_end)
         self._sd_good = sd
         if stats[5] > (self.map_view_px if self._ref_is_map else self.keyframe_px):
