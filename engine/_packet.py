@@ -188,9 +188,8 @@ class Packet:
         lo = self.t_start if t0 is None else max(int(t0), self.t_start)
         hi = self.t_end if t1 is None else min(int(t1), self.t_end)
         hi = max(hi, lo)
-        i = int(np.searchsorted(self.t, lo, side="left"))
-        j = int(np.searchsorted(self.t, hi, side="left"))
-        return lo, hi, i, j
+        t = self.t  # the method, not np.searchsorted: 0.4 µs a search, not 1 (a source cuts a packet per slice)
+        return lo, hi, int(t.searchsorted(lo)), int(t.searchsorted(hi))
 
     def slice_time(self, t0: int | None = None, t1: int | None = None) -> Self:
         """Zero-copy view of the samples with ``t0 <= t < t1`` (µs).
