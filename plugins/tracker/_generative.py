@@ -442,7 +442,7 @@ def fit_batch(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_wr,
     (an increment known to within one threshold; how well the model
     explains the events is the correlation's job, so a wrong reference
     does not inflate it), the position's σ over the
-    median depth of the points in view with the rotation's σ in quadrature
+    mean depth of the points in view with the rotation's σ in quadrature
     (inf when no step was taken)."""
     M = P.shape[0]
     res = np.zeros(M)
@@ -514,12 +514,11 @@ def fit_batch(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_wr,
     stats[5] = np.median(absr[:k]) if k else 0.0
     stats[6] = math.inf
     if have_h and k:
-        k = 0
+        z = 0.0
         for i in range(M):
             if ok[i]:
-                absr[k] = _in_camera(P, i, R1, t1)[2]
-                k += 1
-        z = np.median(absr[:k])
+                z += _in_camera(P, i, R1, t1)[2]
+        z /= k
         tr = 0.0
         for a in range(6):
             tr += Hu[a, a]

@@ -141,7 +141,7 @@ class Pose6Dof(Operator):
         Largest uncertainty of a trusted pose, deg: the 1σ angle by which
         the scene may move within the fit's covariance at the events' own
         noise (a threshold's, ``contrast / √12``; the position's σ over the
-        median depth of the points in view, with the rotation's σ).
+        mean depth of the points in view, with the rotation's σ).
         Measured: up to 0.07 on the simulated scenes of ``tectum bench
         pose`` after their first batches (0.16 at the first), 0.04 on
         ``slider_depth``, 0.14 with 20 Hz of shot noise; 0.25-0.78 on a
