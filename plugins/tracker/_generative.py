@@ -60,32 +60,47 @@ from scipy.ndimage import gaussian_filter
 from tectum._rigid import se3_exp_kernel
 
 __all__ = ["event_weights", "residue_image", "point_corrections", "splat", "splat_bilinear", "blur_and_gradients",
-           "fit_batch"]
+           "reference_warp", "fit_batch"]
 
 
 @njit(cache=True, nogil=True)
 def splat(ux, uy, p, c, sigma, img):  # type: ignore[no-untyped-def]
     """Add ``c * p_k`` to ``img`` (H, W) around each event's position
     ``(ux_k, uy_k)`` (px, float) with a normalised Gaussian of ``sigma`` px
-    (separable, cut at 3σ)."""
+    (separable, cut at 3σ). The taps of an axis are computed again only
+    when the position's fraction of a pixel changes (never, for events on
+    whole pixels)."""
     H, W = img.shape
     r = int(math.ceil(3.0 * sigma))
     n = 2 * r + 1
     wx = np.empty(n)
     wy = np.empty(n)
     inv = 1.0 / (2.0 * sigma * sigma)
+    fx_last = -1.0
+    fy_last = -1.0
+    sx = 1.0
+    sy = 1.0
     for k in range(ux.shape[0]):
-        x0 = int(math.floor(ux[k])) - r
-        y0 = int(math.floor(uy[k])) - r
-        sx = 0.0
-        sy = 0.0
-        for i in range(n):
-            dx = x0 + i - ux[k]
-            dy = y0 + i - uy[k]
-            wx[i] = math.exp(-dx * dx * inv)
-            wy[i] = math.exp(-dy * dy * inv)
-            sx += wx[i]
-            sy += wy[i]
+        bx = math.floor(ux[k])
+        by = math.floor(uy[k])
+        x0 = int(bx) - r
+        y0 = int(by) - r
+        fx = ux[k] - bx
+        fy = uy[k] - by
+        if fx != fx_last:
+            fx_last = fx
+            sx = 0.0
+            for i in range(n):
+                dx = i - r - fx
+                wx[i] = math.exp(-dx * dx * inv)
+                sx += wx[i]
+        if fy != fy_last:
+            fy_last = fy
+            sy = 0.0
+            for i in range(n):
+                dy = i - r - fy
+                wy[i] = math.exp(-dy * dy * inv)
+                sy += wy[i]
         a = c * p[k] / (sx * sy)
         for j in range(n):
             y = y0 + j
@@ -306,23 +321,19 @@ def _project(P, i, R, t, fx, fy, cx, cy):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def _residuals(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy, with_jac, res, obs,  # type: ignore[no-untyped-def]
-               prd, jac, ok, disp):
-    """Per map point: residual ``r``, the observed increment ``obs`` (before
-    the silent pixels' share takes the model's values: the fit's
-    correlation uses it, so a wrong map or pose cannot look right through
-    the model's own numbers), the predicted ``prd`` (and with ``with_jac``
-    the residual's 6 Jacobian entries); ``ok`` false where the point is
-    out of view (either pose), or its ``m'`` off the map. Returns the
-    number of points in view."""
-    H, W = obs_img.shape
-    Hm, Wm = map_img.shape
-    n_ok = 0
+def reference_warp(P, Xr, R0, t0, R_wr, fx, fy, cx, cy, out):  # type: ignore[no-untyped-def]
+    """What the fit needs of the reference view ``(R0, t0)`` (world-from-
+    camera), per map point: ``out[i]`` (M, 7) = its pixel ``(u0, v0)`` there,
+    ``A = (∂u/∂m)⁻¹`` (``a00, a01, a10, a11``: the local map-to-image
+    warp's inverse, the surface taken fronto-parallel to the map's view
+    ``R_wr`` around the point's map pixel ``Xr[i]``, depth ``Xr[i, 2]``),
+    and 1 where the point is in front of that view with a warp that has an
+    inverse, else 0. Fixed while the reference is: once per reference
+    view, not per iteration."""
+    R_0r = np.empty((3, 3))
+    _rel(R0, t0, R_wr, R_0r)
     for i in range(P.shape[0]):
-        ok[i] = False
-        u1, v1, X, Y, Z, front = _project(P, i, R1, t1, fx, fy, cx, cy)
-        if not (front and 1.0 <= u1 < W - 2.0 and 1.0 <= v1 < H - 2.0):
-            continue
+        out[i, :] = 0.0
         u0, v0, X0, Y0, Z0, front = _project(P, i, R0, t0, fx, fy, cx, cy)
         if not front:
             continue
@@ -342,8 +353,36 @@ def _residuals(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_0r
         det = a00 * a11 - a01 * a10
         if abs(det) < 1e-9:
             continue
-        # A = inverse of [[a00, a01], [a10, a11]]
-        b00, b01, b10, b11 = a11 / det, -a01 / det, -a10 / det, a00 / det
+        out[i, 0] = u0
+        out[i, 1] = v0
+        out[i, 2] = a11 / det
+        out[i, 3] = -a01 / det
+        out[i, 4] = -a10 / det
+        out[i, 5] = a00 / det
+        out[i, 6] = 1.0
+
+
+@njit(cache=True, nogil=True)
+def _residuals(P, Xr, Lm, obs_img, corr, quiet, c, map_img, warp, R1, t1, fx, fy, cx, cy, with_jac, res, obs, prd,  # type: ignore[no-untyped-def]
+               jac, ok, disp):
+    """Per map point: residual ``r``, the observed increment ``obs`` (before
+    the silent pixels' share takes the model's values: the fit's
+    correlation uses it, so a wrong map or pose cannot look right through
+    the model's own numbers), the predicted ``prd`` (and with ``with_jac``
+    the residual's 6 Jacobian entries); ``ok`` false where the point is
+    out of view (either pose: ``warp`` of :func:`reference_warp` for the
+    reference's), or its ``m'`` off the map. Returns the number of points
+    in view."""
+    H, W = obs_img.shape
+    Hm, Wm = map_img.shape
+    n_ok = 0
+    for i in range(P.shape[0]):
+        ok[i] = False
+        u1, v1, X, Y, Z, front = _project(P, i, R1, t1, fx, fy, cx, cy)
+        if not (front and 1.0 <= u1 < W - 2.0 and 1.0 <= v1 < H - 2.0) or warp[i, 6] == 0.0:
+            continue
+        u0, v0 = warp[i, 0], warp[i, 1]
+        b00, b01, b10, b11 = warp[i, 2], warp[i, 3], warp[i, 4], warp[i, 5]
         du, dv = u1 - u0, v1 - v0
         mx = Xr[i, 0] + b00 * du + b01 * dv
         my = Xr[i, 1] + b10 * du + b11 * dv
@@ -425,11 +464,12 @@ def _robust_scale(res, ok, quiet, work):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def fit_batch(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_wr, fx, fy, cx, cy, iters, huber_k,  # type: ignore[no-untyped-def]
+def fit_batch(P, Xr, Lm, obs_img, corr, quiet, c, map_img, warp, R1, t1, fx, fy, cx, cy, iters, huber_k,  # type: ignore[no-untyped-def]
               damping, stats):
     """Refine ``(R1, t1)`` in place (see the module). ``P`` (M, 3) world
     points, ``Xr`` (M, 3) their map pixel (x, y) and depth (m), ``Lm`` (M,)
-    their map log intensity (blurred as ``map_img``), ``corr`` (M,) added to
+    their map log intensity (blurred as ``map_img``), ``warp`` (M, 7)
+    :func:`reference_warp` of the reference view, ``corr`` (M,) added to
     the observed increment at each point (:func:`point_corrections`: held
     through the iterations), ``quiet`` (M,) the share of silent pixels at
     each point (:func:`residue_image`'s ``quiet`` sampled at the points;
@@ -451,8 +491,6 @@ def fit_batch(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_wr,
     disp = np.zeros(M)
     jac = np.zeros((M, 6))
     ok = np.zeros(M, np.bool_)
-    R_0r = np.empty((3, 3))
-    _rel(R0, t0, R_wr, R_0r)
     H = np.empty((6, 6))
     Hu = np.zeros((6, 6))  # the last undamped normal matrix, for the covariance
     have_h = False
@@ -464,7 +502,7 @@ def fit_batch(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_wr,
     s = 1.0
     absr = np.empty(M)
     for it in range(iters):
-        n_ok = _residuals(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy, True, res,
+        n_ok = _residuals(P, Xr, Lm, obs_img, corr, quiet, c, map_img, warp, R1, t1, fx, fy, cx, cy, True, res,
                           obs, prd, jac, ok, disp)
         if n_ok < 12:
             break
@@ -504,7 +542,7 @@ def fit_batch(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_wr,
         step = math.sqrt((delta * delta).sum())
         if step < 1e-5:  # rad and m: a few thousandths of a pixel
             break
-    n_ok = _residuals(P, Xr, Lm, obs_img, corr, quiet, c, map_img, R0, t0, R1, t1, R_0r, fx, fy, cx, cy, False, res,
+    n_ok = _residuals(P, Xr, Lm, obs_img, corr, quiet, c, map_img, warp, R1, t1, fx, fy, cx, cy, False, res,
                       obs, prd, jac, ok, disp)
     k = 0
     for i in range(M):

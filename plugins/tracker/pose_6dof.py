@@ -73,13 +73,22 @@ from collections.abc import Mapping
 import numpy as np
 
 from tectum import EventPacket, Kind, MapPacket, Operator, Packet, Port, PosePacket
-from tectum.camera import Camera, camera_from, interpolate_poses, quat_to_rot, rot_to_quat, se3_exp, se3_log
+from tectum.camera import (
+    Camera,
+    camera_from,
+    interpolate_poses,
+    quat_to_rot,
+    rot_to_quat_kernel,
+    se3_exp_kernel,
+    se3_log_kernel,
+)
 
 from ._generative import (
     blur_and_gradients,
     event_weights,
     fit_batch,
     point_corrections,
+    reference_warp,
     residue_image,
     splat,
     splat_bilinear,
@@ -87,6 +96,14 @@ from ._generative import (
 from ._photomap import PhotoMap, check_map, load_map, map_from_packet
 
 __all__ = ["Pose6Dof"]
+
+
+def _quat(R: np.ndarray) -> np.ndarray:
+    """The quaternion (x, y, z, w) of rotation ``R``, without
+    :func:`~tectum.camera.rot_to_quat`'s checks (``R`` is the fit's own)."""
+    q = np.empty(4)
+    rot_to_quat_kernel(R, q)
+    return q
 
 
 class _Level:
@@ -269,6 +286,7 @@ class Pose6Dof(Operator):
         self._ref_is_map = False  # it is the map's own view
         self._raw: np.ndarray | None = None
         self._obs: list[np.ndarray] = []
+        self._warp: np.ndarray | None = None  # reference_warp of the reference view and map; None: to compute
         if map:
             self._set_map(load_map(map))
 
@@ -299,8 +317,10 @@ class Pose6Dof(Operator):
         P = np.array([[0.0, 0.0, 1.0]] * 16)
         Xr = np.array([[3.5, 3.5, 1.0]] * 16)
         z = np.zeros(16)
-        fit_batch(P, Xr, z, img, z, z, 0.2, img, np.eye(3), np.zeros(3), np.eye(3), np.zeros(3), np.eye(3), 4.0, 4.0,
-                  3.5, 3.5, 1, 1.345, 1e-3, np.zeros(7))
+        warp = np.empty((16, 7))
+        reference_warp(P, Xr, np.eye(3), np.zeros(3), np.eye(3), 4.0, 4.0, 3.5, 3.5, warp)
+        fit_batch(P, Xr, z, img, z, z, 0.2, img, warp, np.eye(3), np.zeros(3), 4.0, 4.0, 3.5, 3.5, 1, 1.345, 1e-3,
+                  np.zeros(7))
         splat_bilinear(np.array([3.5]), np.array([3.5]), np.array([1.0]), 0.2, img)
         one = np.zeros((1, 1), np.int64)
         event_weights(np.zeros(1, np.uint16), np.zeros(1, np.uint16), np.zeros(1, np.int64), np.ones(1, np.int8), 0.2,
@@ -337,6 +357,7 @@ class Pose6Dof(Operator):
         self._K = m.K
         sig = (4.0 * self.sigmas[0], *self.sigmas)
         self._levels = [_Level(m.image, s, mx, my) for s in sig]
+        self._warp = None
         self.map = m
 
     @staticmethod
@@ -483,20 +504,24 @@ class Pose6Dof(Operator):
             blur_and_gradients(self._raw, self._levels[0].sigma, coarse)
             levels = [(self._levels[0], np.ascontiguousarray(coarse[0])), *zip(self._levels[1:], self._obs)]
         else:  # constant velocity
-            dR, dp = se3_exp(self._twist * dt)
+            dR, dp = np.empty((3, 3)), np.empty(3)
+            se3_exp_kernel(self._twist * dt, dR, dp)
             R1, t1 = Rp @ dR, Rp @ dp + tp
             levels = list(zip(self._levels[1:], self._obs))
         R1, t1 = np.ascontiguousarray(R1), np.ascontiguousarray(t1)
-        Ra, ta = self._ref
         K = self._K
+        if self._warp is None:
+            Ra, ta = self._ref
+            self._warp = np.empty((len(self._P), 7))
+            reference_warp(self._P, self._Xr, Ra, ta, self._R_wr, K[0, 0], K[1, 1], K[0, 2], K[1, 2], self._warp)
         stats = np.zeros(7)
         at = np.zeros((2, len(self._P)))  # at the points: the residues' change, the share of silent pixels
         for k, (lv, img) in enumerate(levels):
             if self.timed_residue and (k or not self._lost):  # at the prediction; none at a relocalising coarse level
                 point_corrections(self._P, R1, t1, K[0, 0], K[1, 1], K[0, 2], K[1, 2], self._sensor_at, pix, lv.sigma,
                                   1, at[:len(pix)])
-            fit_batch(self._P, self._Xr, lv.Lm, img, at[0], at[1], self.contrast, lv.image, Ra, ta, R1, t1, self._R_wr,
-                      K[0, 0], K[1, 1], K[0, 2], K[1, 2], self.iterations, self.huber, 1e-3, stats)
+            fit_batch(self._P, self._Xr, lv.Lm, img, at[0], at[1], self.contrast, lv.image, self._warp, R1, t1, K[0, 0],
+                      K[1, 1], K[0, 2], K[1, 2], self.iterations, self.huber, 1e-3, stats)
         fit = float(stats[1])
         # the uncertainty (rad): the motion since the reference, from the fit and from how far it may have gone
         # (independent: the fit sees only the events since), on top of the reference pose's own
@@ -513,7 +538,7 @@ class Pose6Dof(Operator):
             self._pose = (Rp, tp, t_end)
             self._twist = np.zeros(6)
             self._history.clear()
-            return t_end, tp.copy(), rot_to_quat(Rp), np.zeros(3), np.zeros(3), True, fit
+            return t_end, tp.copy(), _quat(Rp), np.zeros(3), np.zeros(3), True, fit
         if self._lost:
             self.counts["relocalised"] += 1
             self._history.clear()
@@ -527,9 +552,10 @@ class Pose6Dof(Operator):
         Ro, to, t_old = self._history[0] if self._history else (Rp, tp, tprev)
         self._history.append((R1, t1, t_end))
         span = max(t_end - t_old, 1)
-        xi = se3_log(Ro.T @ R1, Ro.T @ (t1 - to))
+        xi = np.empty(6)
+        se3_log_kernel(Ro.T @ R1, Ro.T @ (t1 - to), xi)
         self._twist = xi / span
-        return t_end, t1, rot_to_quat(R1), (t1 - to) / (span * 1e-6), xi[:3] / (span * 1e-6), False, fit
+        return t_end, t1, _quat(R1), (t1 - to) / (span * 1e-6), xi[:3] / (span * 1e-6), False, fit
 
     def _new_reference(self, R: np.ndarray, t: np.ndarray, map_view: bool, sd: float, t_us: int) -> None:
         """The increments count from here: the reference pose is ``(R, t)``
@@ -539,6 +565,7 @@ class Pose6Dof(Operator):
         w, h = self._sensor
         self._ref = (np.ascontiguousarray(R), np.ascontiguousarray(t))
         self._ref_is_map = map_view
+        self._warp = None
         self._sd_ref = (sd, t_us)
         self.counts["references"] += 1
         self._dref += self._pix[0]  # the residues now

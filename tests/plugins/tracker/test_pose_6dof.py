@@ -210,7 +210,7 @@ def test_a_gap_and_a_noise_burst_are_bridged() -> None:
 
 @pytest.mark.parametrize("silent", [False, True])
 def test_the_jacobian_is_the_residuals_derivative(silent: bool) -> None:
-    from tectum.plugins.tracker._generative import _rel, _residuals, event_weights, splat
+    from tectum.plugins.tracker._generative import _residuals, event_weights, reference_warp, splat
 
     ev, truth, m = _run(1.0, 30.0)
     op = Pose6Dof()
@@ -226,21 +226,21 @@ def test_the_jacobian_is_the_residuals_derivative(silent: bool) -> None:
     R1, t1 = se3_exp(np.array([0.01, -0.02, 0.005, 0.01, 0.0, -0.02]))
     R1, t1 = np.ascontiguousarray(R0 @ R1), R0 @ t1 + t0
     M = len(op._P)
-    R0r = np.empty((3, 3))
-    _rel(R0, t0, op._R_wr, R0r)
     K = m["K"]
+    warp = np.empty((M, 7))
+    reference_warp(op._P, op._Xr, R0, t0, op._R_wr, K[0, 0], K[1, 1], K[0, 2], K[1, 2], warp)
     bufs = [np.zeros(M), np.zeros(M), np.zeros(M), np.zeros((M, 6)), np.zeros(M, bool), np.zeros(M)]
     rng = np.random.default_rng(0)
     corr = rng.normal(0, 0.05, M)  # held per point: shifts the residuals, not their slope
     # shares of silent pixels: the residual is the model's within the threshold (slope 1 - q), past it shifted by C
     quiet = rng.uniform(0, 1, M) * (rng.uniform(0, 1, M) < 0.5) if silent else np.zeros(M)
-    _residuals(op._P, op._Xr, lv.Lm, obs, corr, quiet, 0.2, lv.image, R0, t0, R1, t1, R0r, K[0, 0], K[1, 1], K[0, 2],
-               K[1, 2], True, *bufs)
+    _residuals(op._P, op._Xr, lv.Lm, obs, corr, quiet, 0.2, lv.image, warp, R1, t1, K[0, 0], K[1, 1], K[0, 2], K[1, 2],
+               True, *bufs)
     r0, J, ok0 = bufs[0].copy(), bufs[3].copy(), bufs[4].copy()
     if silent:  # silent points on both sides of the threshold: inside (shrunk) and past it (clipped)
         plain = [np.zeros(M), np.zeros(M), np.zeros(M), np.zeros((M, 6)), np.zeros(M, bool), np.zeros(M)]
-        _residuals(op._P, op._Xr, lv.Lm, obs, corr, np.zeros(M), 0.2, lv.image, R0, t0, R1, t1, R0r, K[0, 0], K[1, 1],
-                   K[0, 2], K[1, 2], True, *plain)
+        _residuals(op._P, op._Xr, lv.Lm, obs, corr, np.zeros(M), 0.2, lv.image, warp, R1, t1, K[0, 0], K[1, 1], K[0, 2],
+                   K[1, 2], True, *plain)
         s = ok0 & (quiet > 0)
         inside = s & (np.abs(plain[0]) < 0.2)
         assert inside.sum() > 50 and (s & ~inside).sum() > 50
@@ -253,12 +253,79 @@ def test_the_jacobian_is_the_residuals_derivative(silent: bool) -> None:
         e = np.zeros(6)
         e[k] = 1e-6
         dR, dt = se3_exp(e)
-        _residuals(op._P, op._Xr, lv.Lm, obs, corr, quiet, 0.2, lv.image, R0, t0, np.ascontiguousarray(R1 @ dR),
-                   R1 @ dt + t1, R0r, K[0, 0], K[1, 1], K[0, 2], K[1, 2], False, *bufs)
+        _residuals(op._P, op._Xr, lv.Lm, obs, corr, quiet, 0.2, lv.image, warp, np.ascontiguousarray(R1 @ dR),
+                   R1 @ dt + t1, K[0, 0], K[1, 1], K[0, 2], K[1, 2], False, *bufs)
         sel = ok0 & bufs[4]
         num = (bufs[0][sel] - r0[sel]) / 1e-6
         assert np.corrcoef(num, J[sel, k])[0, 1] > 0.999
         assert np.median(np.abs(num - J[sel, k])) < 0.01 * np.median(np.abs(J[sel, k]))
+
+
+def test_reference_warp_is_the_projection_and_the_inverse_map_to_image_derivative() -> None:
+    """Per map point, :func:`reference_warp` holds its pixel in a reference
+    view and the inverse of the derivative of that pixel by the point's map
+    pixel (the surface fronto-parallel to the map's view): both against a
+    plain back-projection and projection, by central differences."""
+    from tectum.plugins.tracker._generative import reference_warp
+
+    _, _, m = _run(1.0, 30.0)
+    op = Pose6Dof()
+    op.process_ports({"maps": _maps(m)})
+    K = m["K"]
+    R_wr, t_wr = quat_to_rot(m["pose"][3:]), m["pose"][:3]
+    dR, dt = se3_exp(np.array([0.05, -0.03, 0.02, 0.1, -0.05, 0.08]))
+    R0, t0 = np.ascontiguousarray(R_wr @ dR), R_wr @ dt + t_wr
+    M = len(op._P)
+    warp = np.empty((M, 7))
+    reference_warp(op._P, op._Xr, R0, t0, op._R_wr, K[0, 0], K[1, 1], K[0, 2], K[1, 2], warp)
+
+    def pixel(mx: np.ndarray, my: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """The map pixel (mx, my) at depth d (on the plane parallel to the
+        map's image) seen from the reference view."""
+        Xm = np.stack([(mx - K[0, 2]) / K[0, 0] * d, (my - K[1, 2]) / K[1, 1] * d, d], axis=1)
+        X0 = (Xm @ R_wr.T + t_wr - t0) @ R0  # world, then the reference's camera frame
+        return np.stack([K[0, 0] * X0[:, 0] / X0[:, 2] + K[0, 2], K[1, 1] * X0[:, 1] / X0[:, 2] + K[1, 2]], axis=1)
+
+    mx, my, d = op._Xr.T
+    assert (warp[:, 6] == 1).all()
+    assert np.allclose(warp[:, :2], pixel(mx, my, d), atol=1e-9)
+    h = 1e-4
+    dx = (pixel(mx + h, my, d) - pixel(mx - h, my, d)) / (2 * h)
+    dy = (pixel(mx, my + h, d) - pixel(mx, my - h, d)) / (2 * h)
+    A = np.linalg.inv(np.stack([dx, dy], axis=2))  # (M, 2, 2): d pixel / d map pixel, inverted
+    assert np.allclose(warp[:, 2:6], A.reshape(M, 4), rtol=1e-5, atol=1e-7)
+    behind = np.array([[0.0, 0.0, 1.0]])  # the view turned away: nothing in front
+    reference_warp(op._P, op._Xr, R0, t0 + 100 * (R0 @ behind[0]), op._R_wr, K[0, 0], K[1, 1], K[0, 2], K[1, 2], warp)
+    assert (warp == 0).all()
+
+
+def test_splat_is_a_normalised_gaussian_per_event() -> None:
+    """:func:`splat` (the taps kept while the events' fraction of a pixel
+    repeats) against a plain Gaussian per event: whole pixels, fractions,
+    repeats and the image's edges."""
+    from tectum.plugins.tracker._generative import splat
+
+    rng = np.random.default_rng(3)
+    n = 300
+    ux = np.where(rng.uniform(size=n) < 0.5, rng.integers(0, 30, n), rng.uniform(-2, 32, n))
+    uy = np.where(rng.uniform(size=n) < 0.5, rng.integers(0, 20, n), rng.uniform(-2, 22, n))
+    ux[100:110], uy[100:110] = 7.25, 3.5  # a repeated position
+    ux[110:120] = np.arange(10) + 0.25  # a repeated fraction in x only
+    p = rng.choice([-1.0, 1.0], n) * rng.uniform(0.5, 1.5, n)
+    for sigma in (1.0, 1.7):
+        img = np.zeros((20, 30))
+        splat(ux, uy, p, 0.2, sigma, img)
+        want = np.zeros((20, 30))
+        r = int(np.ceil(3 * sigma))
+        yy, xx = np.mgrid[0:20, 0:30]
+        for x, y, w in zip(ux, uy, p):
+            gx = np.exp(-((np.arange(-r, r + 1) + np.floor(x) - x) ** 2) / (2 * sigma**2))
+            gy = np.exp(-((np.arange(-r, r + 1) + np.floor(y) - y) ** 2) / (2 * sigma**2))
+            k = np.outer(gy, gx) / (gx.sum() * gy.sum())
+            x0, y0 = int(np.floor(x)) - r, int(np.floor(y)) - r
+            inside = (xx >= x0) & (xx <= x0 + 2 * r) & (yy >= y0) & (yy <= y0 + 2 * r)
+            want[inside] += 0.2 * w * k[(yy - y0)[inside], (xx - x0)[inside]]
+        assert np.allclose(img, want, rtol=1e-12, atol=1e-14)
 
 
 def test_the_timed_residue_beats_half_a_threshold() -> None:
