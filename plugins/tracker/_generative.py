@@ -464,6 +464,82 @@ def _robust_scale(res, ok, quiet, work):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
+def _normal_equations(res, jac, ok, thr, H, g):  # type: ignore[no-untyped-def]
+    """``H = Jᵀ W J`` (6, 6) and ``g = Jᵀ W r`` (6,) over the points ``ok``, ``W``
+    the Huber weights at ``thr``. The sums run in scalars (registers), point
+    by point in order: the same numbers as accumulating into ``H``."""
+    g0 = g1 = g2 = g3 = g4 = g5 = 0.0
+    h00 = h01 = h02 = h03 = h04 = h05 = h11 = h12 = h13 = h14 = h15 = 0.0
+    h22 = h23 = h24 = h25 = h33 = h34 = h35 = h44 = h45 = h55 = 0.0
+    for i in range(res.shape[0]):
+        if not ok[i]:
+            continue
+        r = res[i]
+        w = 1.0 if abs(r) <= thr else thr / abs(r)
+        j0, j1, j2, j3, j4, j5 = jac[i, 0], jac[i, 1], jac[i, 2], jac[i, 3], jac[i, 4], jac[i, 5]
+        ja = w * j0
+        g0 += ja * r
+        h00 += ja * j0
+        h01 += ja * j1
+        h02 += ja * j2
+        h03 += ja * j3
+        h04 += ja * j4
+        h05 += ja * j5
+        ja = w * j1
+        g1 += ja * r
+        h11 += ja * j1
+        h12 += ja * j2
+        h13 += ja * j3
+        h14 += ja * j4
+        h15 += ja * j5
+        ja = w * j2
+        g2 += ja * r
+        h22 += ja * j2
+        h23 += ja * j3
+        h24 += ja * j4
+        h25 += ja * j5
+        ja = w * j3
+        g3 += ja * r
+        h33 += ja * j3
+        h34 += ja * j4
+        h35 += ja * j5
+        ja = w * j4
+        g4 += ja * r
+        h44 += ja * j4
+        h45 += ja * j5
+        ja = w * j5
+        g5 += ja * r
+        h55 += ja * j5
+    g[0] = g0
+    g[1] = g1
+    g[2] = g2
+    g[3] = g3
+    g[4] = g4
+    g[5] = g5
+    H[0, 0] = h00
+    H[0, 1] = H[1, 0] = h01
+    H[0, 2] = H[2, 0] = h02
+    H[0, 3] = H[3, 0] = h03
+    H[0, 4] = H[4, 0] = h04
+    H[0, 5] = H[5, 0] = h05
+    H[1, 1] = h11
+    H[1, 2] = H[2, 1] = h12
+    H[1, 3] = H[3, 1] = h13
+    H[1, 4] = H[4, 1] = h14
+    H[1, 5] = H[5, 1] = h15
+    H[2, 2] = h22
+    H[2, 3] = H[3, 2] = h23
+    H[2, 4] = H[4, 2] = h24
+    H[2, 5] = H[5, 2] = h25
+    H[3, 3] = h33
+    H[3, 4] = H[4, 3] = h34
+    H[3, 5] = H[5, 3] = h35
+    H[4, 4] = h44
+    H[4, 5] = H[5, 4] = h45
+    H[5, 5] = h55
+
+
+@njit(cache=True, nogil=True)
 def fit_batch(P, Xr, Lm, obs_img, corr, quiet, c, map_img, warp, R1, t1, fx, fy, cx, cy, iters, huber_k,  # type: ignore[no-untyped-def]
               damping, stats):
     """Refine ``(R1, t1)`` in place (see the module). ``P`` (M, 3) world
@@ -509,21 +585,7 @@ def fit_batch(P, Xr, Lm, obs_img, corr, quiet, c, map_img, warp, R1, t1, fx, fy,
         if it == 0:  # the robust scale at the start
             s = _robust_scale(res, ok, quiet, absr)
         thr = huber_k * s
-        H[:, :] = 0.0
-        g[:] = 0.0
-        for i in range(M):
-            if not ok[i]:
-                continue
-            r = res[i]
-            w = 1.0 if abs(r) <= thr else thr / abs(r)
-            for a in range(6):
-                ja = w * jac[i, a]
-                g[a] += ja * r
-                for b in range(a, 6):
-                    H[a, b] += ja * jac[i, b]
-        for a in range(6):
-            for b in range(a):
-                H[a, b] = H[b, a]
+        _normal_equations(res, jac, ok, thr, H, g)
         tr = 0.0
         for a in range(6):
             tr += H[a, a]

@@ -251,7 +251,7 @@ class Pose6Dof(Operator):
         self._levels: list[_Level] = []
         self.counts = {"batches": 0, "lost": 0, "relocalised": 0, "skipped_before_map": 0, "references": 0}
         self._sensor: tuple[int, int] | None = None
-        self._lut: np.ndarray | None = None  # (H, W, 2) undistorted pixel of each sensor pixel
+        self._lut: np.ndarray | None = None  # (2, H W) undistorted pixel (x; y) of each sensor pixel, raster order
         # events waiting for their batch to close: t (µs), undistorted x, y (px), polarity
         self._t = np.empty(0, np.int64)
         self._x = np.empty(0)
@@ -404,11 +404,11 @@ class Pose6Dof(Operator):
         if self.map is None:
             self.counts["skipped_before_map"] += len(ev)
             return
-        assert self._lut is not None
-        xy = self._lut[ev.y, ev.x]
+        assert self._lut is not None and self._sensor is not None
+        at = ev.y.astype(np.intp) * self._sensor[0] + ev.x  # flat indices: a tenth of the cost of lut[y, x]
         self._t = np.concatenate([self._t, ev.t])
-        self._x = np.concatenate([self._x, xy[:, 0]])
-        self._y = np.concatenate([self._y, xy[:, 1]])
+        self._x = np.concatenate([self._x, self._lut[0, at]])
+        self._y = np.concatenate([self._y, self._lut[1, at]])
         self._p = np.concatenate([self._p, ev.p])
         self._ix = np.concatenate([self._ix, ev.x])
         self._iy = np.concatenate([self._iy, ev.y])
@@ -432,7 +432,7 @@ class Pose6Dof(Operator):
             at = c.project(rays).reshape(h, w, 2)
             self._sensor_at = np.ascontiguousarray(np.nan_to_num(at, nan=-1e6))
         # where the lens model has no inverse (NaN), far outside: such events add nothing
-        self._lut = np.ascontiguousarray(np.nan_to_num(pix.reshape(h, w, 2), nan=-1e6))
+        self._lut = np.ascontiguousarray(np.nan_to_num(pix.T, nan=-1e6))
         self._last = np.zeros((h, w), np.int8)
         self._tlast = np.zeros((h, w), np.int64)
         self._dtp = np.full((h, w), -1, np.int64)
