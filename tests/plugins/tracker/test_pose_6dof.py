@@ -299,6 +299,22 @@ def test_reference_warp_is_the_projection_and_the_inverse_map_to_image_derivativ
     assert (warp == 0).all()
 
 
+def test_normal_equations_are_the_weighted_jacobian_products() -> None:
+    """:func:`_normal_equations` (scalar sums) against plain numpy: ``Jᵀ W J``
+    and ``Jᵀ W r`` over the points in view, Huber weights ``min(1, thr/|r|)``."""
+    from tectum.plugins.tracker._generative import _normal_equations
+
+    rng = np.random.default_rng(5)
+    M = 500
+    res, jac = rng.normal(0, 1, M), rng.normal(0, 1, (M, 6)) * rng.uniform(0.1, 10, 6)
+    ok = rng.uniform(size=M) < 0.8
+    H, g = np.full((6, 6), np.nan), np.full(6, np.nan)
+    _normal_equations(res, jac, ok, 0.7, H, g)
+    w = np.minimum(1.0, 0.7 / np.abs(res)) * ok
+    assert np.allclose(H, (jac * w[:, None]).T @ jac, rtol=1e-12, atol=1e-12)
+    assert np.allclose(g, (jac * w[:, None]).T @ res, rtol=1e-12, atol=1e-12)
+
+
 def test_splat_is_a_normalised_gaussian_per_event() -> None:
     """:func:`splat` (the taps kept while the events' fraction of a pixel
     repeats) against a plain Gaussian per event: whole pixels, fractions,
