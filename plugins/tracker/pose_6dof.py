@@ -159,8 +159,8 @@ class Pose6Dof(Operator):
         the scene may move within the fit's covariance at the events' own
         noise (a threshold's, ``contrast / √12``; the position's σ over the
         mean depth of the points in view, with the rotation's σ).
-        Measured: up to 0.07 on the simulated scenes of ``tectum bench
-        pose`` after their first batches (0.16 at the first), 0.04 on
+        Measured: up to 0.07 on the simulated scenes of
+        ``tectum bench pose`` after their first batches (0.16 at the first), 0.04 on
         ``slider_depth``, 0.14 with 20 Hz of shot noise; 0.25-0.78 on a
         faint texture (log-contrast 0.1) that is 6-35 mm off when trusted;
         0.2-0.3 in the first batches at log-contrast 0.25, kept by the
