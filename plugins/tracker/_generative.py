@@ -102,6 +102,13 @@ def splat(ux, uy, p, c, sigma, img):  # type: ignore[no-untyped-def]
                 wy[i] = math.exp(-dy * dy * inv)
                 sy += wy[i]
         a = c * p[k] / (sx * sy)
+        if 0 <= x0 and x0 + n <= W and 0 <= y0 and y0 + n <= H:  # inside: no test per pixel
+            for j in range(n):
+                b = a * wy[j]
+                row = img[y0 + j]
+                for i in range(n):
+                    row[x0 + i] += b * wx[i]
+            continue
         for j in range(n):
             y = y0 + j
             if y < 0 or y >= H:
