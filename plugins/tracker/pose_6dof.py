@@ -407,8 +407,8 @@ class Pose6Dof(Operator):
         assert self._lut is not None and self._sensor is not None
         at = ev.y.astype(np.intp) * self._sensor[0] + ev.x  # flat indices: a tenth of the cost of lut[y, x]
         self._t = np.concatenate([self._t, ev.t])
-        self._x = np.concatenate([self._x, self._lut[0, at]])
-        self._y = np.concatenate([self._y, self._lut[1, at]])
+        self._x = np.concatenate([self._x, self._lut[0][at]])
+        self._y = np.concatenate([self._y, self._lut[1][at]])
         self._p = np.concatenate([self._p, ev.p])
         self._ix = np.concatenate([self._ix, ev.x])
         self._iy = np.concatenate([self._iy, ev.y])
