@@ -195,7 +195,8 @@ def point_corrections(P, R, t, fx, fy, cx, cy, sensor_at, diff, sigma, nblur, ou
     images blurred by a normalised Gaussian of ``sigma`` px (cut at 3σ)
     there: what :func:`splat` of those pixels would add, the lens's local
     stretch ignored; the others sampled bilinearly (a share of pixels:
-    measured as good as its blur, at a tenth of the cost)."""
+    measured as good as its blur, at a tenth of the cost), 0 where the
+    lens takes the point off the sensor."""
     nimg, H, W = diff.shape
     r = int(math.ceil(3.0 * sigma))
     n = 2 * r + 1
@@ -238,13 +239,14 @@ def point_corrections(P, R, t, fx, fy, cx, cy, sensor_at, diff, sigma, nblur, ou
         i1 = min(n, W - xs)
         j0 = max(0, -ys)
         j1 = min(n, H - ys)
-        x0 = int(u)
-        y0 = int(v)
-        ax = u - x0
-        ay = v - y0
-        for m in range(nblur, nimg):
-            out[m, k] = (1 - ay) * ((1 - ax) * diff[m, y0, x0] + ax * diff[m, y0, x0 + 1]) + \
-                ay * ((1 - ax) * diff[m, y0 + 1, x0] + ax * diff[m, y0 + 1, x0 + 1])
+        if 0.0 <= u < W - 1.0 and 0.0 <= v < H - 1.0:  # through the lens it may land off the sensor: 0 there
+            x0 = int(u)
+            y0 = int(v)
+            ax = u - x0
+            ay = v - y0
+            for m in range(nblur, nimg):
+                out[m, k] = (1 - ay) * ((1 - ax) * diff[m, y0, x0] + ax * diff[m, y0, x0 + 1]) + \
+                    ay * ((1 - ax) * diff[m, y0 + 1, x0] + ax * diff[m, y0 + 1, x0 + 1])
         for m in range(nblur):
             acc = 0.0
             for j in range(j0, j1):

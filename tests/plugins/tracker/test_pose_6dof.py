@@ -417,6 +417,26 @@ def test_point_corrections_are_the_splat_of_the_residues(lens: bool) -> None:
         assert np.allclose(out[2], [_bilinear(diff, a, b)[0] for a, b in pts])
 
 
+def test_point_corrections_off_the_sensor_sample_nothing() -> None:
+    """A point in the pinhole image that the lens takes off the sensor (or
+    where the lens has no inverse: far outside) reads no pixel of the
+    sampled images: 0, not the memory past the image's edge."""
+    from tectum.plugins.tracker._generative import point_corrections
+
+    W, H = 40, 30
+    diff = np.arange(H * W, dtype=float).reshape(1, H, W) + 1.0  # no pixel is 0
+    v, u = np.mgrid[0:H, 0:W].astype(float)
+    at = np.ascontiguousarray(np.stack([u, v], -1))
+    at[10, 10] = (W - 0.5, 5.0)  # past the last column: x0 + 1 would be the next row's first pixel
+    at[12, 12] = (-1e6, -1e6)  # no inverse (NaN made far outside)
+    at[14, 14] = (7.25, 8.5)  # on the sensor: sampled there
+    P = np.array([[(x - 20.0) / 50.0, (y - 15.0) / 50.0, 1.0] for x, y in ((10, 10), (12, 12), (14, 14))])
+    out = np.full((1, 3), np.nan)
+    point_corrections(P, np.eye(3), np.zeros(3), 50.0, 50.0, 20.0, 15.0, at, diff, 1.0, 0, out)
+    assert out[0, 0] == 0.0 and out[0, 1] == 0.0
+    assert out[0, 2] == pytest.approx(8.5 * W + 7.25 + 1.0)
+
+
 def test_silent_pixels_bound_the_start() -> None:
     """With ``unseen_bound`` (the default) a pixel without an event yet, or
     silent past twice its interval, counts as the model's change within the
