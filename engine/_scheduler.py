@@ -120,13 +120,7 @@ def _run_inline(plan: Plan) -> Stats:
     t_wall = time.perf_counter()
     out = _Outbox({})
     try:
-        for sid, sink in sinks.items():
-            try:
-                sink.bind_stats(stats)
-                sink.open()
-            except Exception as e:
-                raise NodeError(sid, e) from e
-            opened.append(sid)
+        _open_sinks(sinks, stats, opened)
         now = time.perf_counter
         out.write_inline(graph, sinks, stats, now)
         task = _source_task(plan.of_role("source")[0], plan.batch, graph, out, checkpoint=_no_wait, now=now)
@@ -153,15 +147,34 @@ def _run_inline(plan: Plan) -> Stats:
             except Exception as e:
                 if ok:
                     failure.append(NodeError(sid, e))
-            own = getattr(sink, "not_written", None)
-            if isinstance(own, dict):
-                for kind, n in own.items():
-                    stats.node(sid).refuse(kind, n)
+            _count_not_written(sid, sink, stats)
         stats.wall_s = time.perf_counter() - t_wall
         graph.collect_counters()
     if failure:
         raise failure[0]
     return stats
+
+
+def _open_sinks(sinks: Mapping[str, Sink], stats: Stats, opened: list[str]) -> None:
+    """Bind and open ``sinks`` in order, adding each opened one's id to
+    ``opened`` (so that a failure aborts those already open); a failure is
+    a :class:`NodeError` naming the sink."""
+    for sid, sink in sinks.items():
+        try:
+            sink.bind_stats(stats)
+            sink.open()
+        except Exception as e:
+            raise NodeError(sid, e) from e
+        opened.append(sid)
+
+
+def _count_not_written(sid: str, sink: Sink, stats: Stats) -> None:
+    """Count what sink ``sid`` took and did not store (its ``not_written``,
+    by kind) as refused."""
+    own = getattr(sink, "not_written", None)
+    if isinstance(own, dict):
+        for kind, n in own.items():
+            stats.node(sid).refuse(kind, n)
 
 
 async def _no_wait() -> None:
@@ -244,13 +257,7 @@ async def _main(plan: Plan, graph: Graph, edges: dict[str, Edge], scope: trio.Ca
     ok = False
     outbox = _Outbox(edges, loops)
     try:
-        for sid, sink in sinks.items():
-            try:
-                sink.bind_stats(graph.stats)
-                sink.open()
-            except Exception as e:
-                raise NodeError(sid, e) from e
-            opened.append(sid)
+        _open_sinks(sinks, graph.stats, opened)
         now = trio.lowlevel.current_clock().current_time
         outbox.write_inline(graph, {sid: sink for sid, sink in sinks.items()
                                     if _writes_inline(sink, plan.nodes[sid].spec.policy)}, graph.stats, now)
@@ -283,10 +290,7 @@ async def _main(plan: Plan, graph: Graph, edges: dict[str, Edge], scope: trio.Ca
             except Exception as e:  # closing failed: report it, unless another error is on the way
                 if ok:
                     failure.append(NodeError(sid, e))
-            own = getattr(sink, "not_written", None)  # what the sink took and did not store, by kind
-            if isinstance(own, dict):
-                for kind, n in own.items():
-                    graph.stats.node(sid).refuse(kind, n)
+            _count_not_written(sid, sink, graph.stats)
         for edge in edges.values():
             edge.close()
 
@@ -372,10 +376,7 @@ class _InlineSink:
     def __call__(self, pkt: Packet) -> None:
         st = self.st
         st.packets_in += 1
-        if pkt.kind is _EVENTS:
-            st.events_in += pkt.t.shape[0]
-        else:
-            st.took(pkt)
+        st.took(pkt)
         t0 = perf_counter_ns()
         try:
             self._write(pkt)
