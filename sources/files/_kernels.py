@@ -22,6 +22,20 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+
+@njit(cache=True, nogil=True)
+def _falls(t, lo, hi, last):  # pragma: no cover - numba
+    """How many of ``t[lo:hi]`` lie below the time before them (``last``
+    before ``t[lo]``): a vectorised count, two reads of the same cached
+    column."""
+    a = t[lo:hi - 1]
+    b = t[lo + 1:hi]
+    c = np.int64(t[lo] < last)
+    for k in range(b.shape[0]):
+        c += np.int64(b[k] < a[k])
+    return c
+
+
 # --- Prophesee EVT 2.0 ------------------------------------------------------------
 # state: 0 time_high (28 bits, unrolled with wraps), 1 have time_high, 2 last raw high,
 #        3 wraps, 4 events dropped before the first time_high
@@ -30,6 +44,23 @@ EVT2_STATE = 5
 
 @njit(cache=True, nogil=True)
 def decode_evt2(words, state, strict, t, x, y, p, where, trig):  # pragma: no cover - numba
+    """EVT 2.0 words to events (the module's RAW kernel contract)."""
+    n, nt, bad, nbad, i, _, _, _ = _evt2(words, state, strict, t, x, y, p, where, trig)
+    return n, nt, bad, nbad, i
+
+
+@njit(cache=True, nogil=True)
+def decode_evt2_bounded(words, state, strict, t, x, y, p, trig):  # pragma: no cover - numba
+    """:func:`decode_evt2` without ``where``, returning also the bounds of
+    the events written (:meth:`EventAssembler.commit`'s): (..., times never
+    fell from one event to the next, largest x, largest y)."""
+    return _evt2(words, state, strict, t, x, y, p, np.empty(0, np.int64), trig)
+
+
+@njit(cache=True, nogil=True)
+def _evt2(words, state, strict, t, x, y, p, where, trig):  # pragma: no cover - numba
+    """:func:`decode_evt2_bounded` with ``where``: the bounds are found in
+    the loop over a run of CD words (no pass of their own)."""
     n = 0
     nt = 0
     bad = -1
@@ -41,6 +72,10 @@ def decode_evt2(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
     track = where.shape[0] > 0
     m = min(words.shape[0], t.shape[0])  # one event per word at most
     cd_end = np.uint32(0x20000000)  # words below are CD_OFF / CD_ON
+    last = np.int64(-1) << 62  # the time of the event before (bounds)
+    fell = np.int64(0)  # events whose time is below the one before
+    mx = np.uint16(0)
+    my = np.uint16(0)
     i = 0
     while i < m:
         # a run of CD events sharing one time base: a branch-free, vectorisable loop
@@ -67,10 +102,16 @@ def decode_evt2(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
             po = p[n:n + r]
             for q in range(r):
                 w = src[q]
+                xq = np.uint16((w >> np.uint32(11)) & np.uint32(0x7FF))
+                yq = np.uint16(w & np.uint32(0x7FF))
+                mx = max(mx, xq)
+                my = max(my, yq)
                 to[q] = base | np.int64((w >> np.uint32(22)) & np.uint32(0x3F))
-                xo[q] = np.uint16((w >> np.uint32(11)) & np.uint32(0x7FF))
-                yo[q] = np.uint16(w & np.uint32(0x7FF))
+                xo[q] = xq
+                yo[q] = yq
                 po[q] = np.int8((w >> np.uint32(27)) & np.uint32(2)) - np.int8(1)
+            fell += _falls(t, n, n + r, last)
+            last = t[n + r - 1]
             if track:
                 wo = where[n:n + r]
                 for q in range(r):
@@ -110,7 +151,7 @@ def decode_evt2(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
     state[1] = have
     state[2] = last_raw
     state[3] = wraps
-    return n, nt, bad, nbad, i
+    return n, nt, bad, nbad, i, fell == 0, np.int64(mx), np.int64(my)
 
 
 # --- Prophesee EVT 3.0 ------------------------------------------------------------
@@ -153,6 +194,15 @@ def decode_evt3(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
     state and return values."""
     if where.shape[0] > 0:
         return _evt3_tracked(words, state, strict, t, x, y, p, where, trig)
+    n, nt, bad, nbad, i, _, _, _ = _evt3_packed(words, state, strict, t, x, y, p, trig)
+    return n, nt, bad, nbad, i
+
+
+@njit(cache=True, nogil=True)
+def decode_evt3_bounded(words, state, strict, t, x, y, p, trig):  # pragma: no cover - numba
+    """:func:`decode_evt3`'s fast path, returning also the bounds of the
+    events written (:meth:`EventAssembler.commit`'s): (..., times never fell
+    from one event to the next, largest x, largest y)."""
     return _evt3_packed(words, state, strict, t, x, y, p, trig)
 
 
@@ -242,25 +292,40 @@ def _evt3_tracked(words, state, strict, t, x, y, p, where, trig):  # pragma: no 
 _EVT3_BLOCK = 1 << 14
 #: Per word type: the bits of the packed record of :func:`_evt3_packed` it
 #: sets (ADDR_Y 12-22, TIME_LOW 24-35, TIME_HIGH 36-47; none for the others),
-#: the word's bits it keeps and their shift, whether it is an event (ADDR_X),
-#: and -1 for TIME_HIGH
+#: -1 for TIME_HIGH, and the shift taking the word's 12 bits to its field
+#: plus 256 for an event (ADDR_X): the shift and the count in one look-up
 _EVT3_FIELD = np.array([0x7FF << 12, 0, 0, 0, 0, 0, 0xFFF << 24, 0, 0xFFF << 36, 0, 0, 0, 0, 0, 0, 0], np.int64)
-_EVT3_KEEP = np.array([0x7FF, 0, 0, 0, 0, 0, 0xFFF, 0, 0xFFF, 0, 0, 0, 0, 0, 0, 0], np.int64)
-_EVT3_SHIFT = np.array([12, 0, 0, 0, 0, 0, 24, 0, 36, 0, 0, 0, 0, 0, 0, 0], np.int64)
-_EVT3_IS_X = np.array([0, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0], np.int64)
 _EVT3_HIGH = np.array([0, 0, 0, 0, 0, 0, 0, 0, -1, 0, 0, 0, 0, 0, 0, 0], np.int64)
+_EVT3_MOVE = np.array([12, 0, 256, 0, 0, 0, 24, 0, 36, 0, 0, 0, 0, 0, 0, 0], np.int64)
+
+
+@njit(cache=True, nogil=True)
+def _evt3_high_spread(words, i, e, high):  # pragma: no cover - numba
+    """The largest TIME_HIGH fall words ``[i, e)`` can hold, at most: the
+    range of their TIME_HIGH values and ``high`` (the one before). Compares
+    the raw 16-bit words (TIME_HIGH is 0x8000-0x8FFF): a vectorised loop."""
+    lo = np.uint16(0x8000)
+    top = np.uint16(0x8FFF)
+    hmax = np.uint16(0x8000 | high)
+    hmin = hmax
+    ws = words[i:e]
+    for k in range(ws.shape[0]):
+        w = ws[k]
+        h = (w >= lo) & (w <= top)
+        hmax = max(hmax, w if h else lo)
+        hmin = min(hmin, w if h else top)
+    return np.int64(hmax) - np.int64(hmin)
 
 
 @njit(cache=True, nogil=True)
 def _evt3_block(words, i, e, exact, cur, base, n, nt, bad, nbad, bx, vp, strict, t, trig):  # pragma: no cover
     """Words ``[i, e)`` of :func:`_evt3_packed` as packed records into
     ``t[n:]``; ``cur`` holds the latest ADDR_Y, TIME_LOW and TIME_HIGH in
-    their fields. Without ``exact`` no wrap is counted, only the largest
-    TIME_HIGH fall (a wrap when above 2048: the caller decodes the block
-    again with ``exact``). Returns (i, n, nt, bad, nbad, bx, vp, cur, wraps
-    << 48, largest fall, stopped at a bad word, stopped at a wide vector)."""
+    their fields. Wraps are counted only with ``exact`` (the caller asks
+    for it when :func:`_evt3_high_spread` says a fall past 2048 is
+    possible). Returns (i, n, nt, bad, nbad, bx, vp, cur, wraps << 48,
+    stopped at a bad word, stopped at a wide vector)."""
     wq = np.int64(0)
-    fall = np.int64(0)
     while i < e:
         w = np.int64(words[np.uint64(i)])
         typ = w >> 12
@@ -268,7 +333,7 @@ def _evt3_block(words, i, e, exact, cur, base, n, nt, bad, nbad, bx, vp, strict,
             if typ == 0x4 or typ == 0x5:
                 nb = 12 if typ == 0x4 else 8
                 if bx < 0 or bx + nb > 4096:
-                    return i, n, nt, bad, nbad, bx, vp, cur, wq, fall, False, True
+                    return i, n, nt, bad, nbad, bx, vp, cur, wq, False, True
                 head = wq | cur | (np.int64(vp > 0) << 11)
                 for b in range(nb):
                     xb = bx + b
@@ -288,20 +353,18 @@ def _evt3_block(words, i, e, exact, cur, base, n, nt, bad, nbad, bx, vp, strict,
                     bad = i
                 nbad += 1
                 if strict:
-                    return i, n, nt, bad, nbad, bx, vp, cur, wq, fall, True, False
+                    return i, n, nt, bad, nbad, bx, vp, cur, wq, True, False
             i += 1
             continue
         i += 1
         v = w & 0xFFF
-        drop = ((cur >> 36) - v) & _EVT3_HIGH[typ]  # how far a TIME_HIGH falls
         if exact:  # loop-invariant: compiled as two loops
-            wq += np.int64(drop > 2048) << 48
-        else:
-            fall = max(fall, drop)
-        cur = (cur & ~_EVT3_FIELD[typ]) | ((w & _EVT3_KEEP[typ]) << _EVT3_SHIFT[typ])
+            wq += np.int64((((cur >> 36) - v) & _EVT3_HIGH[typ]) > 2048) << 48  # a TIME_HIGH falling past half
+        move = _EVT3_MOVE[typ]
+        cur ^= (cur ^ (v << (move & 63))) & _EVT3_FIELD[typ]  # the word's field replaced, the others kept
         t[np.uint64(n)] = wq | cur | v
-        n += _EVT3_IS_X[typ]
-    return i, n, nt, bad, nbad, bx, vp, cur, wq, fall, False, False
+        n += move >> 8
+    return i, n, nt, bad, nbad, bx, vp, cur, wq, False, False
 
 
 @njit(cache=True, nogil=True)
@@ -314,10 +377,12 @@ def _evt3_packed(words, state, strict, t, x, y, p, trig):  # pragma: no cover - 
     but the one for rare types (vectors, triggers, undefined), the
     registers merged into one record through masks looked up by type, one
     store per word. Wraps (one per 16.8 s of recording) are counted only in
-    a block that has one, decoded again. A second pass unpacks the block's
-    events into the columns while they are in cache. A vector reaching x
-    past 12 bits (only in a corrupt stream) ends the block and is decoded
-    unpacked."""
+    a block whose TIME_HIGH values span more than half their range. A
+    second pass unpacks the block's events into the columns while they are
+    in cache, noting their bounds (the check pass they spare the caller).
+    A vector reaching x past 12 bits (only in a corrupt stream) ends the
+    block and is decoded unpacked. Returns :func:`decode_evt3`'s values, then whether no event's
+    time fell below the one before, the largest x and the largest y."""
     n = 0
     nt = 0
     bad = -1
@@ -353,20 +418,34 @@ def _evt3_packed(words, state, strict, t, x, y, p, trig):  # pragma: no cover - 
                 break
         i += 1
     cur = (cy << 12) | (low << 24) | (high << 36)
+    last = np.int64(-1) << 62  # the time of the event before (bounds)
+    fell = np.int64(0)  # events whose time is below the one before
+    mx = np.int64(0)
+    my = np.int64(0)
     while have == 1 and i < m and n <= cap:
         n0 = n
         base = wraps << 24
         e = min(m, i + _EVT3_BLOCK, i + (cap - n) // 12 + 1)  # each word starts with n <= cap
-        r = _evt3_block(words, i, e, False, cur, base, n, nt, bad, nbad, bx, vp, strict, t, trig)
-        if r[9] > 2048:  # a wrap in the block
-            r = _evt3_block(words, i, e, True, cur, base, n, nt, bad, nbad, bx, vp, strict, t, trig)
-        i, n, nt, bad, nbad, bx, vp, cur, wq, _, stop, wide = r
-        for k in range(n0, n):  # unpack
+        exact = _evt3_high_spread(words, i, e, cur >> 36) > 2048  # a wrap is possible
+        i, n, nt, bad, nbad, bx, vp, cur, wq, stop, wide = _evt3_block(words, i, e, exact, cur, base, n, nt, bad,
+                                                                       nbad, bx, vp, strict, t, trig)
+        bmx = np.uint16(0)
+        bmy = np.uint16(0)
+        for k in range(n0, n):  # unpack, and the largest x and y
             q = t[k]
-            x[k] = np.uint16((q & 0x7FF) | ((q >> 12) & 0x800))
-            y[k] = np.uint16((q >> 12) & 0x7FF)
+            xk = np.uint16((q & 0x7FF) | ((q >> 12) & 0x800))
+            yk = np.uint16((q >> 12) & 0x7FF)
+            bmx = max(bmx, xk)
+            bmy = max(bmy, yk)
+            x[k] = xk
+            y[k] = yk
             p[k] = np.int8(((q >> 10) & 2) - 1)
             t[k] = base + (q >> 24)
+        mx = max(mx, np.int64(bmx))
+        my = max(my, np.int64(bmy))
+        if n > n0:
+            fell += _falls(t, n0, n, last)
+            last = t[n - 1]
         wraps += wq >> 48
         if stop:
             break
@@ -381,6 +460,11 @@ def _evt3_packed(words, state, strict, t, x, y, p, trig):  # pragma: no cover - 
                 x[at] = bx + b
                 y[at] = (cur >> 12) & 0x7FF
                 p[at] = vp
+                if (w >> b) & 1:
+                    fell += np.int64(tb < last)
+                    last = tb
+                    mx = max(mx, np.int64(x[at]))
+                    my = max(my, (cur >> 12) & 0x7FF)
                 n += (w >> b) & 1
             bx += nb
     if have == 1:
@@ -388,7 +472,7 @@ def _evt3_packed(words, state, strict, t, x, y, p, trig):  # pragma: no cover - 
         low = (cur >> 24) & 0xFFF
         cy = (cur >> 12) & 0x7FF
     _evt3_keep(state, high, low, wraps, have, cy, bx, vp, dropped)
-    return n, nt, bad, nbad, i
+    return n, nt, bad, nbad, i, fell == 0, mx, my
 
 
 # --- checks shared by the decoders ------------------------------------------------

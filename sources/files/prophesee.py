@@ -132,6 +132,10 @@ class RawSource(FileSource):
     def _kernel(self) -> Any:
         return K.decode_evt2 if self.evt_format == "evt2" else K.decode_evt3
 
+    def _bounded_kernel(self) -> Any:
+        """The fast path's kernel, which also returns the events' bounds."""
+        return K.decode_evt2_bounded if self.evt_format == "evt2" else K.decode_evt3_bounded
+
     def info(self) -> dict[str, Any]:
         out = super().info()
         out["format"] = self.evt_format  # what was decoded (the option can differ from the class's)
@@ -259,9 +263,8 @@ class RawSource(FileSource):
         size = np.dtype(self.word).itemsize
         self.triggers = 0
         tiler = SampleTiler(self)
-        kernel = self._kernel()
+        kernel = self._bounded_kernel()
         strict = not self.skip_bad
-        no_where = np.empty(0, np.int64)
         trig = np.empty((0, 3), np.int64)
         held = trig  # triggers at the latest time, waiting for the next chunk
         pos = start
@@ -273,14 +276,15 @@ class RawSource(FileSource):
             while i < words.shape[0] and not asm.past_end():
                 before = state.copy()
                 t, x, y, p = asm.reserve(cap)
-                ne, nt, bad, nbad, used = kernel(words[i:], state, strict, t, x, y, p, no_where, trig)
+                ne, nt, bad, nbad, used, ordered, mx, my = kernel(words[i:], state, strict, t, x, y, p, trig)
                 self.triggers += nt
                 if bad >= 0:
                     at = pos + (i + bad) * size
                     if strict:
                         self._fail(f"invalid {self.evt_format.upper()} word 0x{int(words[i + bad]):0{2 * size}x}", at)
                     self._note_skip(at, at + size - 1, nbad)
-                yield from asm.commit(ne, pos, self._where_of(words[i:i + used], before, pos + i * size))
+                yield from asm.commit(ne, pos, self._where_of(words[i:i + used], before, pos + i * size),
+                                      (ordered, mx, my))
                 if nt:
                     held = np.concatenate([held, trig[:nt]])
                     held[-nt:, 0] += off

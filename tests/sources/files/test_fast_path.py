@@ -128,6 +128,34 @@ def test_dat_bad_record_at_any_chunk_boundary(tmp_path: Path, files, what: str, 
         assert src.skipped_events == 1
 
 
+@pytest.mark.parametrize(("fmt", "at"), [(f, a) for f in ("evt2", "evt3") for a in (0.0, 0.3, 0.5, 0.999)])
+def test_raw_event_outside_the_sensor_at_any_chunk_boundary(tmp_path: Path, files, fmt: str, at: float) -> None:
+    """An EVT 2.0/3.0 event with x past the sensor is found (offset,
+    skip_bad count) whatever chunks the words are decoded in: the kernels'
+    bounds that spare the check pass never hide it."""
+    data = bytearray(files[fmt].read_bytes())
+    start = 0
+    while data[start] == ord("%"):  # the header's lines
+        start = data.index(b"\n", start) + 1
+    size = 4 if fmt == "evt2" else 2
+    words = np.frombuffer(bytes(data[start:]), "<u4" if fmt == "evt2" else "<u2")
+    is_x = (words >> 28) <= 1 if fmt == "evt2" else (words >> 12) == 2
+    k = int(np.flatnonzero(is_x)[int(at * (int(is_x.sum()) - 1))])
+    word = int(words[k])
+    word = (word & ~(0x7FF << 11)) | (64 << 11) if fmt == "evt2" else (word & ~0x7FF) | 64
+    rec = start + size * k
+    data[rec:rec + size] = word.to_bytes(size, "little")
+    f = tmp_path / ("bad" + EXT[fmt])
+    f.write_bytes(bytes(data))
+    for chunk in (1 << 20, 256 * size, 129 * size, 128 * size):
+        with pytest.raises(FormatError, match="outside") as e:
+            list(open_file(str(f), chunk_bytes=chunk).packets())
+        assert e.value.offset == rec
+        src = open_file(str(f), chunk_bytes=chunk, skip_bad=True)
+        assert len(concat([q for q in src.packets() if isinstance(q, EventPacket)])) == 2999
+        assert src.skipped_events == 1
+
+
 def test_evt3_kernel_resumes_when_the_output_is_full() -> None:
     rng = np.random.default_rng(3)
     words = [(8 << 12) | 1, (6 << 12) | 2]

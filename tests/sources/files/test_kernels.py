@@ -141,6 +141,43 @@ def test_evt3_fast_path_equals_tracked_path(words, strict, cap, state):
     assert decode_evt3_calls(w, strict, cap, True, st0) == decode_evt3_calls(w, strict, cap, False, st0)
 
 
+def _bounds_ref(t, x, y):
+    """(times never fell from one event to the next, largest x, largest y)."""
+    return (bool(np.all(t[1:] >= t[:-1])), int(x.max()) if x.shape[0] else 0, int(y.max()) if y.shape[0] else 0)
+
+
+def _bounded_calls(kernel, words, state_size, cap, strict):
+    """The bounded kernel over ``words`` in calls of at most ``cap`` events:
+    per call its bounds and the reference's on the events it wrote."""
+    st_, i, out = np.zeros(state_size, np.int64), 0, []
+    while i < len(words):
+        t, x, y = np.empty(cap, np.int64), np.empty(cap, np.uint16), np.empty(cap, np.uint16)
+        p, tr = np.empty(cap, np.int8), np.empty((len(words), 3), np.int64)
+        n, _, bad, _, used, ordered, mx, my = kernel(words[i:], st_, strict, t, x, y, p, tr)
+        out.append(((bool(ordered), int(mx), int(my)), _bounds_ref(t[:n], x[:n], y[:n])))
+        if used == 0 or (strict and bad >= 0):
+            break
+        i += used
+    return out
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(evt3_any_word, max_size=300), st.booleans(), st.integers(0, 80))
+def test_evt3_bounds_are_those_of_the_events(words, strict, cap):
+    """The bounds the fast path returns (which spare the source its check
+    pass) are the events': time falls (TIME_HIGH/TIME_LOW going back,
+    wraps), vectors past x 2047 and 4095, every call of a resumed decode."""
+    for got, want in _bounded_calls(K.decode_evt3_bounded, np.array(words, np.uint16), K.EVT3_STATE, cap, strict):
+        assert got == want
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(evt2_word, max_size=200), st.booleans(), st.integers(1, 60))
+def test_evt2_bounds_are_those_of_the_events(words, strict, cap):
+    for got, want in _bounded_calls(K.decode_evt2_bounded, np.array(words, np.uint32), K.EVT2_STATE, cap, strict):
+        assert got == want
+
+
 def test_evt3_fast_path_long_streams_and_blocks():
     """Blocks of the fast path: 100k words of every type (triggers, many
     wraps, wide vectors) decode as on the tracked path, with output room for
@@ -171,6 +208,9 @@ def test_evt3_fast_path_at_the_edges():
     assert [e[0] >> 24 for e in ev[:3]] == [0, 0, 1]
     xs = [e[1] for e in ev[3:-3]]
     assert xs[:2] == [2040, 2041] and 4096 in xs and 0 in xs[10:] and len(xs) == 66000
+    for cap in (12 * len(words), 700):  # the wide vectors' bounds too (decoded outside the blocks)
+        for got, want in _bounded_calls(K.decode_evt3_bounded, w, K.EVT3_STATE, cap, True):
+            assert got == want
 
 
 def test_evt3_wrap_is_unrolled():
