@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from collections.abc import Hashable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Hashable, Iterable, Iterator, Mapping, Sequence
 from time import perf_counter_ns
-from typing import Any, Generic, TypeVar
+from typing import Any, Generic, Protocol, TypeVar
 
 from ._operator import Operator, as_packets
 from ._packet import EventPacket, Kind, Packet, accepts
@@ -32,7 +32,7 @@ from .errors import NodeError, TectumError
 
 log = logging.getLogger("tectum")
 
-__all__ = ["Graph", "END", "PortJoin", "DelayedJoin", "Merger"]
+__all__ = ["Graph", "Chain", "END", "PortJoin", "DelayedJoin", "Merger"]
 
 
 class _End:
@@ -380,6 +380,122 @@ class _Node:
         self.done = False
 
 
+class Writer(Protocol):
+    """A sink written through by the graph (:meth:`Graph.write_through`)."""
+
+    sid: str
+    st: NodeStats
+    #: the sink's own write (no counts, no clock)
+    write: Callable[[Packet], None]
+
+    def __call__(self, pkt: Packet) -> None:
+        """Write ``pkt``, counting it and its latency."""
+
+    def wrote(self, n: int) -> None:
+        """``n`` packets were just written by :attr:`write` directly (counted by
+        the caller): record their latency."""
+
+
+class Chain:
+    """A straight line of one-input operators that take events (no ticks,
+    not offloaded, each the only route of the one before): what a source's
+    event packets go through, run by :meth:`run` as a loop instead of a
+    call per node per packet.
+
+    The same calls in the same order as :meth:`Graph.push` packet after
+    packet; the counts are added up over a run of packets and stored at its
+    end, the busy time is read with one clock read per step (each node's
+    time runs from the end of the step before: its share of the loop's own
+    bookkeeping included). An operator that returns anything but one events
+    packet hands what it returned to the plain path (:meth:`Graph._pass_on`)."""
+
+    def __init__(self, graph: Graph, hops: tuple[_Node, ...]) -> None:
+        self.graph = graph
+        self.hops = hops
+        self.procs = tuple(rec.op.process for rec in hops)  # type: ignore[union-attr]
+        last = hops[-1]
+        self.next = last.chain  # an operator the loop leaves to the plain path
+        writer: Writer | None = last.writer if self.next is None else None
+        self.writer = writer
+        self.write = writer.write if writer is not None else None
+
+    def run(self, pieces: Iterator[Packet], limit: int) -> tuple[int, list[Delivery]]:
+        """Push up to ``limit`` event packets of ``pieces`` through the
+        chain, as :meth:`Graph.push` would one by one: (how many were
+        taken, what they delivered)."""
+        graph, procs, write = self.graph, self.procs, self.write
+        n = len(procs)
+        out: list[Delivery] = []
+        ev = [0] * (n + 1)  # events into each step (n: out of the last operator)
+        busy = [0] * (n + 1)  # ns in each step (n: the sink's write)
+        broke = [0] * n  # packets a step handed to the plain path
+        clock = perf_counter_ns
+        k = 0
+        i = -1
+        try:
+            for piece in pieces:
+                k += 1
+                ev[0] += piece.t.shape[0]
+                q = piece
+                i = 0
+                t0 = clock()
+                for proc in procs:
+                    res = proc(q)
+                    if type(res) is list and len(res) == 1 and (q := res[0]).kind is _EVENTS:
+                        t1 = clock()
+                        busy[i] += t1 - t0
+                        t0 = t1
+                        i += 1
+                        ev[i] += q.t.shape[0]
+                    else:
+                        busy[i] += clock() - t0
+                        broke[i] += 1
+                        graph._pass_on(self.hops[i], res, out)
+                        break
+                else:
+                    if write is not None:
+                        write(q)
+                        busy[n] += clock() - t0
+                    elif self.next is not None:
+                        graph._run(self.next, q, out)
+                    else:
+                        graph._emit(self.hops[-1], q, out)
+                i = -1
+                if k == limit:
+                    break
+        except NodeError:
+            raise
+        except Exception as e:
+            if i < 0:
+                raise
+            raise NodeError(self.hops[i].id if i < n else self.writer.sid, e) from e  # type: ignore[union-attr]
+        finally:
+            self._count(k, ev, busy, broke)
+        if graph._deferred:
+            graph._drain(out)
+        return k, out
+
+    def _count(self, k: int, ev: list[int], busy: list[int], broke: list[int]) -> None:
+        """Store a run's counts: ``k`` packets went in; step ``i`` took
+        ``ev[i]`` events, ran ``busy[i]`` ns and handed ``broke[i]`` packets'
+        outputs to the plain path (which counted them)."""
+        entered = k
+        for i, rec in enumerate(self.hops):
+            st = rec.st
+            st.packets_in += entered
+            st.events_in += ev[i]
+            st.busy_ns += busy[i]
+            entered -= broke[i]
+            st.packets_out += entered
+            st.events_out += ev[i + 1]
+        if self.writer is not None and entered:
+            st = self.writer.st
+            st.packets_in += entered
+            st.events_in += ev[-1]
+            st.busy_ns += busy[-1]
+            self.writer.wrote(entered)
+
+
 class Graph:
     """Operators of a plan, wired for synchronous execution.
 
@@ -444,6 +560,17 @@ class Graph:
         if self._deferred:
             self._drain(out)
         return out
+
+    def chain_of(self, node_id: str) -> Chain | None:
+        """The straight line of operators below ``node_id`` as a
+        :class:`Chain` (for a source's event packets), or None when its
+        first step is not a plain one-input operator taking events."""
+        hops: list[_Node] = []
+        rec = self._recs[node_id].chain
+        while rec is not None and rec.takes_events and not rec.ticks and not rec.advances:
+            hops.append(rec)
+            rec = rec.chain
+        return Chain(self, tuple(hops)) if hops else None
 
     def write_through(self, writers: Mapping[str, Any]) -> None:
         """Write what reaches the sinks of ``writers`` (sink id to a callable
@@ -645,6 +772,11 @@ class Graph:
         except Exception as e:
             raise NodeError(rec.id, e) from e
         st.busy_ns += perf_counter_ns() - t0
+        self._pass_on(rec, res, out)
+
+    def _pass_on(self, rec: _Node, res: Any, out: list[Delivery]) -> None:
+        """Count what operator ``rec`` returned (``res``) and hand it on."""
+        st = rec.st
         if type(res) is not list:
             res = as_packets(res)
         st.packets_out += len(res)

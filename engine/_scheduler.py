@@ -354,11 +354,11 @@ class _InlineSink:
     paced pieces each have their own arrival): :meth:`flush` records the
     run under way."""
 
-    __slots__ = ("sid", "_write", "st", "lat", "now", "out", "run_arrival", "run", "run_done")
+    __slots__ = ("sid", "write", "st", "lat", "now", "out", "run_arrival", "run", "run_done")
 
     def __init__(self, sid: str, sink: Sink, stats: Stats, now: Callable[[], float], out: _Outbox) -> None:
         self.sid = sid
-        self._write = sink.write
+        self.write = sink.write
         self.st = stats.node(sid)
         self.lat = stats.latency_of(sid)
         self.now = now  # trio's clock
@@ -379,15 +379,21 @@ class _InlineSink:
         st.took(pkt)
         t0 = perf_counter_ns()
         try:
-            self._write(pkt)
+            self.write(pkt)
         except Exception as e:
             raise NodeError(self.sid, e) from e
         st.busy_ns += perf_counter_ns() - t0
+        self.wrote(1)
+
+    def wrote(self, n: int) -> None:
+        """``n`` packets were just written (by :meth:`__call__`, or by a
+        :class:`Chain` calling :attr:`write` itself): they join the run
+        under way, or start one, ending now."""
         arrival = self.out.arrival
         if arrival != self.run_arrival or not self.run:
             self.flush()
             self.run_arrival = arrival
-        self.run += 1
+        self.run += n
         self.run_done = self.now()
 
 
@@ -594,6 +600,7 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
         clock = time.perf_counter
         trio_now = now or trio.lowlevel.current_clock().current_time  # trio.current_time() without its lookups
         push, add = graph.push, out.add
+        chain = graph.chain_of(sid)
         max_events = batch.max_events
         last_yield = clock()
         arrival = trio_now()
@@ -664,18 +671,34 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                             st.packets_out += 1
                             out.arrival = arrival
                             add(push(sid, pkt), arrival)
+                        elif chain is not None and pkt.kind is _EVENTS:
+                            # cut (event by event: a piece per timestamp) and pushed through the
+                            # chain of operators _CHECK_EVERY + 1 pieces at a time; a packet cut
+                            # in many pieces yields on the same schedule as any: what it delivered
+                            # is written and freed while young, not held to the packet's end
+                            pieces = pkt.batches(max_events)
+                            while True:
+                                out.arrival = arrival
+                                k, got = chain.run(pieces, _CHECK_EVERY + 1)
+                                st.packets_out += k
+                                if got:  # (sinks written inline leave nothing to hand over)
+                                    add(got, arrival)
+                                if k <= _CHECK_EVERY:
+                                    break
+                                if sliced and clock() - last_yield > _SLICE_S:
+                                    await out.flush()
+                                    await checkpoint()
+                                    last_yield = clock()
+                                    arrival = trio_now()
                         else:
                             k = 0
                             for piece in pkt.batches(max_events):
                                 st.packets_out += 1
                                 out.arrival = arrival
                                 got = push(sid, piece)
-                                if got:  # (sinks written inline leave nothing to hand over)
+                                if got:
                                     add(got, arrival)
                                 k += 1
-                                # a packet cut in many pieces (event by event) yields on the same
-                                # schedule: what it delivered is written and freed while young,
-                                # not held to the packet's end (and promoted by the GC)
                                 if sliced and not k & _CHECK_EVERY and clock() - last_yield > _SLICE_S:
                                     await out.flush()
                                     await checkpoint()
