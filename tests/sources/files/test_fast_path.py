@@ -16,7 +16,7 @@ from tectum import EventPacket, FormatError, concat
 from tectum.sinks.files import SINKS
 from tectum.sinks.files._common import write_all
 from tectum.sources.files import _kernels as K
-from tectum.sources.files import open_file
+from tectum.sources.files import open_file, prophesee
 from tectum.sources.files._common import ColumnPool
 
 EXT = {"text": ".txt", "aedat4": ".aedat4", "evt2": ".raw", "evt3": ".evt3.raw", "dat": ".dat"}
@@ -103,11 +103,12 @@ def test_error_offset_from_a_later_chunk(tmp_path: Path, files) -> None:
 
 @pytest.mark.parametrize(("what", "at"), [(w, a) for w in ("time", "x", "y") for a in (0, 1, 127, 128, 129, 2999)
                                            if (w, a) != ("time", 0)])  # the first time has nothing before it
-def test_dat_bad_record_at_any_chunk_boundary(tmp_path: Path, files, what: str, at: int) -> None:
+def test_dat_bad_record_at_any_chunk_boundary(tmp_path: Path, files, what: str, at: int, monkeypatch) -> None:
     """A DAT record whose time goes back or whose x or y lies outside the
     sensor is found (offset, skip_bad count) wherever it falls against the
     chunks the records are read and decoded in (128, 129, 256 records or
-    all): the decoder's bounds that spare the check pass never hide it."""
+    all; in one chunk, reads of 128 or 129 records): the decoder's bounds
+    that spare the check pass never hide it."""
     data = bytearray(files["dat"].read_bytes())
     start = len(data) - 3000 * 8
     rec = start + 8 * at
@@ -119,7 +120,9 @@ def test_dat_bad_record_at_any_chunk_boundary(tmp_path: Path, files, what: str, 
         data[rec + 4:rec + 8] = word.to_bytes(4, "little")
     f = tmp_path / "bad.dat"
     f.write_bytes(bytes(data))
-    for chunk in (1 << 20, 256 * 8, 129 * 8, 128 * 8):
+    for chunk, read in ((1 << 20, 1 << 19), (256 * 8, 1 << 19), (129 * 8, 1 << 19), (128 * 8, 1 << 19),
+                        (1 << 20, 128 * 8), (1 << 20, 129 * 8)):
+        monkeypatch.setattr(prophesee, "_DAT_READ", read)
         with pytest.raises(FormatError, match="decreases" if what == "time" else "outside") as e:
             list(open_file(str(f), chunk_bytes=chunk).packets())
         assert e.value.offset == rec
