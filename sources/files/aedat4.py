@@ -43,6 +43,8 @@ _READ_BYTES = 1 << 22
 _GAP = 1 << 16
 #: Events decoded into one set of columns, at most (unless one packet holds more).
 _RUN_EVENTS = 1 << 22
+#: Bytes of decompressed packets a thread takes at least.
+_PART_BYTES = 1 << 19
 
 
 @dataclass
@@ -519,7 +521,7 @@ class _Batch:
         the columns, which are then closed up."""
         assert self.asm is not None
         room = rows[:, 5] // 16
-        w = max(1, min(self.src.threads, rows.shape[0], int(rows[:, 5].sum()) >> 19))  # parts of 512 KiB or more
+        w = max(1, min(self.src.threads, rows.shape[0], int(rows[:, 5].sum()) // _PART_BYTES))
         cuts = [round(rows.shape[0] * i / w) for i in range(w + 1)]
         at = [int(room[:c].sum()) for c in cuts]
         cols = self.asm.reserve(at[-1])

@@ -132,6 +132,35 @@ def test_bad_packet_is_named_or_skipped(tmp_path: Path, compiled: bool, threads:
     assert _same(got, want) and src.skipped_events == PER_PACKET == len(ev) - len(got)
 
 
+@pytest.mark.parametrize("what", ["time", "x", "y"])
+def test_bad_event_found_on_every_path(tmp_path: Path, compiled: bool, what: str, monkeypatch) -> None:
+    """An event whose time goes back or whose x or y lies outside the sensor
+    is named by its packet's offset wherever it lies: inside a packet, first
+    of a packet, of a run, of a thread's part (whose columns are closed up
+    before the check)."""
+    monkeypatch.setattr(aedat4, "_PART_BYTES", 1 << 12)  # parts of a few packets: many threads' parts meet
+    ev = _events()
+    for k in (1, 700, 1400, 3000, 30_000, len(ev) - 1):
+        t, x, y = ev.t.copy(), ev.x.copy(), ev.y.copy()
+        if what == "time":
+            t[k:] -= t[k] - t[k - 1] + 1  # the time falls by 1 µs at k, in order after it
+        elif what == "x":
+            x[k] = 64
+        else:
+            y[k] = 48
+        parts = [EventPacket(c[0], c[1], c[2], c[3], sensor=(64, 48))  # unchecked, as a corrupt file holds
+                 for c in ((t[:k], x[:k], y[:k], ev.p[:k]), (t[k:], x[k:], y[k:], ev.p[k:]))]
+        f = tmp_path / f"b{k}.aedat4"
+        write_all(SINK(str(f), packet_events=PER_PACKET), parts)  # a packet starts at k
+        starts = np.cumsum([0] + [e.elements for e in Aedat4Source(str(f)).packet_table() if e.stream == 0])
+        at = _packet_at(f, int(np.flatnonzero(starts == k)[0]))[0]
+        for threads, run in ((1, 1 << 22), (2, 1 << 22), (2, 3000)):
+            monkeypatch.setattr(aedat4, "_RUN_EVENTS", run)
+            with pytest.raises(FormatError, match="decreases" if what == "time" else "outside") as e:
+                _read(f, threads=threads)
+            assert e.value.offset == at, (k, threads, run)
+
+
 def test_frame_kinds_found_by_the_scan(tmp_path: Path) -> None:
     """What the packet scan calls a plain LZ4 frame (decoded in compiled
     code): single and linked blocks, with or without the content size; not
