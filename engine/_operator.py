@@ -26,6 +26,7 @@ sharding).
 from __future__ import annotations
 
 import copy
+import enum
 import inspect
 from collections.abc import AsyncIterator, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -129,8 +130,14 @@ class Operator:
         """Compile kernels before the first packet, so the first packet of a
         control loop is not slowed by compilation. The default runs a copy
         of the operator on a few synthetic events (one-input event
-        operators) and discards it; override it where that is not right."""
+        operators) and discards it, once per process for operators of the
+        same class and settings (:func:`_settings`: kernels compiled once
+        stay compiled; a pipeline built per run pays it once); override it
+        where that is not right."""
         if self.inputs is not None or Kind.EVENTS not in self.consumes:
+            return
+        key = _settings(self)
+        if key is not None and key in _WARMED:
             return
         try:
             twin = copy.deepcopy(self)
@@ -145,10 +152,38 @@ class Operator:
             twin.process(pkt)
             twin.finish()
         except Exception:  # warming up is best effort: the real run reports real errors
-            pass
+            return
+        if key is not None and len(_WARMED) < 4096:
+            _WARMED.add(key)
 
     def __repr__(self) -> str:
         return f"<{self.name or type(self).__name__}>"
+
+
+#: Operators' settings (:func:`_settings`) whose default warm-up has run in this process.
+_WARMED: set[Any] = set()
+_PLAIN = (bool, int, float, complex, str, bytes, type(None), np.dtype, np.generic)
+
+
+def _settings(op: Operator) -> Any:
+    """What an operator's kernels can depend on, as a hashable key: its
+    class and its attributes, plain values (numbers, strings, dtypes, enums,
+    tuples of them) as they are, arrays by dtype and dimensions, anything
+    else by type; None for an operator without ``__dict__``."""
+    state = getattr(op, "__dict__", None)
+    if state is None:
+        return None
+    return (type(op), tuple((k, _setting(v)) for k, v in sorted(state.items())))
+
+
+def _setting(v: Any) -> Any:
+    if isinstance(v, _PLAIN) or isinstance(v, enum.Enum):
+        return v
+    if isinstance(v, np.ndarray):
+        return (np.ndarray, v.dtype, v.ndim)
+    if isinstance(v, tuple) and all(isinstance(x, _PLAIN) for x in v):
+        return v
+    return type(v)
 
 
 class Source:

@@ -15,7 +15,7 @@ from __future__ import annotations
 import os
 import tomllib
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Literal
 
@@ -460,8 +460,9 @@ def _validate(p: Pipeline, reg: Registry) -> Plan:
     for nid in order:
         for i in nodes[nid].inputs:
             children[i].append(nid)
-    final = {nid: replace(n, children=tuple(children[nid])) for nid, n in nodes.items()}
-    return Plan(MappingProxyType(final), tuple(order), p.batch, loops)
+    for nid, n in nodes.items():  # the children, now known (a frozen dataclass: set once, as replace() would)
+        object.__setattr__(n, "children", tuple(children[nid]))
+    return Plan(MappingProxyType(nodes), tuple(order), p.batch, loops)
 
 
 def _loops(specs: Mapping[str, NodeSpec], inputs_of: Mapping[str, tuple[str, ...]],
@@ -479,6 +480,8 @@ def _loops(specs: Mapping[str, NodeSpec], inputs_of: Mapping[str, tuple[str, ...
                                 "undelayed input to the node (whose stream starts the delayed one's)")
     _toposort(specs, {n: tuple(i for i in ins if (n, i) not in delayed) for n, ins in inputs_of.items()},
               loop_hint=True)
+    if not delayed:  # no cycle without a delayed edge: none at all
+        return (), set()
     comps = _strongly_connected(list(specs), inputs_of)
     loops: list[tuple[str, ...]] = []
     feedback: set[tuple[str, str]] = set()
