@@ -12,6 +12,7 @@ from .errors import PacketError
 __all__ = ["Guard", "Repair"]
 
 _EVENTS = Kind.EVENTS
+_NONE = -(1 << 63)  # no events mark yet (below any int64 µs)
 
 
 class Guard:
@@ -28,13 +29,13 @@ class Guard:
     def __init__(self, source: str) -> None:
         self.source = source
         self._marks: dict[str, int] = {}
+        self._events_mark = _NONE  # the events' mark, also in _marks (one attribute read on the hot path)
 
     def __call__(self, pkt: Packet) -> Packet:
-        if type(pkt) is EventPacket and pkt._checked:  # validated by the source: only the order to see
-            prev = self._marks.get(_EVENTS)
-            if prev is None or pkt.t_start >= prev:
-                self._marks[_EVENTS] = pkt.t_end
-                return pkt
+        if type(pkt) is EventPacket and pkt._checked and pkt.t_start >= self._events_mark:
+            # validated by the source: only the order to see
+            self._marks[_EVENTS] = self._events_mark = pkt.t_end
+            return pkt
         try:
             if isinstance(pkt, EventPacket):
                 pkt.validate()
@@ -49,6 +50,8 @@ class Guard:
         except PacketError as e:
             raise PacketError(f"source {self.source!r}: {e}", index=e.index) from None
         self._marks[pkt.kind] = pkt.t_end
+        if pkt.kind is _EVENTS:
+            self._events_mark = pkt.t_end
         return pkt
 
 

@@ -613,7 +613,22 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
         held_base: Any = None
         # other tasks to let run: yield every _SLICE_S of work (run alone: never)
         sliced = checkpoint is not _no_wait
-        async for raw in _read(source, out, st):
+        # A plain source is read here, a packet per loop (no async generator
+        # between: its time inside the source, decoding, counts as its busy
+        # time); what an async source delivered is flushed before each wait.
+        packets = None if source.is_async else iter(source.packets())
+        apackets = source.apackets() if packets is None else None
+        clock_ns = time.perf_counter_ns
+        while True:
+            if packets is not None:
+                t0 = clock_ns()
+                raw = next(packets, None)
+                st.busy_ns += clock_ns() - t0
+            else:
+                await out.flush()
+                raw = await anext(apackets, None)  # type: ignore[arg-type]
+            if raw is None:
+                break
             for pkt in repair(raw) if repair is not None else (raw,):
                 pkt = guard(pkt)
                 if pacer is not None:
@@ -647,13 +662,17 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                 # are slices lying end to end), and slices of any size that continue
                 # the held run end to end in the same arrays (a view: no copy).
                 at = pkt._at if type(pkt) is EventPacket and not pkt.columns else -1
-                extends = at >= 0 and at == held_end and pkt.t.base is held_base
-                if held and held_n + n <= max_events and (extends or (n < small and not held_big)) and (
+                if at == held_end >= 0 and pkt.t.base is held_base and held_n + n <= max_events and (
+                        pkt.sensor is held_sensor or pkt.sensor == held_sensor):  # type: ignore[attr-defined]
+                    held.append(pkt)  # type: ignore[arg-type]  # (at >= 0: an EventPacket without columns)
+                    held_n += n
+                    held_end = at + n  # extends the run
+                elif held and held_n + n <= max_events and n < small and not held_big and (
                         type(pkt) is EventPacket and (pkt.sensor is held_sensor or pkt.sensor == held_sensor) and (
                             pkt.columns is held_cols or pkt.columns.keys() == held_cols.keys())):
                     held.append(pkt)
                     held_n += n
-                    held_end = at + n if extends else -1
+                    held_end = -1
                 else:
                     if held:
                         st.packets_out += 1
@@ -737,29 +756,6 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
             counts = getattr(source, "counts", None)
             if isinstance(counts, dict):
                 st.counters.update({k: v for k, v in counts.items() if isinstance(v, int)})
-
-
-async def _read(source: Source, out: _Outbox, st: Any) -> AsyncIterator[Packet]:
-    """The source's packets; what was delivered is flushed before each wait
-    of an async source (a sync source's caller yields on its own schedule,
-    every ``_SLICE_S``). Time spent inside a file source (decoding) counts
-    as its busy time."""
-    if source.is_async:
-        async for pkt in source.apackets():
-            yield pkt
-            await out.flush()
-        return
-    it = iter(source.packets())
-    clock = time.perf_counter_ns
-    while True:
-        t0 = clock()
-        try:
-            pkt = next(it)
-        except StopIteration:
-            return
-        finally:
-            st.busy_ns += clock() - t0
-        yield pkt
 
 
 _EVENTS = Kind.EVENTS

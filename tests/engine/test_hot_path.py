@@ -146,13 +146,17 @@ def test_slices_know_where_they_lie_so_a_join_needs_no_pointers(monkeypatch: pyt
         join_consecutive(hand)
 
 
-@pytest.mark.parametrize("checked", [False, True])
-def test_a_packet_that_goes_back_in_time_is_stopped_checked_or_not(checked: bool) -> None:
+@pytest.mark.parametrize("checked", [False, True, "first not"])
+def test_a_packet_that_goes_back_in_time_is_stopped_checked_or_not(checked: bool | str) -> None:
     ev = _stream()
     a, b = ev.slice_time(0, 20_000), ev.slice_time(10_000, 30_000)  # b starts before a ends
     if not checked:
         a, b = (EventPacket(q.t, q.x, q.y, q.p, sensor=q.sensor, t_start=q.t_start, t_end=q.t_end) for q in (a, b))
-    assert a.checked is checked and b.checked is checked
+    if checked == "first not":  # the mark set by the full check holds for a checked packet after it
+        a = EventPacket(a.t, a.x, a.y, a.p, sensor=a.sensor, t_start=a.t_start, t_end=a.t_end)
+        assert not a.checked and b.checked
+    else:
+        assert a.checked is checked and b.checked is checked
     p = tectum.Pipeline()
     p.sink(NullSink(), p.source(ListSource([a, b]), id="cam"), id="sink")
     with pytest.raises(tectum.NodeError, match="source 'cam': events packet \\[10000, 30000\\) starts before the "
@@ -267,3 +271,38 @@ def test_big_slices_lying_end_to_end_go_in_as_one_view_others_as_they_are() -> N
             assert all(len(q) <= 5 * _SMALL and np.shares_memory(q.t, ev.t) for q in op.seen)
         else:  # separate arrays of _SMALL events or more: each goes in as it is (no copy)
             assert len(op.seen) == len(packets) and all(a.t is b.t for a, b in zip(op.seen, packets))
+
+
+class _Counted(tectum.Operator):
+    """Counts the calls of every copy (the default warm-up runs a copy)."""
+
+    name = "filter.counted_hot_path_test"
+    calls: list[tuple[str, int]] = []
+
+    def __init__(self, mode: str = "a", width: int = 1) -> None:
+        self.mode, self.width = mode, width
+
+    def process(self, packet: EventPacket) -> list[EventPacket]:
+        _Counted.calls.append((self.mode, len(packet)))
+        return [packet]
+
+
+def test_the_default_warmup_runs_once_per_class_and_settings() -> None:
+    """A pipeline built per run warms an operator up once per process for
+    each class and settings (its kernels stay compiled), and again for
+    other settings; the run itself is untouched."""
+    ev = _stream(50)
+
+    def run(op: tectum.Operator) -> list[tuple[str, int]]:
+        _Counted.calls = []
+        p = tectum.Pipeline()
+        p.sink(NullSink(), p.op(op, p.source(ListSource([ev]))))
+        tectum.run(p)
+        return _Counted.calls
+
+    warm = run(_Counted("first-run"))  # the warm-up's 16 synthetic events, then the stream
+    assert warm == [("first-run", 16), ("first-run", 50)]
+    assert run(_Counted("first-run")) == [("first-run", 50)]
+    assert run(_Counted("first-run", width=2)) == [("first-run", 16), ("first-run", 50)]  # other settings
+    assert run(_Counted("other")) == [("other", 16), ("other", 50)]
+    assert run(_Counted("first-run", width=2)) == [("first-run", 50)]
