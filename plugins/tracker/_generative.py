@@ -121,23 +121,27 @@ def splat(ux, uy, p, c, sigma, img):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def event_weights(x, y, t, p, c, last, tlast, dtp, out):  # type: ignore[no-untyped-def]
+def event_weights(x, y, t, p, c, last, tlast, dtp, out, first=1.5):  # type: ignore[no-untyped-def]
     """Each event's share of the brightness increment, in order: ``c p``
     plus ``c/2 (p - p_prev)``, ``p_prev`` the polarity of the pixel's
-    previous event (0 before its first; ``last`` (H, W) int8 keeps them
-    and is updated). The second term models the change still below the
+    previous event (``last`` (H, W) int8 keeps them and is updated; 0
+    before its first). The second term models the change still below the
     threshold at a batch's end: after an event of polarity ``p`` a pixel
     whose brightness keeps moving holds on average ``c/2`` more, unseen; the
     sum over a window telescopes to ``c/2 (p_last(end) - p_last(start))``,
     so the increments of a window are not biased towards a lag of half a
     threshold (:func:`residue_image` refines that ``c/2`` by the time since
-    the pixel's last event). ``tlast`` (H, W) int64 gets each pixel's last
-    event time (µs), ``dtp`` (H, W) int64 the interval from the event before
-    it when both had this polarity, else -1."""
+    the pixel's last event). A pixel's first event weighs ``first c p``:
+    1.5 (a threshold and the half after it) when the pixel started at its
+    reference level, as a simulation from rest does; 1 when the sensor was
+    running and the part of that threshold crossed before the start is
+    unknown (half a threshold expected). ``tlast`` (H, W) int64 gets each
+    pixel's last event time (µs), ``dtp`` (H, W) int64 the interval from the
+    event before it when both had this polarity, else -1."""
     h = 0.5 * c
     for k in range(x.shape[0]):
         q = last[y[k], x[k]]
-        out[k] = c * p[k] + h * (p[k] - q)
+        out[k] = c * p[k] + (h * (p[k] - q) if q != 0 else (first - 1.0) * c * p[k])
         dtp[y[k], x[k]] = t[k] - tlast[y[k], x[k]] if q == p[k] else -1
         tlast[y[k], x[k]] = t[k]
         last[y[k], x[k]] = p[k]
