@@ -28,30 +28,32 @@ class Guard:
 
     def __init__(self, source: str) -> None:
         self.source = source
-        self._marks: dict[str, int] = {}
-        self._events_mark = _NONE  # the events' mark, also in _marks (one attribute read on the hot path)
+        self._marks: dict[str, int] = {}  # other kinds'
+        #: where the last events packet ended (µs; below any time before
+        #: the first): the next one may not start before it
+        self.events_mark = _NONE
 
     def __call__(self, pkt: Packet) -> Packet:
-        if type(pkt) is EventPacket and pkt._checked and pkt.t_start >= self._events_mark:
-            # validated by the source: only the order to see
-            self._marks[_EVENTS] = self._events_mark = pkt.t_end
+        if type(pkt) is EventPacket and pkt._checked and pkt.t_start >= self.events_mark:
+            self.events_mark = pkt.t_end  # validated by the source: only the order to see
             return pkt
         try:
             if isinstance(pkt, EventPacket):
                 pkt.validate()
             else:
                 pkt._check_times()
-            prev = self._marks.get(pkt.kind)
-            if prev is not None and pkt.t_start < prev:
+            prev = self.events_mark if pkt.kind is _EVENTS else self._marks.get(pkt.kind, _NONE)
+            if pkt.t_start < prev:
                 raise PacketError(
                     f"{pkt.kind} packet [{pkt.t_start}, {pkt.t_end}) starts before the previous one "
                     f"ended ({prev} µs): time went backwards"
                 )
         except PacketError as e:
             raise PacketError(f"source {self.source!r}: {e}", index=e.index) from None
-        self._marks[pkt.kind] = pkt.t_end
         if pkt.kind is _EVENTS:
-            self._events_mark = pkt.t_end
+            self.events_mark = pkt.t_end
+        else:
+            self._marks[pkt.kind] = pkt.t_end
         return pkt
 
 

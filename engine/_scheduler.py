@@ -619,8 +619,16 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
         packets = None if source.is_async else iter(source.packets())
         apackets = source.apackets() if packets is None else None
         clock_ns = time.perf_counter_ns
+        # a plain source's slices that continue the held run are taken in an
+        # inner loop, one test each (see below); the first that does not is
+        # handled here next (``ahead``)
+        runs = packets is not None and repair is None and pacer is None
+        ahead: Packet | None = None
+        raw: Packet | None
         while True:
-            if packets is not None:
+            if ahead is not None:
+                raw, ahead = ahead, None
+            elif packets is not None:
                 t0 = clock_ns()
                 raw = next(packets, None)
                 st.busy_ns += clock_ns() - t0
@@ -667,6 +675,27 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                     held.append(pkt)  # type: ignore[arg-type]  # (at >= 0: an EventPacket without columns)
                     held_n += n
                     held_end = at + n  # extends the run
+                    if runs:
+                        # The slices after it, while they continue the run: what the
+                        # branch above and the guard test, in one expression (checked
+                        # events slices of the same arrays, the next index, the same
+                        # sensor, not before the last one's end, room left). Their
+                        # time, reading included, is the source's busy time.
+                        t0 = clock_ns()
+                        ran = 0
+                        for q in packets:  # type: ignore[union-attr]
+                            if (type(q) is not EventPacket or q._at != held_end or not q._checked or q.columns
+                                    or q.t.base is not held_base or q.sensor is not held_sensor
+                                    or q.t_start < guard.events_mark or held_n + (m := q.t.shape[0]) > max_events):
+                                ahead = q
+                                break
+                            guard.events_mark = q.t_end
+                            held.append(q)
+                            held_n += m
+                            held_end += m
+                            ran += m
+                        st.events_out += ran
+                        st.busy_ns += clock_ns() - t0
                 elif held and held_n + n <= max_events and n < small and not held_big and (
                         type(pkt) is EventPacket and (pkt.sensor is held_sensor or pkt.sensor == held_sensor) and (
                             pkt.columns is held_cols or pkt.columns.keys() == held_cols.keys())):

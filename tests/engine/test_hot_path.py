@@ -306,3 +306,75 @@ def test_the_default_warmup_runs_once_per_class_and_settings() -> None:
     assert run(_Counted("first-run", width=2)) == [("first-run", 16), ("first-run", 50)]  # other settings
     assert run(_Counted("other")) == [("other", 16), ("other", 50)]
     assert run(_Counted("first-run", width=2)) == [("first-run", 50)]
+
+
+def _slices_with_a_gap() -> tuple[EventPacket, list[EventPacket]]:
+    """A checked stream with no events in [40 000, 41 000) µs, cut in 100 µs slices."""
+    ev = _stream(4000)
+    keep = (ev.t < 40_000) | (ev.t >= 41_000)
+    ev = EventPacket(ev.t[keep], ev.x[keep], ev.y[keep], ev.p[keep], sensor=ev.sensor, t_start=0,
+                     t_end=50_000).validate()
+    return ev, [ev.slice_time(a, a + 100) for a in range(0, 50_000, 100)]
+
+
+@pytest.mark.parametrize("trio", [False, True])
+def test_a_run_of_slices_is_taken_whole_with_whatever_breaks_it(trio: bool) -> None:
+    """Slices of one packet lying end to end are taken one after another
+    into a run (views, up to max_events); a slice of another sensor object,
+    an unchecked copy, an IMU packet, a slice with columns each end the run
+    or go in as the plain path would, and the output is the stream."""
+    ev, cuts = _slices_with_a_gap()
+    imu = tectum.ImuPacket(np.array([20_050]), gyro=np.zeros((1, 3)), accel=np.zeros((1, 3)), t_start=20_000,
+                           t_end=20_100)
+    odd = cuts[:100]  # the plain run
+    q = cuts[100]
+    odd.append(EventPacket._trusted(q.t, q.x, q.y, q.p, (64, 49), q.t_start, q.t_end, {}, True, q._at))  # other sensor
+    odd += cuts[101:150]
+    q = cuts[150]
+    odd.append(EventPacket(q.t.copy(), q.x.copy(), q.y.copy(), q.p.copy(), sensor=q.sensor, t_start=q.t_start,
+                           t_end=q.t_end))  # not checked: the guard's full check
+    odd += cuts[151:200]
+    odd.append(imu.slice_time(20_000, 20_000))  # an empty IMU packet between two slices
+    odd += cuts[200:300]
+    odd.append(cuts[300].with_columns(w=np.zeros(len(cuts[300]))))
+    odd += cuts[301:]
+    op, sink = _Seen(), tectum.testing.ListSink()
+    p = tectum.Pipeline(max_events=700)
+    up = p.op(op, p.source(ListSource(odd, produces=[tectum.Kind.EVENTS, tectum.Kind.IMU]), id="src"))
+    p.sink(sink, up, id="sink")
+    if trio:  # a second source: tasks under trio
+        p.sink(tectum.testing.ListSink(), p.source(ListSource([ev]), id="other"))
+    stats = tectum.run(p)
+    got = [q for q in sink.packets if isinstance(q, EventPacket)]
+    tectum.testing.assert_streams_equal([ev], [q.without_columns("w") if q.columns else q for q in got])
+    assert all(len(q) <= 700 for q in op.seen) and len(op.seen) < len(odd) // 3
+    assert sum(np.shares_memory(q.t, ev.t) for q in op.seen) > len(op.seen) - 4  # runs are views of the whole
+    assert stats.nodes["src"].events_out == len(ev) and stats.nodes["src"].busy_ns > 0
+    assert [len(q) for q in op.seen if q.sensor == (64, 49)] == [len(cuts[100])]  # went in alone
+
+
+@pytest.mark.parametrize("case", ["back in time", "not checked"])
+def test_a_slice_that_continues_the_arrays_is_still_guarded(case: str) -> None:
+    """A slice at the next index of the same arrays is refused inside a
+    run as anywhere when its interval starts before the last one's end (the
+    events between are none), and checked in full when it is not marked
+    checked (here an event past the sensor)."""
+    ev, cuts = _slices_with_a_gap()
+    i = next(k for k, q in enumerate(cuts) if q.t_start == 40_500)
+    if case == "back in time":
+        bad = ev.slice_time(40_300, 41_500)  # next index after cuts[i - 1] (no events in [40 000, 41 000))
+        assert bad._at == cuts[i - 1]._at + len(cuts[i - 1]) and bad.t_start < cuts[i - 1].t_end
+        message = "source 'cam': events packet \\[40300, 41500\\) starts before the previous one ended \\(40500 µs\\)"
+    else:
+        x = ev.x.copy()
+        q = ev.slice_time(41_000, 41_500)
+        x[q._at] = 64  # past the 64-px-wide sensor
+        cuts = [EventPacket._trusted(c.t, x[c._at:c._at + len(c)], c.y, c.p, c.sensor, c.t_start, c.t_end, {}, True,
+                                     c._at) for c in cuts]  # marked checked (the bad event is not in them)
+        bad = EventPacket._trusted(q.t, x[q._at:q._at + len(q)], q.y, q.p, q.sensor, 40_500, 41_500, {}, False,
+                                   q._at)
+        message = "source 'cam'.*x"
+    p = tectum.Pipeline()
+    p.sink(NullSink(), p.op(_Seen(), p.source(ListSource(cuts[:i] + [bad]), id="cam")), id="sink")
+    with pytest.raises(tectum.NodeError, match=message):
+        tectum.run(p)
