@@ -1,0 +1,110 @@
+"""EVO on the bench's plane from several start times: the measurement behind
+``docs/evo.md`` (single runs of the loop are noisy: 13-29 % of the path from
+one start to the next with the same settings).
+
+One simulation of ``PLANE`` (seed 1, 240x180) as long as the last start
+needs; per start, either
+
+* ``loop``: :func:`~tectum.evaluation.suites._pose_evo.evo_loop` (tracker and
+  mapper) bootstrapped with ``boot_us`` of the true poses, then ``tracked_us``
+  alone; or
+* ``alone``: ``tracker.edge_align`` bootstrapped the same way, against the
+  maps ``map.emvs`` made from the true poses of the whole simulation (made
+  once), so only the tracker's own error counts;
+
+scored as the bench scores (position RMSE over the path, %, the rotation's
+median error, the share of lost rows).
+
+From a shell (JSON for the parameters that differ from the bench's)::
+
+    python -m tectum.evaluation.suites._pose_evo_spread loop
+    python -m tectum.evaluation.suites._pose_evo_spread alone --mapper '{"keyframe_baseline": 0.1}'
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from tectum import MapPacket, Packet, PosePacket, concat
+from tectum.evaluation.suites._pose_evo import MAPPERS, PLANE, TRACKER, evo_loop, scores, simulate
+from tectum.plugins.map.emvs import Emvs
+from tectum.plugins.tracker.edge_align import EdgeAlign
+from tectum.testing import feed_ports
+
+__all__ = ["spread", "LOOP_STARTS_S", "ALONE_STARTS_S"]
+
+#: start times of the loop (s): 0.3 s of bootstrap, then 2 s tracked
+LOOP_STARTS_S = (0.0, 1.0, 1.7, 0.5, 1.3, 2.0)
+#: start times of the tracker alone (s): 0.1 s of bootstrap before, then 0.7 s tracked
+ALONE_STARTS_S = (0.4, 0.9, 1.4, 1.9, 2.4, 2.9)
+
+
+def spread(mode: str, starts_s: Sequence[float] | None = None, tracked_us: int | None = None,
+           boot_us: int | None = None, tracker: dict[str, Any] | None = None, mapper: dict[str, Any] | None = None,
+           scene: dict[str, Any] | None = None, duration_us: int | None = None) -> list[dict[str, Any]]:
+    """One row per start (``start_s``, ``pos_pct``, ``rot_median_deg``,
+    ``lost``, ``path_m``, ...) of ``mode`` ``"loop"`` or ``"alone"`` (see the
+    module) with the bench's tracker and plane mapper parameters updated by
+    ``tracker`` and ``mapper``. Defaults: the loop 0.3 s of bootstrap
+    from each start then 2 s; alone 0.1 s of bootstrap ending at each start
+    then 0.7 s. ``duration_us`` (µs) cuts the simulation short (every run
+    ends with it at the latest)."""
+    if mode not in ("loop", "alone"):
+        raise ValueError(f"spread: mode is 'loop' or 'alone', got {mode!r}")
+    loop = mode == "loop"
+    starts = [int(s * 1e6) for s in (starts_s if starts_s is not None else
+                                      (LOOP_STARTS_S if loop else ALONE_STARTS_S))]
+    tracked = tracked_us if tracked_us is not None else (2_000_000 if loop else 700_000)
+    boot = boot_us if boot_us is not None else (300_000 if loop else 100_000)
+    trk = {**TRACKER, **(tracker or {})}
+    mpr = {**MAPPERS["plane"], **(mapper or {})}
+    end = max(starts) + tracked + (boot if loop else 0)
+    ev, truth, calib = simulate(scene or PLANE, min(end, duration_us) if duration_us else end)
+    maps: list[Packet] = []
+    if not loop:
+        mp = Emvs(calib=calib, **mpr)
+        made = [q for q in feed_ports(mp, {"events": [ev], "poses": [truth]}) if isinstance(q, MapPacket)]
+        maps = [concat(made)] if made else []
+    rows = []
+    for s in starts:
+        est: Packet
+        if loop:
+            a, b, t_from = s, s + boot + tracked, s + boot
+            est, _, _, _, _ = evo_loop(ev.slice_time(a, b), truth.slice_time(a, b), calib, boot, tracker=trk,
+                                       mapper=mpr)
+        else:
+            a, b, t_from = s - boot, s + tracked, s
+            op = EdgeAlign(calib=calib, bootstrap_us=boot, **trk)
+            out = feed_ports(op, {"events": [ev.slice_time(a, b)], "poses": [truth.slice_time(a, b)], "maps": maps})
+            poses = [q for q in out if isinstance(q, PosePacket)]
+            est = concat(poses) if poses else PosePacket.empty(a, b)
+        assert isinstance(est, PosePacket)
+        rows.append({"start_s": s * 1e-6, **scores(est, truth.slice_time(a, b), t_from)})
+    return rows
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(prog="python -m tectum.evaluation.suites._pose_evo_spread",
+                                 description="EVO on the bench's plane from several start times (see the module)")
+    ap.add_argument("mode", choices=("loop", "alone"))
+    ap.add_argument("--tracker", default="{}", help="tracker.edge_align parameters (JSON) over the bench's")
+    ap.add_argument("--mapper", default="{}", help="map.emvs parameters (JSON) over the bench's plane mapper")
+    ap.add_argument("--starts", type=float, nargs="*", help="start times, s")
+    args = ap.parse_args(argv)
+    rows = spread(args.mode, args.starts, tracker=json.loads(args.tracker), mapper=json.loads(args.mapper))
+    for r in rows:
+        print(f"start {r['start_s']:.1f} s: position RMSE {r['pos_pct']:.1f} % of {r['path_m']:.2f} m, rotation "
+              f"median {r['rot_median_deg']:.2f} deg, lost {100 * r['lost']:.0f} %")
+    pos = np.array([r["pos_pct"] for r in rows])
+    rot = np.array([r["rot_median_deg"] for r in rows])
+    print(f"mean: position RMSE {np.nanmean(pos):.1f} % of the path (median {np.nanmedian(pos):.1f} %), rotation "
+          f"median {np.nanmean(rot):.2f} deg")
+
+
+if __name__ == "__main__":
+    main()
