@@ -21,19 +21,26 @@ view around ``m``), so the predicted increment at ``u1`` is
 linearisation, so the camera may move several pixels from the reference
 view (at the map's own view ``m' = u1``: exact).
 
-**Silent pixels.** A pixel with no event yet, or none for twice its last
-interval, has a change since its last event that its timing cannot tell,
-only bound: it did not fire, so ``|ΔL| < C`` since that event. For such
-a pixel the observation is the model's own change within that bound,
-``ΔL_obs + clip(ΔL_pred - ΔL_obs, -C, C)`` (``ΔL_obs`` holding the last
-event's level): no residual while the model keeps it below the
-threshold, the excess when the model says it should have fired. At a
-point between firing and silent pixels (share ``q`` of silent ones,
-sampled bilinearly), ``q`` of it is so treated (``r = (1 - q)(ΔL_obs -
-ΔL_pred)`` inside the bound). A pixel silent since before a reference view other
-than the start is held to ``C`` from that view's level too (its level
-there taken as its last event's; ``2C``, the strict bound, measured no
-different).
+**Silent pixels.** A pixel with no event yet has a change that no timing
+can tell, only bound: it did not fire, so ``|ΔL| < C`` since the start.
+For such a pixel the observation is the model's own change within that
+bound, ``ΔL_obs + clip(ΔL_pred - ΔL_obs, -C, C)``: no residual while the
+model keeps it below the threshold, the excess when the model says it
+should have fired. At a point between firing and silent pixels (share
+``q`` of silent ones, sampled bilinearly), ``q`` of it is so treated
+(``r = (1 - q)(ΔL_obs - ΔL_pred)`` inside the bound). On a sensor that
+started from rest the bound is exact (every pixel at its reference
+level); on a running one each pixel had crossed an unknown part of its
+threshold before the start, so its silence says less: there a pixel
+without events counts as ``unfired`` of a silent one (the rest of it
+holds its observed 0, at ``(1 - unfired)²`` of a firing pixel's weight).
+A pixel silent past twice its last interval holds its last event's level
+(its timed estimate falls to that), counted as a firing pixel: counted
+silent too, it cost accuracy on simulated sensors with a refractory
+period and timing jitter, whose short bursts make the last interval short. A pixel silent since before a
+reference view other than the start is held to ``C`` from that view's
+level too (its level there taken as its last event's; ``2C``, the strict
+bound, measured no different).
 
 **Estimation.** ``T1 = T1 exp(δ)`` (δ = (ω, v), camera frame) minimises a
 robust sum over the map's points of ``r = ΔL_obs(u1) - ΔL_pred`` by
@@ -159,7 +166,7 @@ def _residue(p, tl, d, t_now, c):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def residue_image(last, tlast, dtp, t_now, c, base, out, quiet):  # type: ignore[no-untyped-def]
+def residue_image(last, tlast, dtp, t_now, c, base, out, quiet, unfired=1.0):  # type: ignore[no-untyped-def]
     """``out`` (H, W): the sub-threshold change of each pixel at ``t_now``
     (µs) beyond the ``c/2`` of :func:`event_weights`, log intensity, less
     ``base`` (H, W; e.g. the same at the reference view). A pixel
@@ -172,10 +179,11 @@ def residue_image(last, tlast, dtp, t_now, c, base, out, quiet):  # type: ignore
     has left (at a turn of the camera) no longer claims a change it does
     not have.
 
-    The pixels whose change this cannot tell, those without an event yet
-    and those past twice their interval (their estimate is their last
-    event's level), get 1 in ``quiet`` (H, W; 0 elsewhere; empty: not
-    computed)."""
+    The pixels whose change this cannot tell, those without an event yet,
+    get ``unfired`` in ``quiet`` (H, W; their share of a silent pixel, see
+    the module; 0 elsewhere; empty: not computed). A pixel past twice its
+    interval is not among them: its estimate, its last event's level, is
+    as good as a firing pixel's."""
     H, W = out.shape
     with_quiet = quiet.shape[0] > 0
     for y in range(H):
@@ -185,7 +193,7 @@ def residue_image(last, tlast, dtp, t_now, c, base, out, quiet):  # type: ignore
             d = dtp[y, x]
             out[y, x] = _residue(p, tl, d, t_now, c) - base[y, x]
             if with_quiet:
-                quiet[y, x] = 1.0 if p == 0 or (d > 0 and t_now - tl >= 2 * d) else 0.0
+                quiet[y, x] = unfired if p == 0 else 0.0
 
 
 @njit(cache=True, nogil=True)
