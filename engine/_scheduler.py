@@ -26,7 +26,7 @@ from ._boundary import Guard, Repair
 from ._edge import Edge
 from ._graph import END, Delivery, Graph
 from ._operator import Sink, Source
-from ._packet import EventPacket, Kind, Packet, join_consecutive
+from ._packet import _NO_COLUMNS, EventPacket, Kind, Packet, join_consecutive
 from ._pipeline import BatchPolicy, EdgePolicy, Pipeline, Plan
 from ._registry import Registry
 from ._stats import LatencyRecorder, Stats
@@ -611,6 +611,8 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
         held_sensor: Any = None
         held_cols: Any = None
         held_base: Any = None
+        held_owners: Any = None  # the owners of the run's x, y, p (its t's: held_base)
+        held_checked = False  # every packet of the run is checked
         # other tasks to let run: yield every _SLICE_S of work (run alone: never)
         sliced = checkpoint is not _no_wait
         # A plain source is read here, a packet per loop (no async generator
@@ -671,10 +673,13 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                 # the held run end to end in the same arrays (a view: no copy).
                 at = pkt._at if type(pkt) is EventPacket and not pkt.columns else -1
                 if at == held_end >= 0 and pkt.t.base is held_base and held_n + n <= max_events and (
-                        pkt.sensor is held_sensor or pkt.sensor == held_sensor):  # type: ignore[attr-defined]
+                        pkt.sensor is held_sensor or pkt.sensor == held_sensor) and (  # type: ignore[attr-defined]
+                        pkt.x.base is held_owners[0] and pkt.y.base is held_owners[1]  # type: ignore[attr-defined]
+                        and pkt.p.base is held_owners[2]):  # type: ignore[attr-defined]
                     held.append(pkt)  # type: ignore[arg-type]  # (at >= 0: an EventPacket without columns)
                     held_n += n
                     held_end = at + n  # extends the run
+                    held_checked = held_checked and pkt._checked  # type: ignore[attr-defined]
                     if runs:
                         # The slices after it, while they continue the run: what the
                         # branch above and the guard test, in one expression (checked
@@ -683,9 +688,11 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                         # time, reading included, is the source's busy time.
                         t0 = clock_ns()
                         ran = 0
+                        bx, by, bp = held_owners
                         for q in packets:  # type: ignore[union-attr]
                             if (type(q) is not EventPacket or q._at != held_end or not q._checked or q.columns
-                                    or q.t.base is not held_base or q.sensor is not held_sensor
+                                    or q.t.base is not held_base or q.x.base is not bx or q.y.base is not by
+                                    or q.p.base is not bp or q.sensor is not held_sensor
                                     or q.t_start < guard.events_mark or held_n + (m := q.t.shape[0]) > max_events):
                                 ahead = q
                                 break
@@ -706,13 +713,15 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                     if held:
                         st.packets_out += 1
                         out.arrival = arrival
-                        add(push(sid, join_consecutive(held)), arrival)
+                        add(push(sid, _join_run(held, held_end, held_owners, held_checked)), arrival)
                         held, held_n, held_end = [], 0, -1
                     if small and type(pkt) is EventPacket and n <= max_events and (n < small or at >= 0):
                         held, held_n, held_big = [pkt], n, n >= small  # starts a run
                         arrival = trio_now()
                         held_sensor, held_cols, held_base = pkt.sensor, pkt.columns, pkt.t.base
                         held_end = at + n if at >= 0 else -1
+                        held_owners = (pkt.x.base, pkt.y.base, pkt.p.base)
+                        held_checked = pkt._checked
                     else:
                         arrival = trio_now()
                         if n <= max_events:  # goes in whole (the usual case: no cutting)
@@ -756,7 +765,7 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                     if held:
                         st.packets_out += 1
                         out.arrival = arrival
-                        add(push(sid, join_consecutive(held)), arrival)
+                        add(push(sid, _join_run(held, held_end, held_owners, held_checked)), arrival)
                         held, held_n, held_end = [], 0, -1
                     await out.flush()
                     await checkpoint()
@@ -765,7 +774,7 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
         if held:
             st.packets_out += 1
             out.arrival = arrival
-            add(push(sid, join_consecutive(held)), arrival)
+            add(push(sid, _join_run(held, held_end, held_owners, held_checked)), arrival)
         if repair is not None:
             for pkt in repair.flush():
                 out.arrival = trio_now()
@@ -785,6 +794,23 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
             counts = getattr(source, "counts", None)
             if isinstance(counts, dict):
                 st.counters.update({k: v for k, v in counts.items() if isinstance(v, int)})
+
+
+def _join_run(held: list[EventPacket], end: int, owners: Any, checked: bool) -> EventPacket:
+    """The packets a source task held, as one. With ``end >= 0`` they are
+    slices lying end to end in the same arrays (t's owner the first's, x's,
+    y's and p's ``owners``, the last ending at index ``end``: the task
+    tested each as it came): one view of those arrays, without looking at
+    each packet again; ``checked`` when every one is. Else
+    :func:`join_consecutive` (a view when it finds one, or a copy)."""
+    first = held[0]
+    if end < 0 or len(held) == 1:
+        return join_consecutive(held)
+    i = first._at
+    ot: Any = first.t.base
+    ox, oy, op = owners
+    return EventPacket._trusted(ot[i:end], ox[i:end], oy[i:end], op[i:end], first.sensor, first.t_start,
+                                held[-1].t_end, _NO_COLUMNS, checked, i)
 
 
 _EVENTS = Kind.EVENTS

@@ -378,3 +378,21 @@ def test_a_slice_that_continues_the_arrays_is_still_guarded(case: str) -> None:
     p.sink(NullSink(), p.op(_Seen(), p.source(ListSource(cuts[:i] + [bad]), id="cam")), id="sink")
     with pytest.raises(tectum.NodeError, match=message):
         tectum.run(p)
+
+
+@pytest.mark.parametrize("column", ["x", "y", "p"])
+def test_slices_at_the_next_index_of_other_arrays_are_not_joined_as_one_view(column: str) -> None:
+    """Slices that continue the index of the same times but take one column
+    from another array (two packets sharing ``t``) go in with their own
+    values: a run is one view only where every column's array is the same."""
+    ev = _stream(3000)
+    other = {"x": (ev.x + 1) % 64, "y": (ev.y + 1) % 48, "p": -ev.p}[column]
+    cols = {k: (other if k == column else getattr(ev, k)) for k in ("x", "y", "p")}
+    twin = EventPacket._trusted(ev.t, cols["x"], cols["y"], cols["p"], ev.sensor, ev.t_start, ev.t_end, {}, True)
+    cuts = [(twin if k % 6 == 5 else ev).slice_time(a, a + 500) for k, a in enumerate(range(0, 50_000, 500))]
+    assert all(q._at >= 0 for q in cuts)  # each knows its index: only the arrays tell them apart
+    sink = tectum.testing.ListSink()
+    p = tectum.Pipeline()
+    p.sink(sink, p.op(_Seen(), p.source(ListSource(cuts), id="src")), id="sink")
+    tectum.run(p)
+    tectum.testing.assert_streams_equal(cuts, sink.packets)
