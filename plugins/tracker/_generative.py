@@ -128,7 +128,7 @@ def splat(ux, uy, p, c, sigma, img):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def event_weights(x, y, t, p, c, last, tlast, dtp, out, first=1.5):  # type: ignore[no-untyped-def]
+def event_weights(x, y, t, p, c, last, tlast, dtp, out, first=1.5, refractory=0.0):  # type: ignore[no-untyped-def]
     """Each event's share of the brightness increment, in order: ``c p``
     plus ``c/2 (p - p_prev)``, ``p_prev`` the polarity of the pixel's
     previous event (``last`` (H, W) int8 keeps them and is updated; 0
@@ -144,29 +144,46 @@ def event_weights(x, y, t, p, c, last, tlast, dtp, out, first=1.5):  # type: ign
     running and the part of that threshold crossed before the start is
     unknown (half a threshold expected). ``tlast`` (H, W) int64 gets each
     pixel's last event time (µs), ``dtp`` (H, W) int64 the interval from the
-    event before it when both had this polarity, else -1."""
+    event before it when both had this polarity, else -1.
+
+    ``refractory`` (µs, 0: none): a pixel holds its reset that long after
+    each event and then takes its level there as its new reference, so the
+    change during the hold is never signalled. A pixel changing at a steady
+    rate fires every ``d = refractory + C / rate``: its event after such an
+    interval stands for ``C d / (d - refractory)`` of change (at most 4 C),
+    not ``C`` (:func:`residue_image` scales its estimate the same way)."""
     h = 0.5 * c
     for k in range(x.shape[0]):
         q = last[y[k], x[k]]
-        out[k] = c * p[k] + (h * (p[k] - q) if q != 0 else (first - 1.0) * c * p[k])
-        dtp[y[k], x[k]] = t[k] - tlast[y[k], x[k]] if q == p[k] else -1
+        d = t[k] - tlast[y[k], x[k]] if q == p[k] else -1
+        out[k] = c * p[k] * _gain(d, refractory) + (h * (p[k] - q) if q != 0 else (first - 1.0) * c * p[k])
+        dtp[y[k], x[k]] = d
         tlast[y[k], x[k]] = t[k]
         last[y[k], x[k]] = p[k]
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _residue(p, tl, d, t_now, c):  # type: ignore[no-untyped-def]
+def _gain(d, refractory):  # type: ignore[no-untyped-def]
+    """The change per threshold of a pixel whose last interval was ``d`` µs
+    (-1 unknown) after a refractory hold of ``refractory`` µs."""
+    if refractory <= 0.0 or d <= 0:
+        return 1.0
+    return min(d / max(d - refractory, 1.0), 4.0)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _residue(p, tl, d, t_now, c, refractory):  # type: ignore[no-untyped-def]
     """One pixel's term of :func:`residue_image` (last polarity ``p``, time
     ``tl`` µs, interval ``d`` µs or -1)."""
     if p == 0 or d <= 0:
         return 0.0
     f = (t_now - tl) / d
     g = f if f <= 1.0 else max(0.0, 2.0 - f)
-    return c * p * (g - 0.5)
+    return c * p * (g * _gain(d, refractory) - 0.5)
 
 
 @njit(cache=True, nogil=True)
-def residue_image(last, tlast, dtp, t_now, c, base, out, quiet, unfired=1.0):  # type: ignore[no-untyped-def]
+def residue_image(last, tlast, dtp, t_now, c, base, out, quiet, unfired=1.0, refractory=0.0):  # type: ignore[no-untyped-def]
     """``out`` (H, W): the sub-threshold change of each pixel at ``t_now``
     (µs) beyond the ``c/2`` of :func:`event_weights`, log intensity, less
     ``base`` (H, W; e.g. the same at the reference view). A pixel
@@ -178,6 +195,10 @@ def residue_image(last, tlast, dtp, t_now, c, base, out, quiet, unfired=1.0):  #
     holds its true residue rather than half a threshold; one the motion
     has left (at a turn of the camera) no longer claims a change it does
     not have.
+
+    With ``refractory`` (µs) the estimate is scaled as the events are
+    (:func:`event_weights`): the change since the last event goes on at
+    ``C / (dt - refractory)`` per µs.
 
     The pixels whose change this cannot tell, those without an event yet,
     get ``unfired`` in ``quiet`` (H, W; their share of a silent pixel, see
@@ -191,7 +212,7 @@ def residue_image(last, tlast, dtp, t_now, c, base, out, quiet, unfired=1.0):  #
             p = last[y, x]
             tl = tlast[y, x]
             d = dtp[y, x]
-            out[y, x] = _residue(p, tl, d, t_now, c) - base[y, x]
+            out[y, x] = _residue(p, tl, d, t_now, c, refractory) - base[y, x]
             if with_quiet:
                 quiet[y, x] = unfired if p == 0 else 0.0
 

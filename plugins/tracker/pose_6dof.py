@@ -213,6 +213,15 @@ class Pose6Dof(Operator):
         ``realistic`` sensor, 0.35 took the position error from 2.3-2.5 to
         1.7-2.0 % of the path (four noise seeds; 0 and 0.2 do a little
         better there, 2.3 and 2.1 % on the ideal sensor, 1.9 % at 0.35).
+    refractory_us:
+        The sensor's refractory period, µs (0: none): the change a pixel
+        sees while it holds its reset after an event is lost, so an event
+        after a same-polarity interval ``d`` stands for ``C d / (d -
+        refractory_us)`` (at most 4 C) and the timed residue grows as fast
+        (:func:`._generative.event_weights`). On a simulated slide with a
+        2.5 ms refractory period (240x180, ``realistic`` otherwise) 3.4 ->
+        1.9 % of the path; on ``slider_depth`` (no interval below 2.5 ms)
+        it makes it far worse (21 %): off by default.
     """
 
     name = "tracker.pose_6dof"
@@ -230,7 +239,7 @@ class Pose6Dof(Operator):
                  min_fit: float = 0.35, recover_fit: float = 0.5, min_points: int = 100,
                  keyframe_px: float = 8.0, velocity_us: int = 10_000, timed_residue: bool = True,
                  unseen_bound: bool = True, map_view_px: float = 24.0, max_sd_deg: float = 0.2,
-                 drift_deg_s: float = 20.0, unseen_running: float = 0.35) -> None:
+                 drift_deg_s: float = 20.0, unseen_running: float = 0.35, refractory_us: float = 0.0) -> None:
         where = "tracker.pose_6dof"
         if not contrast > 0:
             raise ValueError(f"{where}: contrast must be > 0 (log intensity per event), got {contrast}")
@@ -289,6 +298,9 @@ class Pose6Dof(Operator):
         if not 0 <= unseen_running <= 1:
             raise ValueError(f"{where}: unseen_running must be in [0, 1] (a share), got {unseen_running}")
         self.unseen_running = float(unseen_running)
+        if not refractory_us >= 0:
+            raise ValueError(f"{where}: refractory_us must be >= 0 (µs), got {refractory_us}")
+        self.refractory_us = float(refractory_us)
         if not map_view_px > 0:
             raise ValueError(f"{where}: map_view_px must be > 0, got {map_view_px}")
         self.map_view_px = float(map_view_px)
@@ -345,9 +357,9 @@ class Pose6Dof(Operator):
         splat_bilinear(np.array([3.5]), np.array([3.5]), np.array([1.0]), 0.2, img)
         one = np.zeros((1, 1), np.int64)
         event_weights(np.zeros(1, np.uint16), np.zeros(1, np.uint16), np.zeros(1, np.int64), np.ones(1, np.int8), 0.2,
-                      np.zeros((1, 1), np.int8), one, one, np.empty(1), 1.5)
+                      np.zeros((1, 1), np.int8), one, one, np.empty(1), 1.5, 0.0)
         residue_image(np.zeros((1, 1), np.int8), one, one, 0, 0.2, np.zeros((1, 1)), np.empty((1, 1)), np.empty((1, 1)),
-                      1.0)
+                      1.0, 0.0)
         point_corrections(P, np.eye(3), np.zeros(3), 4.0, 4.0, 3.5, 3.5, np.zeros((0, 0, 2)), img[None], 1.0, 1,
                           np.empty((1, 16)))
 
@@ -426,7 +438,7 @@ class Pose6Dof(Operator):
         if self.map is None:  # not tracked, but they tell each pixel's state, and that the sensor is running
             self.counts["skipped_before_map"] += len(ev)
             event_weights(ev.x, ev.y, ev.t, ev.p, self.contrast, self._last, self._tlast, self._dtp, np.empty(len(ev)),
-                          1.0)
+                          1.0, self.refractory_us)
             self._running = True
             return
         assert self._lut is not None and self._sensor is not None
@@ -505,7 +517,7 @@ class Pose6Dof(Operator):
             R, p = self._initial(int(self._t[a]))
             if self._running and self.timed_residue:  # the pixels' residues at the start, from the events before it
                 residue_image(self._last, self._tlast, self._dtp, int(self._t[a]), self.contrast, np.zeros_like(
-                    self._dref), self._dref, np.empty((0, 0)))
+                    self._dref), self._dref, np.empty((0, 0)), 1.0, self.refractory_us)
             self._pose = (R, p, int(self._t[a]))
             assert self.map is not None
             self._new_reference(R, p, bool(np.allclose(p, self.map.position) and np.allclose(R, self._R_wr)), 0.0,
@@ -515,13 +527,13 @@ class Pose6Dof(Operator):
         x, y = self._x[a:b], self._y[a:b]
         wgt = np.empty(b - a)
         event_weights(self._ix[a:b], self._iy[a:b], self._t[a:b], self._p[a:b], self.contrast, self._last, self._tlast,
-                      self._dtp, wgt, 1.0 if self._running else 1.5)
+                      self._dtp, wgt, 1.0 if self._running else 1.5, self.refractory_us)
         # per sensor pixel: the residues' change since the reference view and the silent pixels (their share)
         pix = self._pix if self.unseen_bound else self._pix[:1]
         if self.timed_residue:
             residue_image(self._last, self._tlast, self._dtp, t_end, self.contrast, self._dref, pix[0],
                           pix[1] if self.unseen_bound else np.empty((0, 0)),
-                          self.unseen_running if self._running else 1.0)
+                          self.unseen_running if self._running else 1.0, self.refractory_us)
         splat_bilinear(x, y, wgt, 1.0, self._raw)
         for lv, img in zip(self._levels[1:], self._obs):
             splat(x, y, wgt, 1.0, lv.sigma, img)

@@ -133,3 +133,46 @@ def test_unseen_running_is_a_share_and_needs_a_running_sensor():
     assert np.array_equal(rows[0][0].position, rows[1][0].position)
     with pytest.raises(ValueError, match="unseen_running must be in"):
         Pose6Dof(unseen_running=1.5)
+
+
+def test_a_refractory_pixels_events_stand_for_the_change_its_hold_lost():
+    # refractory 500 us: an ON event 1000 us after the last stands for 1000 / 500 = 2 thresholds, one 550 us after for
+    # at most 4; the residue grows at the same rate (half-way to the next event: 1 C, 0.5 C beyond event_weights' C/2)
+    from tectum.plugins.tracker._generative import event_weights, residue_image
+
+    x, y = np.zeros(4, np.uint16), np.zeros(4, np.uint16)
+    t, p = np.array([0, 1000, 2000, 2550], np.int64), np.ones(4, np.int8)
+    last, tlast, dtp, w = np.zeros((1, 1), np.int8), np.zeros((1, 1), np.int64), np.full((1, 1), -1), np.empty(4)
+    event_weights(x[:3], y[:3], t[:3], p[:3], 0.2, last, tlast, dtp, w[:3], 1.5, 500.0)
+    assert np.allclose(w[:3], [0.3, 0.4, 0.4])
+    out = np.empty((1, 1))
+    residue_image(last, tlast, dtp, 2500, 0.2, np.zeros((1, 1)), out, np.empty((0, 0)), 1.0, 500.0)
+    assert out[0, 0] == pytest.approx(0.2 * (0.5 * 2 - 0.5))
+    event_weights(x[3:], y[3:], t[3:], p[3:], 0.2, last, tlast, dtp, w[3:], 1.5, 500.0)
+    assert w[3] == pytest.approx(0.8)
+
+
+def test_refractory_us_keeps_a_refractory_sensor_on_track():
+    # the slide (120x90) seen by an ideal sensor with a 2.5 ms refractory period: counting each event as one threshold
+    # misses the change the hold lost, and the camera lags (measured ATE 2.97 mm); with refractory_us=2500 1.54 mm
+    from tectum.evaluation.suites._pose_known_map import score, track
+    from tectum.sources.simulate import simulate
+    from tectum.sources.simulate.photomap import scene_map
+
+    ev, truth = simulate(SLIDE, T_MAP + 100_000, sensor="120x90", refractory_us=2500.0)
+    ev = ev.without_columns(*ev.columns)
+    m = scene_map(SLIDE, T_MAP, sensor="120x90")
+    maps = MapPacket(np.array([T_MAP], np.int64), image=m["image"][None], depth=m["depth"][None], K=m["K"][None],
+                     pose=m["pose"][None], t_start=T_MAP, t_end=T_MAP + 1)
+    ate = {}
+    for r in (0.0, 2500.0):
+        po, _, _ = track(ev.slice_time(T_MAP, None), maps, before=ev.slice_time(0, T_MAP), min_points=50,
+                         refractory_us=r)
+        s = score(po, truth["pose_t"], truth["pose_position"], truth["pose_orientation"])
+        assert s["lost"] == 0
+        ate[r] = float(s["ate_m"]) * 1e3
+    assert ate[2500.0] < 2.0 and ate[2500.0] < 0.7 * ate[0.0], ate
+    with pytest.raises(ValueError, match="refractory_us must be >= 0"):
+        from tectum.plugins.tracker import Pose6Dof
+
+        Pose6Dof(refractory_us=-1.0)
