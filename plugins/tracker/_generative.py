@@ -34,10 +34,10 @@ level); on a running one each pixel had crossed an unknown part of its
 threshold before the start, so its silence says less: there a pixel
 without events counts as ``unfired`` of a silent one (the rest of it
 holds its observed 0, at ``(1 - unfired)²`` of a firing pixel's weight).
-A pixel silent past twice its last interval holds its last event's level
-(its timed estimate falls to that), counted as a firing pixel: counted
-silent too, it cost accuracy on simulated sensors with a refractory
-period and timing jitter, whose short bursts make the last interval short. A pixel silent since before a
+A pixel silent past twice its last interval is not counted silent: its
+timed estimate has fallen to its last event's level by then, and counted
+silent it cost accuracy on simulated sensors with a refractory period and
+timestamp jitter (``docs/pose_6dof.md``). A pixel silent since before a
 reference view other than the start is held to ``C`` from that view's
 level too (its level there taken as its last event's; ``2C``, the strict
 bound, measured no different).

@@ -210,9 +210,10 @@ class Pose6Dof(Operator):
         There each pixel had crossed an unknown part of its threshold
         before the start, so its silence bounds its change less. On a
         simulated slide (0.3 m/s, 240x180, started 40 ms in) with the
-        ``realistic`` sensor, 0.35 took the position error from 2.3-2.5 to
-        1.7-2.0 % of the path (four noise seeds; 0 and 0.2 do a little
-        better there, 2.3 and 2.1 % on the ideal sensor, 1.9 % at 0.35).
+        ``realistic`` sensor: 2.1-2.3 % of the path counted whole (1), 1.7-2.0
+        % at 0.35 (four noise seeds; 0 and 0.2 do a little better there
+        but worse on the ideal sensor: 2.3 and 2.1 %, against 1.7 whole and
+        1.9 at 0.35).
     refractory_us:
         The sensor's refractory period, µs (0: none): the change a pixel
         sees while it holds its reset after an event is lost, so an event
