@@ -25,24 +25,30 @@ SLIDE: dict[str, Any] = {
 T_MAP = 40_000  # µs: the map's time, 40 ms into the run
 
 
-@pytest.fixture(scope="module")
-def slide() -> tuple[Any, Any, MapPacket]:
+def _simulated_slide(after_us: int = 100_000, t_map: int = T_MAP, sensor: str = "120x90", scene: dict[str, Any] = SLIDE,
+                     **model: Any) -> tuple[Any, Any, MapPacket]:
+    """The slide's events (``t_map + after_us`` µs), its truth and its map at ``t_map``."""
     from tectum.sources.simulate import simulate
     from tectum.sources.simulate.photomap import scene_map
 
-    ev, truth = simulate(SLIDE, T_MAP + 100_000, sensor="120x90")
-    m = scene_map(SLIDE, T_MAP, sensor="120x90")
-    maps = MapPacket(np.array([T_MAP], np.int64), image=m["image"][None], depth=m["depth"][None], K=m["K"][None],
-                     pose=m["pose"][None], t_start=T_MAP, t_end=T_MAP + 1)
+    ev, truth = simulate(scene, t_map + after_us, sensor=sensor, **model)
+    m = scene_map(scene, t_map, sensor=sensor)
+    maps = MapPacket(np.array([t_map], np.int64), image=m["image"][None], depth=m["depth"][None], K=m["K"][None],
+                     pose=m["pose"][None], t_start=t_map, t_end=t_map + 1)
     return ev.without_columns(*ev.columns), truth, maps
 
 
-def _ate_mm(slide: tuple[Any, Any, MapPacket], before: bool) -> float:
+@pytest.fixture(scope="module")
+def slide() -> tuple[Any, Any, MapPacket]:
+    return _simulated_slide()
+
+
+def _ate_mm(slide: tuple[Any, Any, MapPacket], before: bool, **params: Any) -> float:
     from tectum.evaluation.suites._pose_known_map import score, track
 
     ev, truth, maps = slide
     po, _, counts = track(ev.slice_time(T_MAP, None), maps, before=ev.slice_time(0, T_MAP) if before else None,
-                          min_points=50)
+                          min_points=50, **params)
     assert counts["skipped_before_map"] == (int(np.searchsorted(ev.t, T_MAP)) if before else 0)
     s = score(po, truth["pose_t"], truth["pose_position"], truth["pose_orientation"])
     assert s["lost"] == 0
@@ -94,23 +100,9 @@ def test_a_running_sensors_unfired_pixels_bound_less():
     # with the realistic sensor (threshold spread, photoreceptor, refractory period, jitter, noise), started 40 ms in:
     # measured 0.99 mm (1.87 % of the path), 1.22 mm counting them whole, 1.32 mm before (pixels past twice their
     # interval counted silent too)
-    from tectum.evaluation.suites._pose_known_map import score, track
-    from tectum.sources.simulate import simulate
-    from tectum.sources.simulate.photomap import scene_map
-
-    scene = {**SLIDE, "focal_px": 2 * SLIDE["focal_px"]}
-    ev, truth = simulate(scene, T_MAP + 180_000, sensor="240x180", preset="realistic")
-    ev = ev.without_columns(*ev.columns)
-    m = scene_map(scene, T_MAP, sensor="240x180")
-    maps = MapPacket(np.array([T_MAP], np.int64), image=m["image"][None], depth=m["depth"][None], K=m["K"][None],
-                     pose=m["pose"][None], t_start=T_MAP, t_end=T_MAP + 1)
-    ate = {}
-    for share in (0.35, 1.0):
-        po, _, _ = track(ev.slice_time(T_MAP, None), maps, before=ev.slice_time(0, T_MAP), min_points=50,
-                         unseen_running=share)
-        s = score(po, truth["pose_t"], truth["pose_position"], truth["pose_orientation"])
-        assert s["lost"] == 0
-        ate[share] = float(s["ate_m"]) * 1e3
+    run = _simulated_slide(180_000, sensor="240x180", scene={**SLIDE, "focal_px": 2 * SLIDE["focal_px"]},
+                           preset="realistic")
+    ate = {share: _ate_mm(run, True, unseen_running=share) for share in (0.35, 1.0)}
     assert ate[0.35] < 1.1 and ate[0.35] < 0.9 * ate[1.0], ate
 
 
@@ -118,14 +110,8 @@ def test_unseen_running_is_a_share_and_needs_a_running_sensor():
     # from rest (no events before the map) every pixel starts at its reference level: the bound is exact and the share
     # is not used (the same poses); a share outside [0, 1] is refused
     from tectum.plugins.tracker import Pose6Dof
-    from tectum.sources.simulate import simulate
-    from tectum.sources.simulate.photomap import scene_map
 
-    ev, _ = simulate(SLIDE, 40_000, sensor="120x90")
-    m = scene_map(SLIDE, 0, sensor="120x90")
-    maps = MapPacket(np.array([0], np.int64), image=m["image"][None], depth=m["depth"][None], K=m["K"][None],
-                     pose=m["pose"][None], t_start=0, t_end=1)
-    ev = ev.without_columns(*ev.columns)
+    ev, _, maps = _simulated_slide(40_000, t_map=0)
     rows = []
     for share in (0.0, 1.0):
         op = Pose6Dof(min_points=50, unseen_running=share)
@@ -155,24 +141,10 @@ def test_a_refractory_pixels_events_stand_for_the_change_its_hold_lost():
 def test_refractory_us_keeps_a_refractory_sensor_on_track():
     # the slide (120x90) seen by an ideal sensor with a 2.5 ms refractory period: counting each event as one threshold
     # misses the change the hold lost, and the camera lags (measured ATE 2.97 mm); with refractory_us=2500 1.54 mm
-    from tectum.evaluation.suites._pose_known_map import score, track
-    from tectum.sources.simulate import simulate
-    from tectum.sources.simulate.photomap import scene_map
+    from tectum.plugins.tracker import Pose6Dof
 
-    ev, truth = simulate(SLIDE, T_MAP + 100_000, sensor="120x90", refractory_us=2500.0)
-    ev = ev.without_columns(*ev.columns)
-    m = scene_map(SLIDE, T_MAP, sensor="120x90")
-    maps = MapPacket(np.array([T_MAP], np.int64), image=m["image"][None], depth=m["depth"][None], K=m["K"][None],
-                     pose=m["pose"][None], t_start=T_MAP, t_end=T_MAP + 1)
-    ate = {}
-    for r in (0.0, 2500.0):
-        po, _, _ = track(ev.slice_time(T_MAP, None), maps, before=ev.slice_time(0, T_MAP), min_points=50,
-                         refractory_us=r)
-        s = score(po, truth["pose_t"], truth["pose_position"], truth["pose_orientation"])
-        assert s["lost"] == 0
-        ate[r] = float(s["ate_m"]) * 1e3
+    run = _simulated_slide(refractory_us=2500.0)
+    ate = {r: _ate_mm(run, True, refractory_us=r) for r in (0.0, 2500.0)}
     assert ate[2500.0] < 2.0 and ate[2500.0] < 0.7 * ate[0.0], ate
     with pytest.raises(ValueError, match="refractory_us must be >= 0"):
-        from tectum.plugins.tracker import Pose6Dof
-
         Pose6Dof(refractory_us=-1.0)
