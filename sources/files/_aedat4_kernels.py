@@ -80,30 +80,51 @@ def _vector(buf, lo, hi, field, elem):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def _split(b, o, t, x, y, p):  # pragma: no cover - numba
-    """The ``Event`` structs ``b`` (16 bytes each) into the columns from ``o``."""
+def _split(b, o, t, x, y, p, last):  # pragma: no cover - numba
+    """The ``Event`` structs ``b`` (16 bytes each) into the columns from
+    ``o``, checked on the way (the columns are not read again): returns
+    (times below the time before them, the first compared with ``last``;
+    largest x; largest y; last time), or (0, 0, 0, last) when ``b`` holds
+    no event."""
     n = b.shape[0] // 16
     to = t[o:o + n]
     xo = x[o:o + n]
     yo = y[o:o + n]
     po = p[o:o + n]
+    dec = np.int64(0)  # a count, not a difference: garbage times would overflow one
+    mx = np.int64(0)
+    my = np.int64(0)
     if b.ctypes.data % 8 == 0:  # aligned, as FlatBuffers write it: whole-word loads
         q = b.view(np.int64)
-        h = b.view(np.uint16)
         for i in range(n):
-            to[i] = q[2 * i]
-            xo[i] = h[8 * i + 4]
-            yo[i] = h[8 * i + 5]
-            po[i] = np.int8(b[16 * i + 12] != 0) * np.int8(2) - np.int8(1)  # no branch on a random bit
-        return
+            v = q[2 * i]
+            w = q[2 * i + 1]  # little-endian: x, y, polarity, padding
+            xi = w & 0xFFFF
+            yi = (w >> 16) & 0xFFFF
+            to[i] = v
+            xo[i] = xi
+            yo[i] = yi
+            po[i] = np.int8((w >> 32) & 0xFF != 0) * np.int8(2) - np.int8(1)  # no branch on a random bit
+            dec += np.int64(v < last)
+            last = v
+            mx = max(mx, xi)
+            my = max(my, yi)
+        return dec, mx, my, last
     for i in range(n):
         v = np.int64(0)
         for j in range(8):
             v |= np.int64(b[16 * i + j]) << (8 * j)
+        xi = _u16(b, 16 * i + 8)
+        yi = _u16(b, 16 * i + 10)
         to[i] = v
-        xo[i] = _u16(b, 16 * i + 8)
-        yo[i] = _u16(b, 16 * i + 10)
+        xo[i] = xi
+        yo[i] = yi
         po[i] = np.int8(1) if b[16 * i + 12] != 0 else np.int8(-1)
+        dec += np.int64(v < last)
+        last = v
+        mx = max(mx, xi)
+        my = max(my, yi)
+    return dec, mx, my, last
 
 
 @njit(cache=True, nogil=True)
@@ -125,7 +146,7 @@ def fill_events(buf, o, t, x, y, p):  # pragma: no cover - numba
     s, n = _vector(buf, 0, buf.shape[0], 0, 16)
     if n < 0 or o + n > t.shape[0]:
         return -1
-    _split(buf[s:s + 16 * n], o, t, x, y, p)
+    _split(buf[s:s + 16 * n], o, t, x, y, p, np.int64(0))
     return n
 
 
@@ -164,8 +185,15 @@ def inflate_events(buf, rows, k, scratch, t, x, y, p, counts):  # pragma: no cov
     number of events, -1 when its FlatBuffer is malformed, -2 when it does
     not decompress. Stops before a packet that is not a plain LZ4 frame or
     whose events may not fit in the columns. Returns (events written, next
-    packet). Call only when :data:`tectum.sources.files._lz4.AVAILABLE`."""
+    packet, whether no time written is below the one before it, largest x,
+    largest y): what :meth:`EventAssembler.commit` would otherwise check
+    in a second pass. Call only when
+    :data:`tectum.sources.files._lz4.AVAILABLE`."""
     o = 0
+    dec = np.int64(0)
+    mx = np.int64(0)
+    my = np.int64(0)
+    last = np.int64(-(1 << 62))
     while k < rows.shape[0]:
         size = rows[k, 5]
         if rows[k, 3] < 0 or size > scratch.shape[0] or o + size // 16 > t.shape[0]:
@@ -177,10 +205,13 @@ def inflate_events(buf, rows, k, scratch, t, x, y, p, counts):  # pragma: no cov
             s, m = _vector(scratch, 0, n, 0, 16)
             counts[k] = m
             if m > 0:
-                _split(scratch[s:s + 16 * m], o, t, x, y, p)
+                d, a, b, last = _split(scratch[s:s + 16 * m], o, t, x, y, p, last)
+                dec += d
+                mx = max(mx, a)
+                my = max(my, b)
                 o += m
         k += 1
-    return o, k
+    return o, k, dec == 0, mx, my
 
 
 @njit(cache=True, nogil=True)

@@ -528,17 +528,21 @@ class _Batch:
         counts = np.zeros(rows.shape[0], np.int64)
         scratch = int(rows[:, 5].max())
 
-        def part(i: int) -> int:
-            n, _ = AK.inflate_events(buf, rows[cuts[i]:cuts[i + 1]], 0, byte_buffer(scratch),
-                                     *(c[at[i]:at[i + 1]] for c in cols), counts[cuts[i]:cuts[i + 1]])
-            return n
+        def part(i: int) -> tuple[int, bool, int, int]:
+            n, _, rising, mx, my = AK.inflate_events(buf, rows[cuts[i]:cuts[i + 1]], 0, byte_buffer(scratch),
+                                                     *(c[at[i]:at[i + 1]] for c in cols),
+                                                     counts[cuts[i]:cuts[i + 1]])
+            return n, rising, mx, my
 
         futures = [workers().submit(part, i) for i in range(1, w)]
-        n = part(0)
+        n, rising, mx, my = part(0)
+        t = cols[0]
         for i, fu in enumerate(futures, 1):
-            m = fu.result()
+            m, up, a, b = fu.result()
             for c in cols:
                 c[n:n + m] = c[at[i]:at[i] + m]
+            rising = rising and up and (n == 0 or m == 0 or t[n] >= t[n - 1])
+            mx, my = max(mx, a), max(my, b)
             n += m
         pos = rows[:, 8]
         for i in np.flatnonzero(counts < 0).tolist():
@@ -549,7 +553,7 @@ class _Batch:
                 why = _why(buf.data[rows[i, 0]:rows[i, 1]], self.comp)
                 self._bad(self.ev_id, f"does not decompress: {why}", int(pos[i]), size)
         good = counts > 0
-        yield from self.asm.commit(n, int(pos[0]), lambda: np.repeat(pos[good], counts[good]))
+        yield from self.asm.commit(n, int(pos[0]), lambda: np.repeat(pos[good], counts[good]), (rising, mx, my))
 
     def _one(self, payload: memoryview, pos: int) -> Iterator[Packet]:
         """One event packet, decompressed in Python."""

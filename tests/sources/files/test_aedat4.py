@@ -132,22 +132,24 @@ def test_bad_packet_is_named_or_skipped(tmp_path: Path, compiled: bool, threads:
     assert _same(got, want) and src.skipped_events == PER_PACKET == len(ev) - len(got)
 
 
+@pytest.mark.parametrize("inside", [0, 3])
 @pytest.mark.parametrize("what", ["time", "x", "y"])
-def test_bad_event_found_on_every_path(tmp_path: Path, compiled: bool, what: str, monkeypatch) -> None:
+def test_bad_event_found_on_every_path(tmp_path: Path, compiled: bool, what: str, inside: int, monkeypatch) -> None:
     """An event whose time goes back or whose x or y lies outside the sensor
     is named by its packet's offset wherever it lies: inside a packet, first
     of a packet, of a run, of a thread's part (whose columns are closed up
-    before the check)."""
+    before the check; the compiled path checks while it splits the packets)."""
     monkeypatch.setattr(aedat4, "_PART_BYTES", 1 << 12)  # parts of a few packets: many threads' parts meet
     ev = _events()
-    for k in (1, 700, 1400, 3000, 30_000, len(ev) - 1):
+    for k in (1, 700, 1400, 3000, 30_000, len(ev) - 4):
         t, x, y = ev.t.copy(), ev.x.copy(), ev.y.copy()
+        b = k + inside  # the bad event, ``inside`` events into the packet starting at k
         if what == "time":
-            t[k:] -= t[k] - t[k - 1] + 1  # the time falls by 1 µs at k, in order after it
+            t[b:] -= t[b] - t[b - 1] + 1  # the time falls by 1 µs at b, in order after it
         elif what == "x":
-            x[k] = 64
+            x[b] = 64
         else:
-            y[k] = 48
+            y[b] = 48
         parts = [EventPacket(c[0], c[1], c[2], c[3], sensor=(64, 48))  # unchecked, as a corrupt file holds
                  for c in ((t[:k], x[:k], y[:k], ev.p[:k]), (t[k:], x[k:], y[k:], ev.p[k:]))]
         f = tmp_path / f"b{k}.aedat4"
