@@ -230,17 +230,31 @@ class Packet:
             ev: Any = self
             if type(self) is EventPacket and not ev.columns:  # the hot case, inlined
                 x, y, p, sensor = ev.x, ev.y, ev.p, ev.sensor
-                build: Any = _Build  # makes EventPackets
                 checked = ev._checked
                 if len(runs) == n - 1:  # one event per timestamp: rows of (n, 1) views cost less than slices
+                    blank: Any = _Build
+                    cls, cols = EventPacket, _NO_COLUMNS
                     for hi, a, b, c, d in zip([*ts, self.t_end], t.reshape(-1, 1), x.reshape(-1, 1),
                                               y.reshape(-1, 1), p.reshape(-1, 1)):
-                        yield build(a, b, c, d, sensor, lo, hi, _NO_COLUMNS, checked, -1)
+                        q = blank()  # _built, inlined (a call costs as much as the stores)
+                        q.t = a
+                        q.x = b
+                        q.y = c
+                        q.p = d
+                        q.sensor = sensor
+                        q.columns = cols
+                        q.t_start = lo
+                        q.t_end = hi
+                        q._checked = checked
+                        q._at = -1
+                        q.__class__ = cls
+                        yield q
                         lo = hi
                     return
+                built: Any = _built  # makes EventPackets (the class tested above)
                 for stop, hi in zip(runs, ts):
-                    yield build(t[start:stop], x[start:stop], y[start:stop], p[start:stop], sensor, lo, hi,
-                                _NO_COLUMNS, checked, -1)
+                    yield built(t[start:stop], x[start:stop], y[start:stop], p[start:stop], sensor, lo, hi,
+                                _NO_COLUMNS, checked)
                     start, lo = stop, hi
             else:
                 for stop, hi in zip(runs, ts):
@@ -356,7 +370,7 @@ class EventPacket(Packet):
         :meth:`validate` passed (see :attr:`checked`); ``at``: see :attr:`_at`."""
         cols = MappingProxyType(dict(columns)) if columns else _NO_COLUMNS
         if cls is EventPacket:
-            return _Build(t, x, y, p, sensor, t_start, t_end, cols, checked, at)
+            return _built(t, x, y, p, sensor, t_start, t_end, cols, checked, at)
         pkt = _new(cls)
         _set_t(pkt, t)
         _set_x(pkt, x)
@@ -645,28 +659,34 @@ def _slice_index(t, x, y, p, ot, ox, oy, op):  # type: ignore[no-untyped-def]
 
 
 class _Build(EventPacket):
-    """Builds an :class:`EventPacket` for :meth:`EventPacket._trusted` with
-    plain attribute stores (the generic setattr, 4x faster than a call per
-    slot: a packet per event in event-by-event mode), then becomes an
-    EventPacket (same slots, so the class can change) and is immutable."""
+    """An :class:`EventPacket` under construction: ``_Build()`` is blank (no
+    ``__init__`` of its own to call), its slots are set with plain attribute
+    stores (the generic setattr: 4x faster than a call per slot, a packet per
+    event in event-by-event mode), then it becomes an EventPacket (same
+    slots, so the class can change) and is immutable. :func:`_built` does
+    all of it; :meth:`Packet.batches` inlines it per event."""
 
     __slots__ = ()
     __setattr__ = object.__setattr__  # type: ignore[assignment]
+    __init__ = object.__init__  # blank: every slot is stored by the builder
 
-    def __init__(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray,
-                 sensor: tuple[int, int], t_start: int, t_end: int, columns: Mapping[str, np.ndarray],
-                 checked: bool, at: int = -1) -> None:
-        self.t = t
-        self.x = x
-        self.y = y
-        self.p = p
-        self.sensor = sensor
-        self.columns = columns
-        self.t_start = t_start
-        self.t_end = t_end
-        self._checked = checked
-        self._at = at
-        self.__class__ = EventPacket  # type: ignore[assignment]
+
+def _built(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, sensor: tuple[int, int], t_start: int,
+           t_end: int, columns: Mapping[str, np.ndarray], checked: bool, at: int = -1) -> EventPacket:
+    """An :class:`EventPacket` of these fields, unchecked (see :meth:`EventPacket._trusted`)."""
+    pkt: Any = _Build()
+    pkt.t = t
+    pkt.x = x
+    pkt.y = y
+    pkt.p = p
+    pkt.sensor = sensor
+    pkt.columns = columns
+    pkt.t_start = t_start
+    pkt.t_end = t_end
+    pkt._checked = checked
+    pkt._at = at
+    pkt.__class__ = EventPacket
+    return pkt
 
 
 # Slot setters for EventPacket._trusted of subclasses (faster than object.__setattr__).

@@ -156,3 +156,51 @@ def test_an_error_in_a_chain_names_its_node(where: str) -> None:
     with pytest.raises(tectum.NodeError, match=f"'{where}'.*boom") as err:
         tectum.run(_build(pk, ops, _Failing() if where == "sink" else ListSink(), 1))
     assert err.value.node == where
+
+
+class _Costly(tectum.Operator):
+    """Passes events on after ``cost`` ns of a fake clock; with ``twice``,
+    every ``twice``-th packet goes out twice (the plain path's case)."""
+
+    name = "filter.costly_chain_test"
+
+    def __init__(self, clock: list[int], cost: int, twice: int = 0) -> None:
+        self.clock, self.cost, self.twice, self.calls = clock, cost, twice, 0
+
+    def process(self, packet: EventPacket) -> list[EventPacket]:
+        self.clock[0] += self.cost
+        self.calls += 1
+        return [packet, packet] if self.twice and self.calls % self.twice == 0 else [packet]
+
+
+def test_a_chain_times_each_step_exactly(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Busy time per node on a fake clock that only the steps and the
+    cutting of pieces move: each node gets its own steps' time, not the
+    cutting's nor its neighbours', nor the plain path's after a step that
+    hands two packets to it."""
+    now = [0]
+    pk = _events(1000)
+    ops = [_Costly(now, 1), _Costly(now, 10, twice=5), _Costly(now, 100)]
+
+    class _Sink(ListSink):
+        def write(self, packet: tectum.Packet) -> None:
+            now[0] += 1000
+            super().write(packet)
+
+    cut = EventPacket.batches
+
+    def batches(self: EventPacket, max_samples: int) -> Any:
+        for piece in cut(self, max_samples):
+            now[0] += 10**6  # making a piece: no node's time
+            yield piece
+
+    monkeypatch.setattr("tectum._graph.perf_counter_ns", lambda: now[0])
+    monkeypatch.setattr("tectum._scheduler.perf_counter_ns", lambda: now[0])  # the sink written on the plain path
+    monkeypatch.setattr(EventPacket, "batches", batches)
+    sink = _Sink()
+    real = Graph.chain_of
+    monkeypatch.setattr(Graph, "chain_of", lambda self, node_id: _must(real(self, node_id)))
+    stats = tectum.run(_build(pk, ops, sink, 1))
+    n, out = len(pk), len(pk) + len(pk) // 5
+    assert len(sink.packets) == out and ops[2].calls == out
+    assert [stats.nodes[nid].busy_ns for nid in ("op0", "op1", "op2", "sink")] == [n, 10 * n, 100 * out, 1000 * out]

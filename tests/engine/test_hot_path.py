@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import MappingProxyType
+
 import numpy as np
 import pytest
 
@@ -32,10 +34,14 @@ def test_event_by_event_pieces_are_plain_immutable_views(t: np.ndarray, checked:
         assert type(q) is EventPacket and q.checked is checked
         with pytest.raises(AttributeError):
             q.t_end = 0  # type: ignore[misc]
+        assert q.sensor == pk.sensor and q.column_names == pk.column_names and q.columns == {}
+        assert type(q.columns) is MappingProxyType  # read-only, like any packet's
+        assert q._at in (-1, i)  # not known, or where it starts in the arrays (a join takes it for that)
         m = len(q)
         assert m >= 1 and np.all(q.t == q.t[0])  # one timestamp per packet
         for name in ("t", "x", "y", "p"):
             assert np.array_equal(q[name], pk[name][i:i + m])
+            assert q[name].ndim == 1 and q[name].dtype == pk[name].dtype and np.shares_memory(q[name], pk[name])
         assert q.t_start == lo and q.t[0] >= lo
         lo, i = q.t_end, i + m
     assert i == len(pk) and lo == pk.t_end and pieces[-1].t_end == pk.t_end
