@@ -76,9 +76,10 @@ def test_every_path_reads_the_same_events(tmp_path: Path, compiled: bool, compre
 @pytest.mark.parametrize("chunk_bytes", [5000, 1 << 22])
 def test_mapped_file_reads_as_the_file_read(tmp_path: Path, compiled: bool, chunk_bytes: int,
                                             monkeypatch) -> None:
-    """The file mapped into memory (the default) and read into buffers give
-    the same packets (events and where they are cut), and a truncated file
-    the same error at the same offset."""
+    """The file mapped into memory (the default), read into buffers, and
+    mapped until the system refuses a map then read give the same packets
+    (events and where they are cut), and a truncated file the same error
+    at the same offset."""
     f = _write(tmp_path / "e.aedat4", _events(), packet_events=PER_PACKET)
     cut = tmp_path / "cut.aedat4"
     cut.write_bytes(f.read_bytes()[:-20_000])
@@ -93,11 +94,22 @@ def test_mapped_file_reads_as_the_file_read(tmp_path: Path, compiled: bool, chun
         return pkts, (str(e.value), e.value.offset)
 
     mapped, mapped_error = run()
+    real = aedat4.mmap.mmap
+    maps = iter(range(3))
+
+    def fails_after_3(*a, **kw):  # noqa: ANN002, ANN003 - mmap.mmap's arguments
+        if next(maps, None) is None:
+            raise OSError("mmap: no device")
+        return real(*a, **kw)
+
+    monkeypatch.setattr(aedat4.mmap, "mmap", fails_after_3)
+    half, half_error = run()  # mapped until the map fails, then read from there
     monkeypatch.setattr(aedat4, "_mappable", lambda fh: None)
     read, read_error = run()
-    assert len(mapped) == len(read) > (1 if chunk_bytes < 1 << 20 else 0)
-    assert all(_same(a, b) and (a.t_start, a.t_end) == (b.t_start, b.t_end) for a, b in zip(mapped, read))
-    assert mapped_error == read_error
+    assert len(mapped) == len(read) == len(half) > (1 if chunk_bytes < 1 << 20 else 0)
+    for other in (half, read):
+        assert all(_same(a, b) and (a.t_start, a.t_end) == (b.t_start, b.t_end) for a, b in zip(mapped, other))
+    assert mapped_error == read_error == half_error
 
 
 def _packet_at(path: Path, k: int) -> tuple[int, int]:
