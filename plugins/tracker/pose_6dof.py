@@ -83,6 +83,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import numpy as np
+from scipy.fft import next_fast_len
 
 from tectum import EventPacket, Kind, MapPacket, Operator, Packet, Port, PosePacket
 from tectum.camera import (
@@ -134,7 +135,7 @@ def gradient_correlation(image: np.ndarray, depth: np.ndarray, sigma: float, max
     blur_and_gradients(image, sigma, out)
     m = np.isfinite(depth).astype(np.float64)
     h, w = image.shape
-    shape = (2 * h, 2 * w)  # zero-padded: no wrap-around
+    shape = (next_fast_len(h + max_px), next_fast_len(w + max_px))  # zero-padded: no wrap-around up to max_px
 
     def acf(a: np.ndarray) -> np.ndarray:
         f = np.fft.rfft2(a, shape)
