@@ -434,7 +434,9 @@ class Pose6Dof(Operator):
         self._K = m.K
         sig = (4.0 * self.sigmas[0], *self.sigmas)
         self._levels = [_Level(m.image, s, mx, my) for s in sig]
-        self._rho = gradient_correlation(m.image, m.depth, self.sigmas[-1], int(np.ceil(2 * self.map_view_px)))
+        # to twice the keyframe step (past it the last value holds; the map's own view has no σ to pass on)
+        reach = min(int(np.ceil(2 * self.keyframe_px)), min(m.size) - 1)
+        self._rho = gradient_correlation(m.image, m.depth, self.sigmas[-1], reach)
         self._warp = None
         self.map = m
 
