@@ -258,8 +258,8 @@ class Pose6Dof(Operator):
     refractory_us:
         The sensor's refractory period, µs (0: none): the change a pixel
         sees while it holds its reset after an event is lost, so an event
-        after a same-polarity interval ``d`` stands for ``C d / (d -
-        refractory_us)`` (at most 4 C) and the timed residue grows as fast
+        after a same-polarity interval ``d`` stands for
+        ``C d / (d - refractory_us)`` (at most 4 C) and the timed residue grows as fast
         (:func:`._generative.event_weights`). On a simulated slide with a
         2.5 ms refractory period (240x180, ``realistic`` otherwise) 3.4 ->
         1.9 % of the path; on ``slider_depth`` (no interval below 2.5 ms)
