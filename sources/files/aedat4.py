@@ -17,10 +17,6 @@ but never added again).
 
 from __future__ import annotations
 
-import io
-import mmap
-import os
-import stat
 import struct
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
@@ -241,13 +237,11 @@ class Aedat4Source(FileSource):
         :func:`scan_packets` for the complete packets in the buffer, with
         the file offset of each packet's header appended. A packet cut by
         the end of a read starts the next buffer; a buffer is never
-        overwritten while a row's view of it lives (it is the file mapped
-        into memory, see :func:`_mapped`, or else comes from the buffer
-        pool)."""
+        overwritten while a row's view of it lives (it comes from the
+        buffer pool)."""
         rows = np.empty((4096, 9), np.int64)
         lz4 = comp in (1, 2)
-        size = _mappable(f)
-        carry = np.empty(0, np.uint8)  # the cut packet a read ends with (file read, not mapped)
+        carry = np.empty(0, np.uint8)
         need = 8
         pos = start  # next unread byte
         f.seek(pos)
@@ -256,16 +250,9 @@ class Aedat4Source(FileSource):
             n = min(max(min(self.chunk_bytes, _READ_BYTES), need), limit - base)
             if n <= 0:
                 return
-            mapped = _mapped(f, size, base, n) if size is not None else None
-            if mapped is not None:
-                buf, have = mapped, mapped.shape[0]
-            else:
-                if size is not None:  # the map failed: read from here on
-                    size = None
-                    f.seek(pos)
-                buf = byte_buffer(n)
-                buf[:carry.shape[0]] = carry
-                have = carry.shape[0] + read_full(f, buf[carry.shape[0]:n])
+            buf = byte_buffer(n)
+            buf[:carry.shape[0]] = carry
+            have = carry.shape[0] + read_full(f, buf[carry.shape[0]:n])
             pos = base + have
             i, status = 0, 0
             while True:
@@ -283,11 +270,8 @@ class Aedat4Source(FileSource):
                 continue
             if have < n:
                 return
-            if size is not None:
-                pos = base + i
-            else:
-                carry = buf[i:have].copy()
-            need = 8 + int.from_bytes(buf[i + 4:i + 8].tobytes(), "little") if have - i >= 8 else 8
+            carry = buf[i:have].copy()
+            need = 8 + int.from_bytes(carry[4:8].tobytes(), "little") if carry.shape[0] >= 8 else 8
 
     def _bad_tail(self, buf: np.ndarray, base: int, i: int, have: int, limit: int) -> int | None:
         """The data ends (or breaks) at ``buf[i]`` inside a packet: raise, or
@@ -623,34 +607,6 @@ def _why(payload: memoryview, comp: int) -> str:
     """Why a packet does not decompress, in the words of the frame decoder."""
     e = _inflate(payload, comp)
     return str(e) if isinstance(e, ValueError) else "corrupt LZ4 block"
-
-
-def _mappable(f: Any) -> int | None:
-    """The size (bytes) of the file ``f`` when it can be mapped into memory
-    (a regular, non-empty file), else None."""
-    try:
-        st = os.fstat(f.fileno())
-    except (OSError, AttributeError, io.UnsupportedOperation):
-        return None
-    return st.st_size if stat.S_ISREG(st.st_mode) and st.st_size > 0 else None
-
-
-def _mapped(f: Any, size: int, base: int, n: int) -> np.ndarray | None:
-    """Bytes ``[base, base + n)`` of the file ``f`` (``size`` bytes; fewer
-    at its end) mapped into memory, copy-on-write: writable like a read's
-    buffer, and a write never reaches the file; None when the system does
-    not map it. Spares copying every byte once (about 0.15 ms of the
-    3.5 ms a 2.6 MB recording takes); mapped a read at a time, so the pages
-    mapped stay bounded by what is being decoded, as the read buffers are."""
-    off = base - base % mmap.ALLOCATIONGRANULARITY
-    length = min(base + n, size) - off
-    if length <= base - off:
-        return np.empty(0, np.uint8)
-    try:
-        m = mmap.mmap(f.fileno(), length, access=mmap.ACCESS_COPY, offset=off)
-    except (OSError, ValueError):
-        return None
-    return np.frombuffer(m, np.uint8)[base - off:]
 
 
 def _located(rows: np.ndarray, base: int) -> np.ndarray:

@@ -73,45 +73,6 @@ def test_every_path_reads_the_same_events(tmp_path: Path, compiled: bool, compre
     assert _same(got, ev)
 
 
-@pytest.mark.parametrize("chunk_bytes", [5000, 1 << 22])
-def test_mapped_file_reads_as_the_file_read(tmp_path: Path, compiled: bool, chunk_bytes: int,
-                                            monkeypatch) -> None:
-    """The file mapped into memory (the default), read into buffers, and
-    mapped until the system refuses a map then read give the same packets
-    (events and where they are cut), and a truncated file the same error
-    at the same offset."""
-    f = _write(tmp_path / "e.aedat4", _events(), packet_events=PER_PACKET)
-    cut = tmp_path / "cut.aedat4"
-    cut.write_bytes(f.read_bytes()[:-20_000])
-    with open(f, "rb") as fh:
-        assert aedat4._mappable(fh) == f.stat().st_size  # the default path is the mapped one
-
-    def run() -> tuple[list[EventPacket], tuple[str, int | None]]:
-        pkts = [q for q in Aedat4Source(str(f), chunk_bytes=chunk_bytes, threads=2).packets()
-                if isinstance(q, EventPacket)]
-        with pytest.raises(FormatError) as e:
-            list(Aedat4Source(str(cut), chunk_bytes=chunk_bytes, use_index=False).packets())
-        return pkts, (str(e.value), e.value.offset)
-
-    mapped, mapped_error = run()
-    real = aedat4.mmap.mmap
-    maps = iter(range(3))
-
-    def fails_after_3(*a, **kw):  # noqa: ANN002, ANN003 - mmap.mmap's arguments
-        if next(maps, None) is None:
-            raise OSError("mmap: no device")
-        return real(*a, **kw)
-
-    monkeypatch.setattr(aedat4.mmap, "mmap", fails_after_3)
-    half, half_error = run()  # mapped until the map fails, then read from there
-    monkeypatch.setattr(aedat4, "_mappable", lambda fh: None)
-    read, read_error = run()
-    assert len(mapped) == len(read) == len(half) > (1 if chunk_bytes < 1 << 20 else 0)
-    for other in (half, read):
-        assert all(_same(a, b) and (a.t_start, a.t_end) == (b.t_start, b.t_end) for a, b in zip(mapped, other))
-    assert mapped_error == read_error == half_error
-
-
 def _packet_at(path: Path, k: int) -> tuple[int, int]:
     """(offset of the header, payload size) of event packet ``k``."""
     entries = [e for e in Aedat4Source(str(path)).packet_table() if e.stream == 0]
