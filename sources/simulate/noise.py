@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["SensorModel", "PRESETS", "sensor_model", "NoiseSource", "SHOT", "HOT", "LEAK"]
+__all__ = ["SensorModel", "PRESETS", "sensor_model", "start_references", "NoiseSource", "SHOT", "HOT", "LEAK"]
 
 SHOT, HOT, LEAK = 1, 2, 3
 BLOCK_US = 10_000
@@ -54,6 +54,7 @@ class SensorModel:
     lowpass_min_hz: float = 5.0  #: cut-off floor in the dark (Hz)
     jitter_us: float = 0.0       #: timestamp jitter, std of the delay (µs)
     eps: float = 1e-3            #: L = log(I + eps)
+    ref_spread: float = 0.0      #: spread of the references at t = 0, fraction of the thresholds (see start_references)
 
     def replace(self, **kw: Any) -> SensorModel:
         known = {f.name for f in dataclasses.fields(self)}
@@ -102,6 +103,26 @@ def thresholds(model: SensorModel, npix: int, seed: int) -> tuple[np.ndarray, np
     c_on = np.maximum(model.c_on + model.sigma_c * rng.standard_normal(npix), 0.01)
     c_off = np.maximum(model.c_off + model.sigma_c * rng.standard_normal(npix), 0.01)
     return c_on, c_off
+
+
+def start_references(L: np.ndarray, c_on: np.ndarray, c_off: np.ndarray, spread: float, seed: int) -> np.ndarray:
+    """Each pixel's reference log level at t = 0 for log intensities ``L``.
+
+    ``spread = 0``: ``L`` itself, every pixel reset at t = 0 (a sensor
+    switched on then). With equal thresholds the references then stay on the
+    lattice ``L(0) + k C``, so wherever the scene comes back to its t = 0
+    image (a periodic motion after a whole period) every pixel with one net
+    event sits exactly on a threshold and they all fire at once.
+    ``spread = 1``: ``L - d``, ``d`` uniform in ``(-C_off, C_on)`` per pixel
+    (a sensor running before the recording: no pixel past a threshold, none
+    in step with another); values between scale ``d``.
+    """
+    if not 0.0 <= spread <= 1.0:
+        raise ValueError(f"sensor model: ref_spread must be in [0, 1], got {spread}")
+    if spread == 0.0:
+        return L.copy()
+    u = np.random.default_rng([seed & 0x7FFFFFFF, 107]).random(L.shape[0])
+    return L - spread * (u * (c_on + c_off) - c_off)
 
 
 class NoiseSource:

@@ -34,7 +34,7 @@ from tectum import EventPacket, FramePacket, ImuPacket, Packet, PosePacket
 from .davis import DavisConfig, aps_frame, imu_samples
 from .dvs import log_intensity
 from .features import Features
-from .noise import SHOT, NoiseSource, SensorModel, thresholds
+from .noise import SHOT, NoiseSource, SensorModel, start_references, thresholds
 from .order import time_order
 from .render import lifetimes, probe, render
 from .scenes import CompiledScene, compile_scene
@@ -109,7 +109,7 @@ class Simulator:
         self.lp = self.render(0.0).ravel().copy()
         self.L = np.empty(self.npix)
         log_intensity(self.lp, model.eps, self.L, self.lp)
-        self.l_ref = self.L.copy()
+        self.l_ref = start_references(self.L, self.c_on, self.c_off, model.ref_spread, self.seed)
         self.slope = np.zeros(self.npix)  # log intensity per µs over each pixel's last sampled piece
         self.t_release = np.full(self.npix, -np.inf)
         self.t = 0.0
