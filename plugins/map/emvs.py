@@ -27,7 +27,16 @@ Steps (IJCV 2018 Sec. 3-4; the kernels are in :mod:`._dsi`):
    map, the geometric mean of ``min_depth`` and ``max_depth``) from the
    reference view, the DSI becomes a map and a new reference view starts at
    the current pose: a long trajectory gives a sequence of maps. The last
-   DSI becomes a map at end of stream.
+   DSI becomes a map at end of stream. With ``overlap`` n > 1, n reference
+   views are in progress at once, staggered: a new one starts whenever the
+   camera has moved ``keyframe_baseline / n`` times the scene depth from
+   the newest, and each ends (becomes a map) after ``keyframe_baseline``,
+   so a map comes every ``keyframe_baseline / n`` of travel while each
+   still integrates ``keyframe_baseline`` of it (a sliding DSI: fresh maps
+   for a tracker without the short baselines' poorer depth; n DSIs, n
+   times the votes). Views that end together (at a gap, at the end of
+   stream) hold the events of the oldest among them from a later start:
+   only the oldest becomes a map (the others counted in ``superseded``).
 4. Map: per pixel the plane with most votes (the depth, refined between
    planes by a parabola when ``refine``) and its vote count (the
    confidence); pixels whose confidence exceeds its Gaussian-filtered
@@ -65,7 +74,7 @@ cover none of the events is an error at the end.
 
 Cost: per event one 3x3 product and ``planes`` bilinear votes (numba, plane
 by plane); per map an argmax over the DSI, a Gaussian filter and a median.
-Memory: the DSI, ``planes x H x W x 4`` bytes (100 planes at 240x180:
+Memory: the DSI (``overlap`` of them), ``planes x H x W x 4`` bytes (100 planes at 240x180:
 17.3 MB; at 346x260: 36 MB), plus the events waiting for their pose and
 the traces of one block of 65,536 events (1 MB).
 """
@@ -75,6 +84,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
@@ -141,6 +151,24 @@ def depth_map(dsi: np.ndarray, depths: np.ndarray, *, refine: bool = True, thres
     return out.astype(np.float32), conf
 
 
+@dataclass
+class _View:
+    """A reference view in progress: world-from-reference rotation
+    ``R_wr`` and position ``t_wr`` (m), its time ``t_ref`` (µs) and DSI;
+    ``baseline`` the farthest a segment's camera got from it (m),
+    ``last_t`` the last event voted into it (µs), ``run`` the first of the
+    segments being voted that it takes."""
+
+    R_wr: np.ndarray
+    t_wr: np.ndarray
+    t_ref: int
+    dsi: np.ndarray
+    baseline: float = 0.0
+    voted: bool = False
+    last_t: int = 0
+    run: int = 0
+
+
 class Emvs(Operator):
     """Semi-dense depth maps (and point clouds) from events and camera poses
     by event-based multi-view stereo (EMVS, Rebecq et al. BMVC 2016).
@@ -169,6 +197,10 @@ class Emvs(Operator):
     min_baseline:
         A reference view whose camera moved less than this fraction of the
         scene depth gives no map (counted as ``no_translation``).
+    overlap:
+        Reference views in progress at once (1: one after the other): a new
+        one every ``keyframe_baseline / overlap`` of the scene depth, each
+        integrating ``keyframe_baseline`` of it.
     refine:
         Sub-plane depth by a parabola through the votes either side.
     threshold_sigma:
@@ -196,7 +228,7 @@ class Emvs(Operator):
     def __init__(self, calib: str = "", planes: int = 100, min_depth: float = 0.3, max_depth: float = 5.0,
                  spacing: Literal["inverse", "depth"] = "inverse", segment_events: int = 1024,
                  segment_us: int = 10_000, keyframe_baseline: float = 0.15, min_baseline: float = 0.02,
-                 refine: bool = True, threshold_sigma: float = 2.0, threshold_c: float = 0.05,
+                 overlap: int = 1, refine: bool = True, threshold_sigma: float = 2.0, threshold_c: float = 0.05,
                  median_size: int = 5, points: bool = True, gap_us: int = 20_000) -> None:
         self.camera: Camera = camera_from(calib)
         self.depths = depth_planes(planes, min_depth, max_depth, spacing)
@@ -210,6 +242,9 @@ class Emvs(Operator):
             raise ValueError(f"map.emvs: median_size must be odd and >= 1, got {median_size}")
         self.segment_events, self.segment_us = int(segment_events), int(segment_us)
         self.keyframe_baseline, self.min_baseline = float(keyframe_baseline), float(min_baseline)
+        if overlap < 1:
+            raise ValueError(f"map.emvs: overlap must be >= 1 reference view, got {overlap}")
+        self.overlap = int(overlap)
         self.map_options = {"refine": bool(refine), "threshold_sigma": float(threshold_sigma),
                             "threshold_c": float(threshold_c), "median_size": int(median_size)}
         self.points = bool(points)
@@ -218,7 +253,7 @@ class Emvs(Operator):
         self.gap_us = int(gap_us)
         self.K = np.array([[self.camera.fx, 0, self.camera.cx], [0, self.camera.fy, self.camera.cy], [0, 0, 1.0]])
         self.counts = {"maps": 0, "no_translation": 0, "skipped_before_poses": 0, "skipped_after_poses": 0,
-                       "outside_view": 0, "lost_poses": 0, "skipped_lost_poses": 0}
+                       "outside_view": 0, "lost_poses": 0, "skipped_lost_poses": 0, "superseded": 0}
         self.scene_depth = math.sqrt(min_depth * max_depth)  # m, until a map says better
         self._sensor: tuple[int, int] | None = None
         self._rays = np.empty((0, 0, 2))
@@ -232,19 +267,15 @@ class Emvs(Operator):
         self._x = np.empty(0, np.uint16)
         self._y = np.empty(0, np.uint16)
         self._events_seen = 0
-        # the current reference view and its DSI
-        self._dsi: np.ndarray | None = None
-        self._ref: tuple[np.ndarray, np.ndarray, int] | None = None  # R_wr, t_wr (m), t_ref (µs)
-        self._baseline = 0.0  # m, largest distance of a segment's camera from the reference
-        self._voted = False   # the DSI has votes
+        # the reference views in progress and their DSIs, oldest first
+        self._views: list[_View] = []
         self._trace = np.empty(4 * BLOCK, np.float32)  # the traces of a block of events (see _vote)
-        self._last_t = 0      # µs, the last event voted into the DSI
         self._mark = 0        # µs, the events' watermark
         self._first_pose: int | None = None  # µs
 
     #: For the conformance check: inline intrinsics of a 48x36 sensor, few planes.
     conformance_params = {"calib": "40;40;23.5;17.5", "planes": 16, "min_depth": 0.5, "max_depth": 4.0,
-                          "segment_events": 64, "keyframe_baseline": 0.012, "min_baseline": 0.004}
+                          "segment_events": 64, "keyframe_baseline": 0.012, "min_baseline": 0.004, "overlap": 2}
 
     @staticmethod
     def conformance_stream() -> dict[str, Packet]:
@@ -278,14 +309,14 @@ class Emvs(Operator):
         before the input's watermark: no later map or cloud is stamped
         before the last event voted so far (a reference view in progress),
         else before the first event still waiting for its pose."""
-        if self._voted:
-            return self._last_t
+        voted = [v.last_t for v in self._views if v.voted]
+        if voted:
+            return min(voted)
         return int(self._t[0]) if self._t.size else watermark
 
     def finish(self) -> list[Packet]:
-        out = self._advance(final=True)
-        if self._dsi is not None and self._voted:
-            out += self._finalize()
+        out = self._advance(final=True) + self._end_views(self._views, [], np.empty((0, 3)), np.empty((0, 4)))
+        self._views = []
         if self._events_seen and self.counts["skipped_before_poses"] + self.counts["skipped_after_poses"] \
                 == self._events_seen:
             span = (f"the poses span [{int(self._kt[0])}, {int(self._kt[-1])}] µs" if self._kt.size
@@ -405,28 +436,35 @@ class Emvs(Operator):
         ends_gap = (knot > 0) & gap[np.maximum(knot - 1, 0)]
         t_ref = np.where(ends_gap, np.maximum(t[starts], self._kt[knot]), t[starts])
         pos, q, _ = interpolate_poses(np.concatenate([mids, t_ref]), self._kt, self._kp, self._kq)
-        n, run = len(segs), 0  # run: the first segment voting into the current DSI
+        n = len(segs)
+        for v in self._views:  # each view votes from its run's first segment (here: all of them)
+            v.run = 0
         out: list[Packet] = []
         for s in range(n):
-            if in_gap[s]:
-                self._vote(segs[run:s], pos[run:s], q[run:s])
-                if self._ref is not None and self._voted:
-                    out += self._finalize()
-                self._ref, self._dsi, self._voted = None, None, False
+            if in_gap[s]:  # every view in progress ends
+                out += self._end_views(self._views, segs[:s], pos[:s], q[:s])
+                self._views = []
                 self.counts["skipped_lost_poses"] += segs[s][1] - segs[s][0]
-                run = s + 1
                 continue
-            if self._ref is None:
-                self._new_reference(q[n + s], pos[n + s], int(t_ref[s]))
-            assert self._ref is not None
-            b = float(np.linalg.norm(pos[s] - self._ref[1]))
-            if b > self.keyframe_baseline * self.scene_depth and (s > run or self._voted):
-                self._vote(segs[run:s], pos[run:s], q[run:s])
-                out += self._finalize()
-                self._new_reference(q[n + s], pos[n + s], int(t[starts[s]]))
-                run, b = s, 0.0
-            self._baseline = max(self._baseline, b)
-        self._vote(segs[run:], pos[run:], q[run:])
+            if not self._views:
+                self._views.append(self._new_view(q[n + s], pos[n + s], int(t_ref[s]), s))
+            reach = self.keyframe_baseline * self.scene_depth
+            left = []  # the views the camera has left
+            for v in self._views:
+                b = float(np.linalg.norm(pos[s] - v.t_wr))
+                if b > reach and (s > v.run or v.voted):
+                    left.append(v)
+                else:
+                    v.baseline = max(v.baseline, b)
+            if left:
+                out += self._end_views(left, segs[:s], pos[:s], q[:s])
+                self._views = [v for v in self._views if all(v is not w for w in left)]
+            newest = self._views[-1] if self._views else None
+            if newest is None or (float(np.linalg.norm(pos[s] - newest.t_wr)) > reach / self.overlap
+                                  and (s > newest.run or newest.voted)):
+                self._views.append(self._new_view(q[n + s], pos[n + s], int(t[starts[s]]), s))
+        for v in self._views:
+            self._vote(v, segs[v.run:], pos[v.run:], q[v.run:])
         end = len(t) if final else segs[-1][1]
         self._t, self._x, self._y = self._t[end:], self._x[end:], self._y[end:]
         self._drop_knots(int(self._t[0]) if self._t.size else int(self._kt[-1]))
@@ -443,20 +481,37 @@ class Emvs(Operator):
             span[-1] = self._klost[-1] - self._kt[-1]
         return lost & (span >= self.gap_us)
 
-    def _new_reference(self, q: np.ndarray, p: np.ndarray, t_ref: int) -> None:
+    def _new_view(self, q: np.ndarray, p: np.ndarray, t_ref: int, run: int) -> _View:
+        """A reference view at orientation ``q`` (x, y, z, w) and position
+        ``p`` (m), time ``t_ref`` µs, voted into from segment ``run`` of
+        the segments being voted."""
         assert self._sensor is not None
         w, h = self._sensor
-        self._ref = (np.asarray(quat_to_rot(q)), p.copy(), t_ref)
-        self._dsi = np.zeros((len(self.depths), h, w), np.float32)
-        self._baseline = 0.0
-        self._voted = False
+        return _View(np.asarray(quat_to_rot(q)), p.copy(), t_ref, np.zeros((len(self.depths), h, w), np.float32),
+                     run=run)
 
-    def _vote(self, segs: list[tuple[int, int]], pos: np.ndarray, q: np.ndarray) -> None:
-        """The events of ``segs`` (with their poses) vote into the DSI."""
+    def _end_views(self, views: list[_View], segs: list[tuple[int, int]], pos: np.ndarray,
+                   q: np.ndarray) -> list[Packet]:
+        """End ``views`` (oldest first) after they take their share of
+        ``segs`` (and poses): the oldest with votes becomes a map; the
+        others end with it and hold a subset of its events (they started
+        later), so they are dropped (counted in ``superseded``)."""
+        out: list[Packet] = []
+        ended = False
+        for v in views:
+            self._vote(v, segs[v.run:], pos[v.run:], q[v.run:])
+            if v.voted and ended:
+                self.counts["superseded"] += 1
+            elif v.voted:
+                out += self._finalize(v)
+                ended = True
+        return out
+
+    def _vote(self, view: _View, segs: list[tuple[int, int]], pos: np.ndarray, q: np.ndarray) -> None:
+        """The events of ``segs`` (with their poses) vote into ``view``'s DSI."""
         if not segs:
             return
-        assert self._ref is not None and self._dsi is not None
-        R_wr, t_wr, _ = self._ref
+        R_wr, t_wr = view.R_wr, view.t_wr
         a, b = segs[0][0], segs[-1][1]
         R_re = np.einsum("ji,njk->nik", R_wr, np.asarray(quat_to_rot(q)))
         C = (pos - t_wr) @ R_wr  # rows: R_wr^T (t_we - t_wr), the event camera centres in the reference frame
@@ -473,23 +528,21 @@ class Emvs(Operator):
             ok = ray_traces(self._x[a + i:a + j], self._y[a + i:a + j], seg[i:j], self._rays, R_re, C, cam.fx,
                             cam.fy, cam.cx, cam.cy, trace)
             self.counts["outside_view"] += (j - i) - int(ok)
-            vote(trace, first[seg[i:j]], self.rho, self._dsi)
-        self._last_t, self._voted = int(self._t[b - 1]), True
+            vote(trace, first[seg[i:j]], self.rho, view.dsi)
+        view.last_t, view.voted = int(self._t[b - 1]), True
 
-    def _finalize(self) -> list[Packet]:
-        """The current DSI as a map (and cloud), or nothing when the camera
+    def _finalize(self, view: _View) -> list[Packet]:
+        """``view``'s DSI as a map (and cloud), or nothing when the camera
         did not translate enough."""
-        assert self._ref is not None and self._dsi is not None
-        dsi, (R_wr, t_wr, t_ref), t_map = self._dsi, self._ref, self._last_t
-        self._dsi, self._ref = None, None
-        if self._baseline < self.min_baseline * self.scene_depth:
+        R_wr, t_wr, t_ref, t_map = view.R_wr, view.t_wr, view.t_ref, view.last_t
+        if view.baseline < self.min_baseline * self.scene_depth:
             self.counts["no_translation"] += 1
             log.warning("map.emvs: the camera moved %.3g m from the reference view at %d µs, less than "
                         "min_baseline x scene depth = %.3g m: too little translation for depth (pure rotation "
                         "or standing still), no map",
-                        self._baseline, t_ref, self.min_baseline * self.scene_depth)
+                        view.baseline, t_ref, self.min_baseline * self.scene_depth)
             return []
-        depth, conf = depth_map(dsi, self.depths, **self.map_options)  # type: ignore[arg-type]
+        depth, conf = depth_map(view.dsi, self.depths, **self.map_options)  # type: ignore[arg-type]
         known = np.isfinite(depth)
         if known.any():
             self.scene_depth = float(np.median(depth[known]))
@@ -498,7 +551,7 @@ class Emvs(Operator):
         tt = np.array([t_map], np.int64)
         out: list[Packet] = [MapPacket(tt, depth=depth[None], confidence=conf[None], K=self.K[None],
                                        pose=pose[None], t_ref=np.array([t_ref], np.int64),
-                                       baseline=np.array([self._baseline]), t_start=t_map,
+                                       baseline=np.array([view.baseline]), t_start=t_map,
                                        t_end=t_map + 1)]
         if self.points:
             out.append(self._cloud(depth, conf, R_wr, t_wr, t_map))

@@ -173,6 +173,31 @@ def test_a_long_trajectory_gives_a_sequence_of_maps():
         assert np.nanmedian(np.abs(est - Z) / Z) < 0.15  # short baselines (13 cm at 2 m, f = 100 px): coarse
 
 
+
+def test_overlapping_views_give_fresh_maps_with_long_baselines():
+    # overlap 2 at 8 % of the scene depth: a map as often as one view at a time at 4 %, each integrating 8 %
+    velocity = np.array([2.0, 0.5, 0.0])
+    s = _scene(depth=(1.5, 2.5), velocity=tuple(velocity))
+    _, long, _ = _run(s, keyframe_baseline=0.08)
+    op, sliding, _ = _run(s, keyframe_baseline=0.08, overlap=2)
+    _, short, _ = _run(s, keyframe_baseline=0.04)
+    refs = [int(m.t_ref[0]) for m in sliding]
+    assert refs == sorted(refs) and len(sliding) >= 2 * len(long) - 1 and op.counts["maps"] == len(sliding)
+    assert np.all(np.diff([int(m.t[0]) for m in sliding]) > 0)  # one map at a time
+    assert np.median(np.diff(refs)) < 0.6 * np.median(np.diff([int(m.t_ref[0]) for m in long]))
+    # the first view is the same whatever the overlap; the later views start between those of one at a time
+    tectum.testing.assert_streams_equal([long[0]], [sliding[0]], "first map")
+    assert set(int(m.t_ref[0]) for m in long[:2]) <= set(refs)
+
+    def error(m):
+        u, v, Z = _truth((1.5, 2.5), velocity * int(m.t_ref[0]) * 1e-6)
+        return float(np.nanmedian(np.abs(m.depth[0][v, u] - Z) / Z))
+
+    full = sliding[:-1]  # the last ends with the stream
+    base = [float(m.baseline[0]) for m in full]
+    assert min(base) > 1.25 * max(float(m.baseline[0]) for m in short)  # each still over the long baseline
+    assert max(error(m) for m in full) < 0.13 < np.median([error(m) for m in short[1:-1]])
+
 def test_pure_rotation_gives_no_depth_and_says_so(caplog):
     s = _rotating_points(duration_us=40_000, sensor=SENSOR, f=F, omega=(0.3, 3.0, 0.5))
     t = np.arange(0, 40_001, 1_000, dtype=np.int64)
@@ -241,6 +266,29 @@ def test_a_gap_of_lost_poses_is_not_mapped_and_a_new_view_starts_after_it():
             ahead += op.process_ports({"poses": piece})
         tectum.testing.assert_streams_equal(whole, ahead + op.finish(), "poses behind")
 
+
+
+def test_overlapping_views_end_together_at_a_gap_as_one_map_under_any_split():
+    s = _scene(depth=(1.5, 2.5), velocity=(2.0, 0.5, 0.0))
+    streams = {"events": s["events"], "poses": _with_lost(s["poses"], 100_000, 130_000)}
+    opts = {**OPTS, "keyframe_baseline": 0.08, "overlap": 3}
+    op = Emvs(**opts)
+    whole = feed_ports(op, {k: [v] for k, v in streams.items()})
+    maps = [q for q in whole if q.kind == "maps"]
+    stamps = [int(m.t[0]) for m in maps]
+    assert np.all(np.diff(stamps) > 0)
+    assert op.counts["superseded"] == 4  # the two younger views at the gap and at the end
+    # the gap's map is the oldest view's (from 61.4 ms, as one view at a time has it), then new views after it
+    one = [q for q in feed_ports(Emvs(**{**opts, "overlap": 1}), {k: [v] for k, v in streams.items()})
+           if q.kind == "maps"]
+    before = [m for m in maps if int(m.t[0]) < 100_000]
+    assert [int(m.t_ref[0]) for m in one] == [0, 61_400, 131_000, 173_300]
+    tectum.testing.assert_streams_equal([one[1]], [before[-1]], "the gap's map")
+    assert [int(m.t_ref[0]) for m in maps[len(before):]][0] == 131_000
+    ev, ps = streams["events"], streams["poses"]
+    for cut in (7_000, 100_000):
+        pieces = {"events": list(ev.batches(997)), "poses": [ps.slice_time(a, a + cut) for a in range(0, 200_001, cut)]}
+        tectum.testing.assert_streams_equal(whole, feed_ports(Emvs(**opts), pieces), "split")
 
 def test_a_short_run_of_lost_poses_is_bridged():
     # lost rows spanning less than gap_us (here 6 ms between good poses): mapped as if they were not there
