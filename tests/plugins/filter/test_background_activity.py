@@ -8,13 +8,14 @@ from tectum.plugins.filter._state import padded_timestamps
 from tectum.testing import assert_batch_invariant, feed
 
 
-def reference(ev, dt_us):
-    """Slow and obvious: keep if one of the 8 neighbours fired in [t - dt, t]."""
+def reference(ev, dt_us, rows=(-1, 0, 1)):
+    """Slow and obvious: keep if one of the 8 neighbours fired in [t - dt, t]
+    (of the neighbours on these rows, relative to the event's)."""
     last = {}
     keep = []
     for t, x, y in zip(ev.t.tolist(), ev.x.tolist(), ev.y.tolist()):
         ok = any(t - last.get((x + dx, y + dy), -10**18) <= dt_us
-                 for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy)
+                 for dx in (-1, 0, 1) for dy in rows if dx or dy)
         keep.append(ok)
         last[(x, y)] = t
     return np.array(keep, bool)
@@ -158,3 +159,77 @@ def test_the_state_is_one_int32_per_pixel_below_2_29_us(dt_us, dtype):
     op = BackgroundActivity(dt_us=dt_us)
     op.process(EventPacket.from_arrays([5], [1], [2], [1], sensor=(7, 4)))
     assert op.last is not None and op.last.dtype == dtype and op.last.shape == (1, 6, 9)
+
+
+def _dense_then_sparse(seed: int) -> EventPacket:
+    """A 9x7 sensor: 3000 events 0..4 µs apart (nearly all pass a 300 µs
+    window), then 600 events 0..200 µs apart (most are dropped), then
+    dense again, then 1000 dense events on one column (nearly all pass,
+    by the pixels above and below: none by its own row); pixels on every
+    border too."""
+    rng = np.random.default_rng(seed)
+    steps = np.concatenate([rng.integers(0, 5, 3000), rng.integers(0, 200, 600), rng.integers(0, 5, 4000)])
+    n = len(steps)
+    x = rng.integers(0, 9, n)
+    x[-1000:] = 4
+    return EventPacket.from_arrays(np.cumsum(steps) + 10**9, x, rng.integers(0, 7, n), rng.choice([-1, 1], n),
+                                   sensor=(9, 7))
+
+
+@pytest.mark.parametrize("row_first", [False, True])
+@pytest.mark.parametrize("dtype", [np.int32, np.int64])
+def test_select_kernel_either_way_keeps_what_the_reference_keeps(row_first, dtype):
+    """The fused kernel, reading all 8 neighbours or its own row first, on
+    dense and sparse stretches: the reference's events, in order, and
+    their indices; reading its own row first, also how many a neighbour on
+    their own row keeps."""
+    from tectum.plugins.filter.background_activity import background_activity_select
+
+    ev = _dense_then_sparse(seed=11)
+    exp = reference(ev, 300)
+    assert 0.05 < exp[3000:3600].mean() < 0.5 and exp[:3000].mean() > 0.95
+    base = ev.t_start if dtype == np.int32 else 0
+    last = np.full((1, 9, 11), np.iinfo(dtype).min // (1 if dtype == np.int32 else 2), dtype)
+    m = len(ev)
+    ot, ox, oy = np.empty(m + 1, np.int64), np.empty(m + 1, np.uint16), np.empty(m + 1, np.uint16)
+    op, idx = np.empty(m + 1, np.int8), np.empty(m + 1, np.intp)
+    n, by_row = background_activity_select(ev.t, ev.x, ev.y, ev.p, last, base, 300, ot, ox, oy, op, idx, True,
+                                           row_first)
+    assert n == exp.sum() and by_row == (reference(ev, 300, rows=(0,)).sum() if row_first else 0)
+    for got, col in ((ot, ev.t), (ox, ev.x), (oy, ev.y), (op, ev.p), (idx, np.arange(m))):
+        assert np.array_equal(got[:n], col[exp])
+
+
+def test_the_own_row_is_read_first_after_a_packet_that_kept_most():
+    """The operator reads each event's own row first on the packet after
+    one that kept over 75 %, for as long as over 75 % pass by their own
+    row; after a packet that did not, it reads all 8 neighbours for 16
+    packets before it tries again. The reference's events across the
+    switches."""
+    from tectum.plugins.filter.background_activity import _ROW_FIRST_RETRY
+
+    ev = _dense_then_sparse(seed=12)
+    cuts = [int(t) for t in ev.t[::50]] + [ev.t_end]
+    pieces = [ev.slice_time(a, b) for a, b in zip(cuts, cuts[1:])]
+    op = BackgroundActivity(dt_us=300)
+    modes, out = [], []
+    for q in pieces:
+        out += op.process(q)
+        modes.append(op._row_first)
+    exp, by_row = reference(ev, 300), reference(ev, 300, rows=(0,))
+    assert np.array_equal(np.concatenate([q.t for q in out]), ev.t[exp])
+    want, row_first, retry = [], False, 0
+    for a, b in zip(cuts, cuts[1:]):
+        i, j = np.searchsorted(ev.t, [a, b])
+        if j > i:
+            if row_first:
+                row_first = by_row[i:j].mean() > 0.75
+                retry = 0 if row_first else _ROW_FIRST_RETRY
+            else:
+                retry = max(retry - 1, 0)
+                row_first = not retry and exp[i:j].mean() > 0.75
+        want.append(row_first)
+    assert modes == want
+    # the column: nearly all kept, none by their own row: row_first tried once, then again 16 packets later
+    assert exp[-1000:].mean() > 0.9 and sum(modes[-17:]) <= 1 and True in modes[:60]
+    assert any(modes[k - 17] and not any(modes[k - 16:k]) and modes[k] for k in range(17, len(modes)))
