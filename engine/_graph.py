@@ -725,6 +725,23 @@ class Graph:
             todo += self.plan.nodes[nid].children
         return True
 
+    def join_span(self, node_id: str) -> int:
+        """The longest span (µs) of packets pushed at ``node_id`` that may be
+        joined into one: the least :meth:`~tectum.Operator.join_us` of the
+        operators below it (2**62 when none states one)."""
+        todo, seen, span = [node_id], set(), 1 << 62
+        while todo:
+            nid = todo.pop()
+            if nid in seen:
+                continue
+            seen.add(nid)
+            op = self._recs[nid].op
+            us = op.join_us() if op is not None else None
+            if us is not None:
+                span = min(span, max(int(us), 1))
+            todo += self.plan.nodes[nid].children
+        return span
+
     def _emit(self, rec: _Node, pkt: Packet, out: list[Delivery]) -> None:
         if rec.tapped:
             out.append(("tap:" + rec.id, pkt))

@@ -114,6 +114,15 @@ class Operator:
         refuses to shard, with that reason."""
         return None
 
+    def join_us(self) -> int | None:
+        """The longest span of input (µs) this operator wants in one call
+        when the engine joins a source's small packets before they go in
+        (they are joined up to the pipeline's ``max_events`` either way);
+        None (the default): no limit. An operator whose output grows with
+        the span (a frame per window) keeps it short, so the output of one
+        call stays in cache until it is consumed."""
+        return None
+
     def window_grid_us(self) -> int:
         """Operators that cut their output on a grid of windows counted from
         their first packet's start: the grid's period in µs, so a shard's

@@ -597,6 +597,8 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
         # a live source's packets go in as they come, and so do those of a
         # source feeding an operator that acts on each packet's tick
         small = _SMALL if not source.live and graph.joinable(sid) else 0
+        span = graph.join_span(sid)  # a run of joined packets ends by held_until (µs)
+        held_until = 0
         clock = time.perf_counter
         trio_now = now or trio.lowlevel.current_clock().current_time  # trio.current_time() without its lookups
         push, add = graph.push, out.add
@@ -673,6 +675,7 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                 # the held run end to end in the same arrays (a view: no copy).
                 at = pkt._at if type(pkt) is EventPacket and not pkt.columns else -1
                 if at == held_end >= 0 and pkt.t.base is held_base and held_n + n <= max_events and (
+                        pkt.t_end <= held_until) and (
                         pkt.sensor is held_sensor or pkt.sensor == held_sensor) and (  # type: ignore[attr-defined]
                         pkt.x.base is held_owners[0] and pkt.y.base is held_owners[1]  # type: ignore[attr-defined]
                         and pkt.p.base is held_owners[2]):  # type: ignore[attr-defined]
@@ -693,7 +696,8 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                             if (type(q) is not EventPacket or q._at != held_end or not q._checked or q.columns
                                     or q.t.base is not held_base or q.x.base is not bx or q.y.base is not by
                                     or q.p.base is not bp or q.sensor is not held_sensor
-                                    or q.t_start < guard.events_mark or held_n + (m := q.t.shape[0]) > max_events):
+                                    or q.t_start < guard.events_mark or held_n + (m := q.t.shape[0]) > max_events
+                                    or q.t_end > held_until):
                                 ahead = q
                                 break
                             guard.events_mark = q.t_end
@@ -703,7 +707,7 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                             ran += m
                         st.events_out += ran
                         st.busy_ns += clock_ns() - t0
-                elif held and held_n + n <= max_events and n < small and not held_big and (
+                elif held and held_n + n <= max_events and n < small and not held_big and pkt.t_end <= held_until and (
                         type(pkt) is EventPacket and (pkt.sensor is held_sensor or pkt.sensor == held_sensor) and (
                             pkt.columns is held_cols or pkt.columns.keys() == held_cols.keys())):
                     held.append(pkt)
@@ -717,6 +721,7 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                         held, held_n, held_end = [], 0, -1
                     if small and type(pkt) is EventPacket and n <= max_events and (n < small or at >= 0):
                         held, held_n, held_big = [pkt], n, n >= small  # starts a run
+                        held_until = pkt.t_start + span
                         arrival = trio_now()
                         held_sensor, held_cols, held_base = pkt.sensor, pkt.columns, pkt.t.base
                         held_end = at + n if at >= 0 else -1

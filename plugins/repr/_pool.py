@@ -74,16 +74,20 @@ class FramePool:
         self._blocks: list[Block] = []
         self._lock = threading.Lock()  # operators in several threads may share the pool
 
-    def take(self) -> tuple[Block, np.ndarray]:
+    def take(self, skip: int = 0) -> tuple[Block, np.ndarray]:
         """The free block handed out last (the likeliest still in cache: a
         720 kB frame written cold costs 4x one written in cache), else a new
         zeroed one (kept while the pool has room). Free: nobody else holds
         it; it is dirty as its ``n_marks`` say. Returned with a reference to
         its images, taken under the lock: hold it (or views of it) while
-        the block is in use, so no other thread takes the block meanwhile."""
+        the block is in use, so no other thread takes the block meanwhile.
+        ``skip``: the blocks the caller took last and still holds (the last
+        ones out): not looked at again (a caller taking k blocks looks at
+        each block once, not k times; a wrong count only passes a free block
+        by)."""
         with self._lock:
             blocks = self._blocks
-            for j in range(len(blocks) - 1, -1, -1):  # blocks in the order they went out
+            for j in range(len(blocks) - 1 - skip, -1, -1):  # blocks in the order they went out
                 b = blocks[j]
                 if _unshared(b):
                     del blocks[j]

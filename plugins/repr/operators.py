@@ -89,7 +89,7 @@ class _Image(Windowed):
         self._pending = pending = []
         for a in range(0, n_win, g):
             b = min(a + g, n_win)
-            block, images = self._pool.take()  # images: ours until handed out
+            block, images = self._pool.take(len(pending))  # images: ours until handed out
             if b - a == n_win:  # one block: no slicing
                 self._kernel(pk.x, pk.y, pk.p, splits, block)
             else:
@@ -109,6 +109,9 @@ class _Image(Windowed):
         out = Block(np.zeros((1, *self.state.shape), self.dtype), 0)
         self._kernel(_NO_XY, _NO_XY, _NO_P, _ONE_SPLIT, out)
         return out.images[0]
+
+    def _px_bytes(self) -> int:
+        return self.dtype.itemsize * int(np.prod(self.shape_tail))
 
     def describe(self) -> dict[str, Any]:
         return {**super().describe(), "dtype": str(self.dtype)}
@@ -235,6 +238,9 @@ class TimeSurface(Windowed):
         self._pool = pool(self.v.shape, np.dtype(np.float32), max(1, BLOCK_BYTES // (self.v.size * 4)))
         self._blocks: list[np.ndarray] = []  # the blocks of the packet being sliced
         self._k = 0  # frames in the last one
+
+    def _px_bytes(self) -> int:
+        return 8  # float32 x 2
 
     def _add(self, t, x, y, p) -> None:  # type: ignore[no-untyped-def]
         if not self._based:

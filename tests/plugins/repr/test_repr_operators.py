@@ -158,3 +158,40 @@ def test_frames_in_several_blocks(ev, make, monkeypatch):
     both = concat(out)
     assert np.array_equal(both.t, one.t) and np.array_equal(both.images, one.images)
     assert_batch_invariant(lambda: make(window_us=1000), ev, max_examples=4, event_by_event_check=False)
+
+
+def test_joined_runs_span_about_a_cache_of_frames():
+    """The engine joins small packets before an image operator into runs of
+    about JOIN_BYTES of frames on a JOIN_PIXELS sensor (2 windows of
+    8-byte pixels, 16 of 1-byte ones), so a call's frames are still in
+    cache when the next reuses them; count windows and the operators
+    without a frame size state no limit."""
+    from tectum.plugins.repr import _window
+
+    per_px = {R.EventFrame(window_us=7000): 8, R.CountImage(window_us=7000, dtype="uint8"): 1,
+              R.Accumulate(window_us=7000, dtype="int16"): 2, R.TimeSurface(window_us=7000): 8}
+    for op, px in per_px.items():
+        assert op.join_us() == 7000 * max(1, _window.JOIN_BYTES // (px * _window.JOIN_PIXELS))
+    assert R.EventFrame(window_us=7000).join_us() == 14_000 and R.CountImage(dtype="uint8").join_us() == 160_000
+    for op in (R.EventFrame(count=100), R.Sae(window_us=7000), R.Color(window_us=7000)):
+        assert op.join_us() is None
+
+
+class _SpansSeen(R.EventFrame):
+    name = "repr.event_frame_spans_test"
+
+    def process(self, packet):
+        self.spans = [*getattr(self, "spans", []), packet.t_end - packet.t_start]
+        return super().process(packet)
+
+
+def test_in_a_pipeline_of_small_packets_each_call_gets_two_windows(ev):
+    pieces = [ev.slice_time(a, a + 500) for a in range(ev.t_start, ev.t_end, 500)]
+    op, sink = _SpansSeen(window_us=2000), ListSink()
+    p = tectum.Pipeline()
+    p.sink(sink, p.op(op, p.source(ListSource(pieces))))
+    tectum.run(p)
+    assert max(op.spans) == 4000 and len(op.spans) < len(pieces) // 3
+    want = concat(feed(R.EventFrame(window_us=2000), [ev]))
+    got = concat([q for q in sink.packets if q.kind == tectum.Kind.FRAMES])
+    assert np.array_equal(got.t, want.t) and np.array_equal(got.images, want.images)

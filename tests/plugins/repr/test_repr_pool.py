@@ -115,6 +115,28 @@ def test_a_pool_reuses_only_unshared_blocks():
     del held, held_b
 
 
+def test_a_caller_taking_several_blocks_looks_at_each_once(monkeypatch):
+    """take(skip) passes the caller's own last blocks by unlooked (a packet
+    of k blocks costs k looks, not k squared); a skip that is wrong still
+    never hands out a held block."""
+    p = _pool.FramePool((2, 3), np.dtype(np.int32), 1, 0, max_blocks=8)
+    first = [p.take() for _ in range(3)]
+    free = first[0][0]
+    del first  # all three free now
+    looks = []
+    real = _pool._unshared
+    monkeypatch.setattr(_pool, "_unshared", lambda b: looks.append(b) or real(b))
+    got = []
+    for k in range(3):
+        got.append(p.take(k))
+    assert [len(looks)] == [3] and {id(b) for b, _ in got} == {id(b) for b in p._blocks}
+    assert got[-1][0] is free
+    held = p.take(0)  # none free (all held in got): a new one, after looking at the three
+    assert all(held[0] is not b for b, _ in got)
+    wrong = p.take(7)  # more than there are: nothing looked at, a new block
+    assert all(wrong[0] is not b for b, _ in [*got, held])
+
+
 def test_a_block_is_not_taken_twice_across_threads():
     """Threads taking blocks of one shared pool at once never get the same
     block while the first still holds what take() returned."""
