@@ -132,12 +132,10 @@ class Undistort(Operator):
         op = np.empty(m + 1, np.int8)
         n = lut_kernel(packet.t, packet.x, packet.y, packet.p, self.lut, ot, ox, oy, op)
         cols = packet.columns
-        if cols:
-            if n == m:
-                cols = dict(cols)
-            else:
-                idx = np.empty(m + 1, np.int64)
-                kept_index_kernel(packet.x, packet.y, self.lut, idx)
-                cols = {k: v[idx[:n]] for k, v in cols.items()}
-        return [EventPacket(ot[:n], ox[:n], oy[:n], op[:n], sensor=packet.sensor,
-                            t_start=packet.t_start, t_end=packet.t_end, columns=cols)]
+        if cols and n < m:
+            idx = np.empty(m + 1, np.int64)
+            kept_index_kernel(packet.x, packet.y, self.lut, idx)
+            cols = {k: v[idx[:n]] for k, v in cols.items()}
+        # the table only lands inside the sensor: a checked packet stays checked
+        return [EventPacket._trusted(ot[:n], ox[:n], oy[:n], op[:n], packet.sensor, packet.t_start, packet.t_end,
+                                     cols, packet.checked)]

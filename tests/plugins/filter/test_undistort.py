@@ -134,3 +134,20 @@ def test_extra_columns_follow_their_events(make_pattern, dist):
     assert np.array_equal(out.columns["index"], np.flatnonzero(ok))
     assert np.array_equal(out.columns["noise"], ev.columns["noise"][ok])
     assert np.array_equal(out.x, ux) and np.array_equal(out.y, uy) and np.array_equal(out.p, ev.p[ok])
+
+
+def test_output_is_checked_as_its_input_was(make_pattern):
+    """The table lands only inside the sensor, so the output of a validated
+    packet is marked checked (the pipeline's guard skips it) and passes
+    validate; that of an unchecked packet stays unchecked; extra columns
+    follow their events."""
+    from tectum import EventPacket
+
+    ev = make_pattern().validate()
+    out = Undistort(camera=Camera(K, D)).process(ev)[0]
+    ok, _, _ = reference(ev, Camera(K, D))
+    assert out.checked and len(out) == ok.sum()
+    out.validate()
+    assert np.array_equal(out.columns["noise"], ev.columns["noise"][ok])
+    raw = EventPacket(ev.t, ev.x, ev.y, ev.p, sensor=ev.sensor, t_start=ev.t_start, t_end=ev.t_end)
+    assert not raw.checked and not Undistort(camera=Camera(K, D)).process(raw)[0].checked
