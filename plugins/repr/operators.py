@@ -86,7 +86,8 @@ class _Image(Windowed):
                 self._kernel(pk.x, pk.y, pk.p, splits, self._no_frames)
             return
         g = self._pool.per_block
-        self._pending = pending = []
+        pending: list[tuple[np.ndarray, np.ndarray]] = []
+        self._pending = pending
         for a in range(0, n_win, g):
             b = min(a + g, n_win)
             block, images = self._pool.take(len(pending))  # images: ours until handed out
