@@ -581,8 +581,15 @@ def decode_dat(records, state, t, x, y, p):  # pragma: no cover - numba
     """``records`` are little-endian uint64 (low word time, high word data);
     returns (n_events, times never decrease, largest x, largest y) (the
     bounds of :meth:`EventAssembler.commit`; the first time is compared
-    with the previous call's last). Blocks without a wrap are decoded in a
-    vectorised loop."""
+    with the previous call's last).
+
+    A block whose raw times never fall and rise by at most half the 32-bit
+    range in all holds no wrap: it is decoded in one vectorised pass on
+    32-bit times. Any other block (a wrap, a time out of order, a corrupt
+    record) has its times unrolled again one by one: a fall of more than
+    half the range is a wrap, a rise of more than half a step back across
+    one (a corrupt record), each time unrolled to the one nearest the
+    previous, so one bad record cannot shift every later time by 2^32 µs."""
     wraps = state[0]
     last = state[1]
     have = state[2]
@@ -599,22 +606,16 @@ def decode_dat(records, state, t, x, y, p):  # pragma: no cover - numba
         xo = x[i:j]
         yo = y[i:j]
         po = p[i:j]
-        # a wrap is a fall of more than half the 32-bit range; a rise of more
-        # than half is a step back across one (a corrupt record): each time is
-        # unrolled to the one nearest the previous, so one bad record cannot
-        # shift every later time by 2^32 µs
-        prev = last if have == 1 else np.int64(r[0] & np.uint64(0xFFFFFFFF))
-        before = (wraps << 32) + prev  # the time before the block's first
-        jump = np.int64(0)
+        first = np.uint32(last) if have == 1 else np.uint32(r[0] & np.uint64(0xFFFFFFFF))
+        prev = first
         fell = np.int64(0)
         hi = wraps << 32
-        for k in range(j - i):  # one pass: times as if no wrap, the largest jump, the data word, the bounds
+        for k in range(j - i):  # one pass: times as if no wrap, the falls, the data word, the bounds
             rec = r[k]
-            raw = np.int64(rec & np.uint64(0xFFFFFFFF))
-            jump = max(jump, abs(prev - raw))
+            raw = np.uint32(rec & np.uint64(0xFFFFFFFF))
             fell += np.int64(raw < prev)
             prev = raw
-            to[k] = hi + raw
+            to[k] = hi + np.int64(raw)
             d = np.uint32(rec >> np.uint64(32))
             xk = np.uint16(d & np.uint32(0x3FFF))
             yk = np.uint16((d >> np.uint32(14)) & np.uint32(0x3FFF))
@@ -623,7 +624,8 @@ def decode_dat(records, state, t, x, y, p):  # pragma: no cover - numba
             xo[k] = xk
             yo[k] = yk
             po[k] = np.int8((d >> np.uint32(28)) != 0) * np.int8(2) - np.int8(1)
-        if jump > half:  # a wrap in the block: its times again, unrolled one by one
+        if fell or np.int64(prev) - np.int64(first) > half:  # perhaps a wrap: unrolled one by one
+            before = (wraps << 32) + (last if have == 1 else np.int64(first))  # the time before the block's first
             fell = np.int64(0)
             for k in range(j - i):
                 raw = np.int64(r[k] & np.uint64(0xFFFFFFFF))
@@ -634,7 +636,7 @@ def decode_dat(records, state, t, x, y, p):  # pragma: no cover - numba
                 fell += np.int64(to[k] < before)
                 before = to[k]
         else:
-            last = prev
+            last = np.int64(prev)
             have = 1
         dec += fell
         i = j

@@ -278,9 +278,28 @@ def test_dat_unrolls_wraps_in_any_chunking(n, cuts, t0, n_jumps, n_back):
     for part in np.split(rec, sorted(c % (n + 1) for c in cuts)):
         t, x, y = np.empty(len(part), np.int64), np.empty(len(part), np.uint16), np.empty(len(part), np.uint16)
         p = np.empty(len(part), np.int8)
-        K.decode_dat(part, state, t, x, y, p)
+        before = got[-1][0] if got else None
+        _, ordered, mx, my = K.decode_dat(part, state, t, x, y, p)
         got += list(zip(t.tolist(), x.tolist(), y.tolist(), p.tolist()))
+        # the bounds the assembler trusts: order (from the previous call's last time on) and largest x, y
+        times_here = ([before] if before is not None else []) + t.tolist()
+        assert ordered == all(a <= b for a, b in zip(times_here, times_here[1:]))
+        assert (mx, my) == ((int(x.max()), int(y.max())) if len(part) else (0, 0))
     assert got == ref_dat(times.tolist(), data.tolist())
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(2, 9000), st.integers(0, 2**30), st.integers(1, 8_999), st.integers(-3, 2**30).filter(lambda v: v != -1))
+def test_dat_rise_past_half_the_range_within_ordered_times(n, t0, at, over):
+    """Times that never fall but rise by about half the 32-bit range (``over``
+    past it) from one record to the next (a corrupt record, or two records
+    far apart): more than half is unrolled to the nearest time like any
+    other, whatever the block and the calls' boundaries (a rise of exactly
+    half, ``over == -1``, is none: :func:`ref_dat` would step back)."""
+    times = t0 + np.arange(n, dtype=np.int64)
+    times[at % n:] += (1 << 31) + over  # stays below 2^32: no time falls
+    data = np.random.default_rng(n).integers(0, 1 << 32, n, dtype=np.uint64)
+    check_dat_cuts_raw(times.astype(np.uint64), data, [[], [at % n], [4096]])
 
 
 def test_dat_wrap_exactly_at_a_chunk_or_block_boundary():
@@ -297,22 +316,28 @@ def test_dat_wrap_exactly_at_a_chunk_or_block_boundary():
         check_dat_cuts(unrolled, data, [[], [4096], [4095, 4096]])
 
 
-def check_dat_cuts(unrolled, data, cuts_list):
-    """decode_dat over the 32-bit times of ``unrolled``, in calls cut at each
-    of ``cuts_list``, gives the unrolled times."""
-    times = (unrolled & 0xFFFFFFFF).astype(np.uint64)
+def check_dat_cuts_raw(times, data, cuts_list):
+    """decode_dat over the 32-bit ``times`` in calls cut at each of
+    ``cuts_list`` equals :func:`ref_dat`."""
     rec = times | (data << np.uint64(32))
     want = ref_dat(times.tolist(), data.tolist())
-    assert [w[0] for w in want] == unrolled.tolist()
     for cuts in cuts_list:
         state = np.zeros(K.DAT_STATE, np.int64)
         got = []
-        for part in np.split(rec, cuts):
+        for part in np.split(rec, [c for c in cuts if c <= len(rec)]):
             t, x, y = np.empty(len(part), np.int64), np.empty(len(part), np.uint16), np.empty(len(part), np.uint16)
             p = np.empty(len(part), np.int8)
             K.decode_dat(part, state, t, x, y, p)
             got += list(zip(t.tolist(), x.tolist(), y.tolist(), p.tolist()))
         assert got == want, cuts
+
+
+def check_dat_cuts(unrolled, data, cuts_list):
+    """decode_dat over the 32-bit times of ``unrolled``, in calls cut at each
+    of ``cuts_list``, gives the unrolled times."""
+    times = (unrolled & 0xFFFFFFFF).astype(np.uint64)
+    assert [w[0] for w in ref_dat(times.tolist(), data.tolist())] == unrolled.tolist()
+    check_dat_cuts_raw(times, data, cuts_list)
 
 
 def test_wrap_step_at_exactly_half_the_range():
