@@ -30,7 +30,7 @@ trigger id, ``value`` 1 rising / 0 falling edge).
 from __future__ import annotations
 
 from collections.abc import Iterator
-from functools import partial
+from functools import lru_cache, partial
 from typing import Any, ClassVar
 
 import numpy as np
@@ -81,6 +81,18 @@ def format_option(value: str | None) -> str | None:
     return fmt
 
 
+@lru_cache(maxsize=4)
+def _head_format(head: bytes) -> str | None:
+    """:func:`raw_format_of` the ``%`` lines among the first 64 lines of
+    ``head`` (a file's first bytes). Cached: every RAW class sniffs the
+    same bytes in turn. A head without ``evt`` in any case is no RAW file
+    (``% evt 2.0``, ``% format EVT3``: both name it), without parsing."""
+    if b"evt" not in head.lower():
+        return None
+    lines = [ln[1:].strip().decode("latin1", "replace") for ln in head.split(b"\n")[:64] if ln.startswith(b"%")]
+    return raw_format_of(header_dict(lines))
+
+
 class RawSource(FileSource):
     """Common part of the EVT 2.0 and EVT 3.0 readers.
 
@@ -110,10 +122,7 @@ class RawSource(FileSource):
 
     @classmethod
     def sniff(cls, head: bytes) -> bool:
-        if not head.startswith(b"%"):
-            return False
-        lines = [ln[1:].strip().decode("latin1", "replace") for ln in head.split(b"\n")[:64] if ln.startswith(b"%")]
-        return raw_format_of(header_dict(lines)) == cls.evt
+        return head.startswith(b"%") and _head_format(head) == cls.evt
 
     def _header(self, f: Any) -> tuple[dict[str, str], int, tuple[int, int] | None]:
         lines, start = read_prefixed_header(f, b"%", self.path)
