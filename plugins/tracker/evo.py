@@ -27,7 +27,7 @@ __all__ = ["Evo"]
 
 #: parameters handed to ``tracker.edge_align`` and to ``map.emvs``
 _TRACKER = ("bootstrap_us", "plane_depth", "window_events", "step_events")
-_MAPPER = ("planes", "min_depth", "max_depth", "keyframe_baseline", "min_baseline", "segment_us")
+_MAPPER = ("planes", "min_depth", "max_depth", "keyframe_baseline", "min_baseline", "overlap", "segment_us")
 
 
 class Evo(Macro):
@@ -68,6 +68,10 @@ class Evo(Macro):
     min_baseline:
         Mapper: a view whose camera moved less than this fraction of the
         scene depth gives no map.
+    overlap:
+        Mapper: reference views in progress at once (a map every
+        ``keyframe_baseline / overlap`` of the scene depth, each over
+        ``keyframe_baseline``).
     segment_us:
         Mapper: longest time a segment of events sharing one pose spans, µs.
     """
@@ -82,7 +86,7 @@ class Evo(Macro):
                  plane_depth: float | None = None, window_events: int | None = None, step_events: int | None = None,
                  planes: int | None = None, min_depth: float | None = None, max_depth: float | None = None,
                  keyframe_baseline: float | None = None, min_baseline: float | None = None,
-                 segment_us: int | None = None) -> None:
+                 overlap: int | None = None, segment_us: int | None = None) -> None:
         if delay_us < 1:
             raise ValueError(f"tracker.evo: delay_us must be >= 1 µs, got {delay_us}")
         self.calib, self.delay_us = calib, int(delay_us)

@@ -47,11 +47,11 @@ def test_parameters_not_given_keep_each_operators_default() -> None:
 
     p = tectum.Pipeline()
     cam = p.source("pattern:", id="cam")
-    p.op("tracker.evo", events=cam, id="evo", calib="40;40;20;15", step_events=500, min_depth=0.5)
+    p.op("tracker.evo", events=cam, id="evo", calib="40;40;20;15", step_events=500, min_depth=0.5, overlap=2)
     plan = p.validate()
     tr, mp = plan.nodes["evo.tracker"].params, plan.nodes["evo.mapper"].params
     assert dict(tr) == {"calib": "40;40;20;15", "step_events": 500}
-    assert dict(mp) == {"calib": "40;40;20;15", "min_depth": 0.5}
+    assert dict(mp) == {"calib": "40;40;20;15", "min_depth": 0.5, "overlap": 2}
     op = plan.nodes["evo.tracker"].instantiate()
     assert op.window_events == inspect.signature(EdgeAlign).parameters["window_events"].default
 
