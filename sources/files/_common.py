@@ -265,6 +265,10 @@ class EventAssembler:
         self.count = 0
         self._cols: tuple[np.ndarray, ...] | None = None
         self._k = 0
+        # resume_at: the pooled set of the last reserve, where its new events start, where the columns
+        # of the next commit start in it and where the committed events end
+        self._set: tuple[np.ndarray, ...] | None = None
+        self._origin = self._from = self._end = 0
 
     def past_end(self) -> bool:
         """True once events reached the source's ``t_end_us`` (stop decoding)."""
@@ -279,13 +283,36 @@ class EventAssembler:
         packet is built without copying the chunk."""
         ct = self.carry
         k = 0 if ct is None else ct[0].shape[0]
+        self._set = None  # the last set is free again once its packets are gone
         cols = POOL.take(k + n)
         if ct is not None:
             for a, c in zip(cols, ct):
                 a[:k] = c
             self.carry = None
         self._cols, self._k = cols, k
+        self._set, self._origin, self._from = cols, k, 0
         return tuple(a[k:k + n] for a in cols)
+
+    def resume_at(self, i: int) -> bool:
+        """After :meth:`commit`: make the events a decoder wrote from index
+        ``i`` of the columns the last :meth:`reserve` returned (past the
+        committed ones) the next commit's, without moving them: the
+        held-back run is copied just before them. False, and nothing done,
+        when it does not fit between the committed events and ``i`` (then
+        :meth:`reserve` anew). Lets threads decode into stretches of one
+        reservation, each committed in turn."""
+        cols = self._set
+        ct = self.carry
+        c = 0 if ct is None else ct[0].shape[0]
+        s = self._origin + i
+        if cols is None or self._cols is not None or s - c < self._end:
+            return False
+        if ct is not None:
+            for a, h in zip(cols, ct):
+                a[s - c:s] = h
+            self.carry = None
+        self._cols, self._k, self._from = tuple(a[s - c:] for a in cols), c, s - c
+        return True
 
     def commit(self, n: int, byte_offset: int = 0,
                where: Callable[[], np.ndarray] | None = None,
@@ -299,6 +326,7 @@ class EventAssembler:
         cols, k = self._cols, self._k
         assert cols is not None, "commit() without reserve()"
         self._cols = None
+        self._end = self._from + k + n
         t, x, y, p = cols
         if n == 0:
             if k:

@@ -21,6 +21,7 @@ import struct
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -518,7 +519,9 @@ class _Batch:
     def _inflate_run(self, buf: np.ndarray, rows: np.ndarray) -> Iterator[Packet]:
         """Plain LZ4 event packets: parts of the run go to ``threads``
         threads (the kernel releases the GIL), each into its own stretch of
-        the columns, which are then closed up."""
+        one reservation of columns, committed in turn where it lies (see
+        :meth:`EventAssembler.resume_at`; moved only when the run of equal
+        times held back from the part before does not fit in the gap)."""
         assert self.asm is not None
         room = rows[:, 5] // 16
         w = max(1, min(self.src.threads, rows.shape[0], int(rows[:, 5].sum()) // _PART_BYTES))
@@ -535,15 +538,7 @@ class _Batch:
             return n, rising, mx, my
 
         futures = [workers().submit(part, i) for i in range(1, w)]
-        n, rising, mx, my = part(0)
-        t = cols[0]
-        for i, fu in enumerate(futures, 1):
-            m, up, a, b = fu.result()
-            for c in cols:
-                c[n:n + m] = c[at[i]:at[i] + m]
-            rising = rising and up and (n == 0 or m == 0 or t[n] >= t[n - 1])
-            mx, my = max(mx, a), max(my, b)
-            n += m
+        parts = [part(0)] + [fu.result() for fu in futures]
         pos = rows[:, 8]
         for i in np.flatnonzero(counts < 0).tolist():
             size = int(rows[i, 1] - rows[i, 0])
@@ -552,8 +547,12 @@ class _Batch:
             else:
                 why = _why(buf.data[rows[i, 0]:rows[i, 1]], self.comp)
                 self._bad(self.ev_id, f"does not decompress: {why}", int(pos[i]), size)
-        good = counts > 0
-        yield from self.asm.commit(n, int(pos[0]), lambda: np.repeat(pos[good], counts[good]), (rising, mx, my))
+        for i, (n, rising, mx, my) in enumerate(parts):
+            if i and not self.asm.resume_at(at[i]):
+                for a, c in zip(self.asm.reserve(n), cols):
+                    a[:n] = c[at[i]:at[i] + n]
+            p, k = pos[cuts[i]:cuts[i + 1]], counts[cuts[i]:cuts[i + 1]]
+            yield from self.asm.commit(n, int(p[0]), partial(_where, p, k), (rising, mx, my))
 
     def _one(self, payload: memoryview, pos: int) -> Iterator[Packet]:
         """One event packet, decompressed in Python."""
@@ -607,6 +606,13 @@ def _why(payload: memoryview, comp: int) -> str:
     """Why a packet does not decompress, in the words of the frame decoder."""
     e = _inflate(payload, comp)
     return str(e) if isinstance(e, ValueError) else "corrupt LZ4 block"
+
+
+def _where(pos: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """The file offset of each event decoded from packets at ``pos`` (their
+    headers) holding ``counts`` events each (below 0: none)."""
+    good = counts > 0
+    return np.repeat(pos[good], counts[good])
 
 
 def _located(rows: np.ndarray, base: int) -> np.ndarray:

@@ -163,6 +163,74 @@ def test_bad_event_found_on_every_path(tmp_path: Path, compiled: bool, what: str
             assert e.value.offset == at, (k, threads, run)
 
 
+def _tiled(pkts: list[EventPacket]) -> bool:
+    """Packets one after the other: each starts where the one before ends,
+    and no time is split between two packets."""
+    full = [q for q in pkts if len(q)]
+    return (all(a.t_end == b.t_start for a, b in zip(pkts, pkts[1:]))
+            and all(a.t[-1] < b.t[0] for a, b in zip(full, full[1:])))
+
+
+@pytest.mark.parametrize("in_place", [True, False], ids=["in-place", "moved"])
+def test_thread_parts_committed_in_turn(tmp_path: Path, in_place: bool, monkeypatch) -> None:
+    """Each thread's part of a run is committed where it was decoded, the
+    run of equal times held back from the part before copied in front of
+    it (or, when that does not fit, the part moved into new columns): the
+    same events, in packets that tile time, long runs of equal times across
+    the parts' boundaries included."""
+    from tectum.sources.files._common import EventAssembler
+
+    rng = np.random.default_rng(5)
+    n = 60_000
+    steps = rng.integers(0, 3, n)
+    steps[20_000:24_000] = 0  # 4000 events at one time
+    steps[41_000:41_200] = 0
+    ev = EventPacket.from_arrays(np.cumsum(steps), rng.integers(0, 64, n), rng.integers(0, 48, n),
+                                 rng.choice([-1, 1], n), sensor=(64, 48))
+    f = _write(tmp_path / "runs.aedat4", ev, packet_events=PER_PACKET)
+    resumed: list[bool] = []
+    real = EventAssembler.resume_at
+
+    def spy(self: EventAssembler, i: int) -> bool:
+        resumed.append(real(self, i) if in_place else False)
+        return resumed[-1]
+    monkeypatch.setattr(EventAssembler, "resume_at", spy)
+    for part_bytes, run in ((1 << 12, 1 << 22), (1 << 14, 20_000)):
+        monkeypatch.setattr(aedat4, "_PART_BYTES", part_bytes)
+        monkeypatch.setattr(aedat4, "_RUN_EVENTS", run)
+        resumed.clear()
+        pkts = [q for q in Aedat4Source(str(f), threads=2).packets() if isinstance(q, EventPacket)]
+        assert _same(concat(pkts), ev) and _tiled(pkts)
+        assert resumed and all(r == in_place for r in resumed)
+
+
+def test_resume_at_places_the_held_back_run_or_refuses() -> None:
+    """EventAssembler.resume_at: the run held back from a commit goes just
+    before the next part's events when it fits after the committed ones
+    (never over them), else nothing changes and False says so."""
+    from tectum.sources.files._common import EventAssembler
+
+    for gap, fits in ((3, True), (2, False)):
+        asm = EventAssembler(Aedat4Source("unused.aedat4"), (64, 48))
+        t, x, y, p = asm.reserve(20)
+        t[:6] = [1, 2, 3, 7, 7, 7]  # part one: 7 held back
+        start = 6 + gap
+        t[6:start] = -5  # the gap
+        t[start:start + 4] = [7, 8, 9, 9]  # part two, after the gap
+        x[:] = np.arange(20)
+        y[:], p[:] = 1, 1
+        first = asm.commit(6)
+        assert [q.t.tolist() for q in first] == [[1, 2, 3]]
+        assert asm.resume_at(start) is fits
+        if not fits:
+            assert t[6:start].tolist() == [-5] * gap and asm.carry is not None and asm.carry[0].tolist() == [7] * 3
+            continue
+        second = asm.commit(4) + asm.finish()
+        assert first[0].t.tolist() == [1, 2, 3] and first[0].x.tolist() == [0, 1, 2]
+        assert [q.t.tolist() for q in second] == [[7, 7, 7, 7, 8], [9, 9]]
+        assert second[0].x.tolist() == [3, 4, 5, start, start + 1]
+
+
 def test_frame_kinds_found_by_the_scan(tmp_path: Path) -> None:
     """What the packet scan calls a plain LZ4 frame (decoded in compiled
     code): single and linked blocks, with or without the content size; not
