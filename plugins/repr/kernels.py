@@ -12,8 +12,8 @@ import numpy as np
 from numba import literally, njit
 
 __all__ = [
-    "NEVER", "histogram_kernel", "signed_kernel", "count_kernel", "sae_kernel",
-    "time_surface_kernel", "decay_kernel", "surface_kernel", "voxel_kernel", "last_polarity_kernel",
+    "NEVER", "histogram_kernel", "signed_kernel", "count_kernel", "sae_kernel", "time_surface_kernel",
+    "decay_table", "decay_kernel", "DECAY_STEP", "surface_kernel", "voxel_kernel", "last_polarity_kernel",
     "render_polarity_kernel", "windows_kernel", "WINDOWS", "HISTOGRAM", "SIGNED", "COUNT",
 ]
 
@@ -107,8 +107,23 @@ def render_polarity_kernel(last, on, off, background, out):  # type: ignore[no-u
             out[r, c, 2] = col[2]
 
 
+#: :func:`decay_kernel` splits ``t - base`` (µs) in a multiple of this and a
+#: rest below it: one exp per multiple, a table for the rest
+DECAY_STEP = 64
+
+
 @njit(cache=True, nogil=True)
-def decay_kernel(t, x, y, p, v, base, tau_us, rebase_after):  # type: ignore[no-untyped-def]
+def decay_table(tau_us):  # type: ignore[no-untyped-def]
+    """``exp(j / tau_us)`` for ``j < DECAY_STEP`` (µs): :func:`decay_kernel`'s table."""
+    out = np.empty(DECAY_STEP)
+    inv = 1.0 / tau_us
+    for j in range(DECAY_STEP):
+        out[j] = np.exp(j * inv)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def decay_kernel(t, x, y, p, v, base, tau_us, rebase_after, table):  # type: ignore[no-untyped-def]
     """Time-surface state in factored form: ``v[y, x, p > 0] = exp((t -
     base) / tau_us)`` per event, so that the surface at any ``t_ref`` is
     ``v * exp(-(t_ref - base) / tau_us)`` (:func:`surface_kernel`).
@@ -116,24 +131,43 @@ def decay_kernel(t, x, y, p, v, base, tau_us, rebase_after):  # type: ignore[no-
     times the value at ``base``), ``base`` int64[1] (µs). When
     an event comes more than ``rebase_after`` µs after ``base``, ``v`` is
     rescaled to that event's time first (keeps ``v`` finite; depends only
-    on timestamps, so it is batch invariant). One exp per distinct timestamp
-    (runs of equal ones share it) instead of one per pixel per frame."""
+    on timestamps, so it is batch invariant).
+
+    ``table``: :func:`decay_table` of ``tau_us``. With ``d = t - base =
+    k DECAY_STEP + j``, the exp is ``exp(k DECAY_STEP / tau_us) table[j]``:
+    one exp per DECAY_STEP µs that has events (the product is within
+    1e-14 relative of the direct exp, so within one float32 ulp of it, and
+    it depends only on ``d``: batch invariant) instead of one per distinct
+    timestamp (4,600 of 50,000 events a 10 ms window at 5 Mev/s), and no
+    branch on each new timestamp (mispredicted once per run of equal
+    ones). ``v`` C-contiguous."""
     inv = 1.0 / tau_us
     b = base[0]
-    t_prev = b - 1  # exp of the previous timestamp, reused for runs of equal ones
-    e = 0.0
+    lo = hi = 0  # e_k is the exp of lo = k DECAY_STEP, for d in [lo, hi) (empty: none yet)
+    e_k = 0.0
+    vf = v.reshape(-1)
+    w = np.uint64(v.shape[1])
     for i in range(t.shape[0]):
-        ti = t[i]
-        if ti != t_prev:
-            if ti - b > rebase_after:
-                f = np.exp(-(ti - b) * inv)
-                vv = v.ravel()
-                for j in range(vv.shape[0]):
-                    vv[j] *= f
-                b = ti
-            e = np.exp((ti - b) * inv)
-            t_prev = ti
-        v[y[i], x[i], 1 if p[i] > 0 else 0] = e
+        d = t[i] - b
+        if lo <= d < hi:  # the usual case, one test (no branch on each new timestamp)
+            e = e_k * table[d - lo]
+        else:
+            if d > rebase_after:
+                f = np.exp(-d * inv)
+                for j in range(vf.shape[0]):
+                    vf[j] *= f
+                b = t[i]
+                d = 0
+            if d < 0:  # before the base (not in a stream in order): directly, and again next time
+                e = np.exp(d * inv)
+                lo = hi = 0
+            else:
+                lo = d - d % DECAY_STEP
+                hi = min(lo + DECAY_STEP, rebase_after + 1)  # never past a rebase
+                e_k = np.exp(lo * inv)
+                e = e_k * table[d - lo]
+        # flat and unsigned: no negative-index checks
+        vf[(np.uint64(y[i]) * w + np.uint64(x[i])) * np.uint64(2) + np.uint64(p[i] > 0)] = e
     base[0] = b
 
 

@@ -235,6 +235,7 @@ class TimeSurface(Windowed):
         self.v = np.zeros((sensor[1], sensor[0], 2), np.float32)
         self.base = np.zeros(1, np.int64)
         self._based = False
+        self._table = K.decay_table(self.tau_us)
         # frames written whole into recycled blocks (see _Image._run), one packet each
         self._pool = pool(self.v.shape, np.dtype(np.float32), max(1, BLOCK_BYTES // (self.v.size * 4)))
         self._blocks: list[np.ndarray] = []  # the blocks of the packet being sliced
@@ -247,7 +248,7 @@ class TimeSurface(Windowed):
         if not self._based:
             self.base[0] = t[0]
             self._based = True
-        K.decay_kernel(t, x, y, p, self.v, self.base, self.tau_us, int(min(40.0 * self.tau_us, 2**62)))
+        K.decay_kernel(t, x, y, p, self.v, self.base, self.tau_us, int(min(40.0 * self.tau_us, 2**62)), self._table)
 
     def _frame(self, t0: int, t1: int) -> np.ndarray:
         if not self._blocks or self._k == self._pool.per_block:

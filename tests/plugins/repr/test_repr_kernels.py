@@ -71,13 +71,15 @@ def test_color(ev):
         R.parse_color("#12345")
 
 
-def test_decay_kernel_shares_exp_within_timestamp_runs():
-    """decay_kernel reuses the exp of runs of equal timestamps: its state is
-    bit-identical to one exp per event (the obvious loop, in numba too so
-    both use the same exp), across a rebase."""
+def test_decay_kernel_matches_one_exp_per_event_and_any_split():
+    """decay_kernel (an exp per 64 µs and a table, shared by runs of equal
+    timestamps) gives the state of the obvious loop (one exp per event, in
+    numba too so both use the same exp) within 1e-13 relative in float64
+    and one ulp in float32, across a rebase and before the base; and the
+    same bits however the events are split (inside a run too)."""
     from numba import njit
 
-    from tectum.plugins.repr.kernels import decay_kernel
+    from tectum.plugins.repr.kernels import decay_kernel, decay_table
 
     @njit
     def one_exp_per_event(t, x, y, p, v, base, tau_us, rebase_after):  # type: ignore[no-untyped-def]
@@ -91,14 +93,24 @@ def test_decay_kernel_shares_exp_within_timestamp_runs():
 
     rng = np.random.default_rng(3)
     n = 4000
-    t = np.sort(rng.integers(0, 600, n)).astype(np.int64) * 50  # runs of equal timestamps
+    t = np.sort(rng.integers(0, 6000, n)).astype(np.int64) * 5  # runs of equal timestamps, steps of 5 µs to 400
+    t[:3] = t[0]
     x, y = rng.integers(0, 9, n).astype(np.uint16), rng.integers(0, 7, n).astype(np.uint16)
     p = rng.choice(np.array([-1, 1], np.int8), n)
-    states = []
-    for fn in (decay_kernel, one_exp_per_event):
-        v, base = np.zeros((7, 9, 2)), np.array([t[0]], np.int64)
-        for a, b in ((0, 1500), (1500, 1501), (1501, n)):  # split inside a run too
-            fn(t[a:b], x[a:b], y[a:b], p[a:b], v, base, 2000.0, 8000)
-        states.append((v, base))
-    assert states[0][1][0] == states[1][1][0] > t[0]  # rebased
-    assert np.array_equal(states[0][0], states[1][0])
+    tau, table = 2000.0, decay_table(2000.0)
+    assert np.allclose(table, np.exp(np.arange(64) / tau), rtol=1e-15, atol=0)
+    for dtype in (np.float64, np.float32):
+        states = []
+        for fn, splits in ((decay_kernel, (0, 1500, 1501, n)), (decay_kernel, (0, n)), (one_exp_per_event, (0, n))):
+            v, base = np.zeros((7, 9, 2), dtype), np.array([t[0] + 7], np.int64)  # the first events before the base
+            args = (tau, 8000, table) if fn is decay_kernel else (tau, 8000)
+            for a, b in zip(splits[:-1], splits[1:]):
+                fn(t[a:b], x[a:b], y[a:b], p[a:b], v, base, *args)
+            states.append((v, base[0]))
+        (split, b1), (whole, b2), (ref, b3) = states
+        assert b1 == b2 == b3 > t[0]  # rebased
+        assert np.array_equal(split, whole)
+        if dtype is np.float64:
+            assert np.allclose(whole, ref, rtol=1e-13, atol=0)
+        else:
+            assert np.abs(whole.view(np.int32) - ref.view(np.int32)).max() <= 1
