@@ -103,7 +103,7 @@ def test_decay_kernel_matches_one_exp_per_event_and_any_split():
         states = []
         for fn, splits in ((decay_kernel, (0, 1500, 1501, n)), (decay_kernel, (0, n)), (one_exp_per_event, (0, n))):
             v, base = np.zeros((7, 9, 2), dtype), np.array([t[0] + 7], np.int64)  # the first events before the base
-            args = (tau, 8000, table) if fn is decay_kernel else (tau, 8000)
+            args = (tau, 8010, table) if fn is decay_kernel else (tau, 8010)
             for a, b in zip(splits[:-1], splits[1:]):
                 fn(t[a:b], x[a:b], y[a:b], p[a:b], v, base, *args)
             states.append((v, base[0]))
