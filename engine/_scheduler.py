@@ -689,22 +689,25 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                         # events slices of the same arrays, the next index, the same
                         # sensor, not before the last one's end, room left). Their
                         # time, reading included, is the source's busy time.
+                        # (per slice: one sum kept, the run's end; the mark kept in a
+                        # local and stored once; len() of t: ~0.1 us of ~0.5 saved)
                         t0 = clock_ns()
-                        ran = 0
+                        start, room, mark = held_end, held_end + max_events - held_n, guard.events_mark
                         bx, by, bp = held_owners
                         for q in packets:  # type: ignore[union-attr]
                             if (type(q) is not EventPacket or q._at != held_end or not q._checked or q.columns
                                     or q.t.base is not held_base or q.x.base is not bx or q.y.base is not by
                                     or q.p.base is not bp or q.sensor is not held_sensor
-                                    or q.t_start < guard.events_mark or held_n + (m := q.t.shape[0]) > max_events
-                                    or q.t_end > held_until):
+                                    or q.t_start < mark or (end := held_end + len(q.t)) > room
+                                    or (mark_q := q.t_end) > held_until):
                                 ahead = q
                                 break
-                            guard.events_mark = q.t_end
+                            mark = mark_q
                             held.append(q)
-                            held_n += m
-                            held_end += m
-                            ran += m
+                            held_end = end
+                        guard.events_mark = mark
+                        ran = held_end - start
+                        held_n += ran
                         st.events_out += ran
                         st.busy_ns += clock_ns() - t0
                 elif held and held_n + n <= max_events and n < small and not held_big and pkt.t_end <= held_until and (
