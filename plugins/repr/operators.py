@@ -6,6 +6,7 @@ rules shared by all). Parameters: ``window_us`` (µs) or ``count`` (events),
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -112,7 +113,7 @@ class _Image(Windowed):
         return out.images[0]
 
     def _px_bytes(self) -> int:
-        return self.dtype.itemsize * int(np.prod(self.shape_tail))
+        return self.dtype.itemsize * math.prod(self.shape_tail)
 
     def describe(self) -> dict[str, Any]:
         return {**super().describe(), "dtype": str(self.dtype)}
