@@ -76,6 +76,33 @@ def test_kept_packets_stay_intact_while_decoding_goes_on(fmt: str, files) -> Non
     assert np.array_equal(np.concatenate([c[1] for c in copies]), ref.x)
 
 
+@pytest.mark.parametrize("fmt", sorted(EXT))
+def test_packets_are_what_the_checked_constructor_builds(fmt: str, files) -> None:
+    """Packets built without the constructor's checks hold what it would
+    have built: the columns' types and shapes, the sensor and the interval
+    as Python ints, no extra columns; and rebuilt through it, they pass."""
+    pkts = [q for q in open_file(str(files[fmt])).packets() if isinstance(q, EventPacket)]
+    assert pkts and sum(len(q) for q in pkts) == 3000
+    for q in pkts:
+        again = EventPacket(q.t, q.x, q.y, q.p, sensor=q.sensor, t_start=q.t_start, t_end=q.t_end)
+        assert [type(v) for v in (q.t_start, q.t_end, *q.sensor)] == [int] * 4
+        assert (q.t_start, q.t_end, q.sensor, dict(q.columns)) == (again.t_start, again.t_end, again.sensor, {})
+        assert [(a.dtype, a.ndim, a.flags.c_contiguous) for a in (q.t, q.x, q.y, q.p)] == \
+            [(a.dtype, 1, True) for a in (again.t, again.x, again.y, again.p)]
+        q.validate()
+
+
+def test_a_sensor_past_the_packet_limit_is_still_refused(tmp_path: Path) -> None:
+    """A header's geometry beyond what a packet allows (65536 px a side) is
+    refused as the checked constructor refuses it, not passed on."""
+    rec = np.zeros(4, "<u8")
+    rec[:] = np.arange(4, dtype=np.uint64) * 10 | (np.uint64(5) << np.uint64(32))
+    path = tmp_path / "wide.dat"
+    path.write_bytes(b"% Data file containing CD events.\n% Width 70000\n% Height 10\n\x0c\x08" + rec.tobytes())
+    with pytest.raises(Exception, match="65536"):
+        list(open_file(str(path)).packets())
+
+
 @pytest.mark.parametrize("fmt", ["evt2", "evt3", "dat"])
 def test_time_range_on_the_fast_path(fmt: str, files) -> None:
     ref = _events()
