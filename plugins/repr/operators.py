@@ -213,8 +213,9 @@ class TimeSurface(Windowed):
     """Time surface with exponential decay: (H, W, 2) float32
     ``exp(-(t1 - t_last) / tau_us)`` per pixel and polarity, where ``t1``
     is the frame's time (µs), 0 where none. The state is kept in factored
-    form, float32 (one exp per event, one multiply per pixel per frame;
-    within one float32 ulp, 1.2e-7 relative, of the direct formula; a
+    form, float32 (a table lookup and a multiply per event, an exp per
+    64 µs with events, one multiply per pixel per frame; within one float32
+    ulp, 1.2e-7 relative, of the direct formula; a
     float64 state, 2x the bytes to scatter into and read, made frames
     15-30% dearer). State: 8 x W x H bytes."""
 
