@@ -612,10 +612,10 @@ def decode_dat(records, state, t, x, y, p):  # pragma: no cover - numba
         hi = wraps << 32
         for k in range(j - i):  # one pass: times as if no wrap, the falls, the data word, the bounds
             rec = r[k]
-            raw = np.uint32(rec & np.uint64(0xFFFFFFFF))
-            fell += np.int64(raw < prev)
-            prev = raw
-            to[k] = hi + np.int64(raw)
+            r32 = np.uint32(rec & np.uint64(0xFFFFFFFF))
+            fell += np.int64(r32 < prev)
+            prev = r32
+            to[k] = hi + np.int64(r32)
             d = np.uint32(rec >> np.uint64(32))
             xk = np.uint16(d & np.uint32(0x3FFF))
             yk = np.uint16((d >> np.uint32(14)) & np.uint32(0x3FFF))
