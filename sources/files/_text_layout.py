@@ -27,6 +27,8 @@ _UNIT = "|".join(sorted(map(re.escape, UNITS), key=len, reverse=True))
 # a time column's name with its unit: t_us, timestamp-ns, time (s), t[us]
 _TIME_WITH_UNIT = re.compile(rf"^({'|'.join(_TIME)})(?:[ _-]+({_UNIT})|\s*[\[(]\s*({_UNIT})\s*[\])])$")
 _EPOCH_NS_DIGITS = 18  # 1e17 ns is 1973: shorter integers are taken for µs
+_LETTERS = re.compile(rb"[A-Za-z]")
+_FIELD_SEP = re.compile(rb"[ \t,;]+")
 
 
 @dataclass(frozen=True)
@@ -63,7 +65,7 @@ def _header(head: bytes) -> tuple[list[str], list[bytes]]:
     """The header's names (lower case, ``@size`` dropped; empty without a
     header) and the first data lines."""
     lines = first_lines(head, 21)
-    if lines and re.search(rb"[A-Za-z]", lines[0]):
+    if lines and _LETTERS.search(lines[0]):
         text = lines[0].decode("utf-8", "replace").lower()
         return [re.sub(r"@\d+$", "", n.strip()) for n in re.split(r"[,\t;]| (?![\[(])", text) if n.strip()], lines[1:21]
     return [], lines[:20]
@@ -97,7 +99,7 @@ def text_layout(head: bytes, columns: str | None = None, time_unit: str | None =
     if named:
         return TextLayout(cols, cols_from, named[0][1], f"the header names the time column {named[0][0]!r}")
     k = cols.index("t")
-    times = [f[k] for f in (re.split(rb"[ \t,;]+", ln) for ln in data) if len(f) > k]
+    times = [f[k] for f in map(_FIELD_SEP.split, data) if len(f) > k]
     if not times:
         return TextLayout(cols, cols_from, "s", "no times to judge by: seconds, as in the RPG events.txt")
     if any(b"." in v for v in times):

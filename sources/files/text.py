@@ -264,7 +264,8 @@ def parse_lines(buf, order, digits, state, skip, t, x, y, p, where, bad, fast=Tr
 
 
 _NUM = rb"[+-]?(?:\d+\.?\d*|\.\d+)"
-_LINE = re.compile(rb"^\s*" + _NUM + rb"(?:[ \t,]+" + _NUM + rb"){3}\s*$")
+_LINE = re.compile(rb"^\s*" + _NUM + rb"(?:[ \t,]+" + _NUM + rb"){2}[ \t,]+(" + _NUM + rb")\s*$")  # group 1: the 4th
+_LETTERS = re.compile(rb"[A-Za-z]")
 
 
 def looks_like_events_text(head: bytes) -> bool:
@@ -272,14 +273,13 @@ def looks_like_events_text(head: bytes) -> bool:
     if head.startswith(b"# tectum ") and not head.startswith(b"# tectum events"):
         return False  # a sample stream (tectum.sources.files.samples_csv)
     lines = first_lines(head, 21, strip=False)
-    if lines and re.search(rb"[A-Za-z]", lines[0]) and b"," in lines[0]:
+    if lines and _LETTERS.search(lines[0]) and b"," in lines[0]:
         lines = lines[1:]  # CSV header
     if len(lines) < 2:
         return len(lines) == 1 and len(head) < 4096 and bool(_LINE.match(lines[0]))
     for ln in lines[:20]:
-        if not _LINE.match(ln):
-            return False
-        if re.split(rb"[ \t,]+", ln.strip())[3] not in (b"0", b"1", b"-1", b"+1"):
+        m = _LINE.match(ln)
+        if not m or m.group(1) not in (b"0", b"1", b"-1", b"+1"):
             return False
     return True
 
@@ -350,11 +350,11 @@ class TextSource(FileSource):
         same pass: time is linear and memory bounded by the chunk size
         whatever the input."""
         f = self._open()
-        head = f.read(1 << 16)
+        data = f.read(max(self.chunk_bytes, 1 << 16))  # the first chunk holds the head
+        head = data[:1 << 16]
         if not head.strip():
             self._fail("empty file: no events" if not head else "empty file: only blank lines", 0)
         self.layout = lay = text_layout(head, self.columns, self.time_unit)
-        f.seek(0)
         order = np.array(["txyp".index(c) for c in lay.columns], np.int64)
         digits = _UNIT_DIGITS[lay.time_unit]
         no_where = np.empty(0, np.int64)
@@ -364,7 +364,8 @@ class TextSource(FileSource):
         first = True
         eof = False
         while not eof:
-            data = f.read(max(self.chunk_bytes, len(rest)))  # a long line: reads double, time stays linear
+            if not first:
+                data = f.read(max(self.chunk_bytes, len(rest)))  # a long line: reads double, time stays linear
             eof = not data
             buf = rest + data
             if eof:
@@ -378,7 +379,7 @@ class TextSource(FileSource):
                 nl = buf.find(b"\n")
                 while nl >= 0 and (buf.startswith((b"#", b"%"), k) or not buf[k:nl].strip()):
                     k, nl = nl + 1, buf.find(b"\n", nl + 1)
-                if nl >= 0 and re.search(rb"[A-Za-z]", buf[k:nl]):
+                if nl >= 0 and _LETTERS.search(buf[k:nl]):
                     pos += nl + 1
                     buf = buf[nl + 1:]
             arr = np.frombuffer(buf, np.uint8)
