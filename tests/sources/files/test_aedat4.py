@@ -137,8 +137,9 @@ def test_bad_packet_is_named_or_skipped(tmp_path: Path, compiled: bool, threads:
 def test_bad_event_found_on_every_path(tmp_path: Path, compiled: bool, what: str, inside: int, monkeypatch) -> None:
     """An event whose time goes back or whose x or y lies outside the sensor
     is named by its packet's offset wherever it lies: inside a packet, first
-    of a packet, of a run, of a thread's part (whose columns are closed up
-    before the check; the compiled path checks while it splits the packets)."""
+    of a packet, of a run, of a thread's part (each part committed, and
+    checked against the one before, in turn; the compiled path checks while
+    it splits the packets)."""
     monkeypatch.setattr(aedat4, "_PART_BYTES", 1 << 12)  # parts of a few packets: many threads' parts meet
     ev = _events()
     for k in (1, 700, 1400, 3000, 30_000, len(ev) - 4):
