@@ -646,6 +646,13 @@ def decode_dat(records, state, t, x, y, p):  # pragma: no cover - numba
     return m, dec == 0, mx, my
 
 
+@njit(cache=True, nogil=True)
+def decode_dat_at(records, k, state, t, x, y, p, at):  # pragma: no cover - numba
+    """:func:`decode_dat` of ``records[:k]`` into the columns from index
+    ``at`` (the slices made here, not by the caller per call)."""
+    return decode_dat(records[:k], state, t[at:at + k], x[at:at + k], y[at:at + k], p[at:at + k])
+
+
 # --- jAER AEDAT 2.0 (big-endian int32 address, int32 timestamp) -----------------------
 # state: 0 wraps, 1 last raw time, 2 have last
 AEDAT2_STATE = 3

@@ -485,17 +485,21 @@ class DatSource(FileSource):
         asm = EventAssembler(self, sensor, offset=self.t0_offset if self.apply_t0 else 0)
         step = max(8, self.chunk_bytes // 8 * 8)
         buf = byte_buffer(min(step, _DAT_READ))
+        records, piece = buf.view("<u8"), buf.shape[0]  # step and _DAT_READ are whole records
         f.seek(pos)
         while pos < end:
             at, m = pos, min(step, end - pos) // 8
             t, x, y, p = asm.reserve(m)
             n, ordered, mx, my = 0, True, 0, 0
             while n < m:
-                k = read_full(f, buf[:min(buf.shape[0], 8 * (m - n))]) // 8
+                want = min(piece, 8 * (m - n))
+                got = f.readinto(buf if want == piece else buf[:want])
+                if got and got < want:  # a short read: the rest, unless the file ends
+                    got += read_full(f, buf[got:want])
+                k = got // 8
                 if not k:
                     break
-                s = slice(n, n + k)
-                _, ok, a, b = K.decode_dat(np.frombuffer(buf, "<u8", count=k), state, t[s], x[s], y[s], p[s])
+                _, ok, a, b = K.decode_dat_at(records, k, state, t, x, y, p, n)
                 ordered, mx, my = ordered and ok, max(mx, a), max(my, b)
                 n += k
             pos += 8 * n

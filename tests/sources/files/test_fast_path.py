@@ -92,6 +92,33 @@ def test_packets_are_what_the_checked_constructor_builds(fmt: str, files) -> Non
         q.validate()
 
 
+class _ShortReads:
+    """A file whose reads return at most ``most`` bytes (a pipe, a network
+    file system): readers must ask again."""
+
+    def __init__(self, f, most: int) -> None:
+        self.f, self.most = f, most
+
+    def readinto(self, view) -> int:
+        return self.f.readinto(memoryview(view).cast("B")[:self.most])
+
+    def __getattr__(self, name: str):
+        return getattr(self.f, name)
+
+
+@pytest.mark.parametrize("most", [1, 1001, 4096 + 3])
+def test_dat_short_reads_give_the_same_events(tmp_path: Path, files, most: int, monkeypatch) -> None:
+    """Reads returning fewer bytes than asked (not whole records) are
+    completed before decoding: the same events as whole reads."""
+    want = concat([q for q in open_file(str(files["dat"])).packets() if isinstance(q, EventPacket)])
+    src = open_file(str(files["dat"]), chunk_bytes=8 * 500)
+    plain = src._open
+    monkeypatch.setattr(src, "_open", lambda: _ShortReads(plain(), most))
+    got = concat([q for q in src.packets() if isinstance(q, EventPacket)])
+    assert got.t.tolist() == want.t.tolist() and got.x.tolist() == want.x.tolist()
+    assert got.y.tolist() == want.y.tolist() and got.p.tolist() == want.p.tolist()
+
+
 def test_a_sensor_past_the_packet_limit_is_still_refused(tmp_path: Path) -> None:
     """A header's geometry beyond what a packet allows (65536 px a side) is
     refused as the checked constructor refuses it, not passed on."""
