@@ -98,7 +98,14 @@ def run_value(w, k, have=8):  # type: ignore[no-untyped-def]  # pragma: no cover
     digits; those after count as 0): moved to the word's top (the last digit in
     the highest byte), then pairs, quads and the eight digits combined by three
     multiplications."""
-    v = ((w - _ZEROS) & _LOW_BYTES[_U(min(k, have))]) << ((_U(64) - (_U(k) << _U(3))) & _U(63))
+    return digits_value((w - _ZEROS) & _LOW_BYTES[_U(min(k, have))], k)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def digits_value(v, k):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+    """The value of the ``k`` (0 to 8) decimal digits in the lowest bytes of
+    ``v``, one digit (0 to 9) a byte, the bytes above them 0."""
+    v <<= (_U(64) - (_U(k) << _U(3))) & _U(63)
     v = (v * _U(10) + (v >> _U(8))) & _PAIRS
     v = ((v * _U(1 + (100 << 16))) >> _U(16)) & _QUADS
     return (v * _U(1 + (10000 << 32))) >> _U(32)
@@ -153,7 +160,7 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
         scale *= 10
     track = where.shape[0] > 0
     marks = np.empty(_SPAN // 64 + 2, np.uint64)
-    ends = np.empty(_SPAN, np.int64)
+    ends = np.empty(_SPAN + 4, np.int64)
     conv, xmax, ymax = state[0], state[1], state[2]
     ok = True
     while ok:
@@ -167,10 +174,16 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
             bits = newlines(buf, at)
             if b == words - 1:
                 bits &= (_U(2) << _U(lim - at - 1)) - _U(1)  # newlines before lim only
+            count = np.int64(popcount(bits))
+            for j in range(4):  # the usual few whatever their number: no branch to mispredict
+                ends[k + j] = at + np.int64(cttz(bits))
+                bits &= bits - _U(1)
+            k += 4
             while bits:
                 ends[k] = at + np.int64(cttz(bits))
                 k += 1
                 bits &= bits - _U(1)
+            k += count - max(count, 4)
         marks[words] = 0
         if k == 0:
             break
@@ -195,18 +208,24 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
             minus = buf[np.uint64(i + s3 + 1)] == 45  # the polarity's '-'
             cr = buf[np.uint64(nl - 1)] == 13
             # the fields: digits between the marks (values of garbage when ok is False)
-            tv = np.int64(run_value(word(buf, i), min(a, 8)))
-            if a > 8:
-                rest = a - 8 if a < 16 else 8
-                tv = tv * np.int64(_POW10[rest]) + np.int64(run_value(word(buf, i + 8), rest))
-            ok = (a > 0) & (a <= 16) & (tv < big) & (size < 64)
-            tv *= scale
-            if dot:
-                places = s1 - a - 1
-                w = word(buf, i + a + 1)
-                tv += np.int64(run_value(w, digits, places))  # the places down to 1 µs
-                # the first place below 1 µs rounds half up
-                tv += np.int64((places > digits) & (((w >> _U(digits << 3)) & _U(255)) >= _U(53)))
+            places = s1 - a - 1
+            w = word(buf, i + a + 1)  # the places (when dot)
+            if dot and a + digits <= 8:  # the whole part and the places down to 1 µs in one word
+                v = (word(buf, i) - _ZEROS) & _LOW_BYTES[_U(min(a, 8))]
+                v |= ((w - _ZEROS) & _LOW_BYTES[_U(min(places, digits))]) << (_U(a << 3) & _U(63))
+                tv = np.int64(digits_value(v, a + digits))
+                ok = (a > 0) & (size < 64)
+            else:
+                tv = np.int64(run_value(word(buf, i), min(a, 8)))
+                if a > 8:
+                    rest = a - 8 if a < 16 else 8
+                    tv = tv * np.int64(_POW10[rest]) + np.int64(run_value(word(buf, i + 8), rest))
+                ok = (a > 0) & (a <= 16) & (tv < big) & (size < 64)
+                tv *= scale
+                if dot:
+                    tv += np.int64(run_value(w, digits, places))  # the places down to 1 µs
+            # the first place below 1 µs rounds half up
+            tv += np.int64(dot & (places > digits) & (((w >> _U(digits << 3)) & _U(255)) >= _U(53)))
             sep = buf[np.uint64(i + s1)]
             nx = s2 - s1 - 1
             xv = np.int64(run_value(word(buf, i + s1 + 1), min(nx, 8)))

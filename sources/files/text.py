@@ -467,8 +467,10 @@ class TextSource(FileSource):
         held: list[_Chunk] = []
         if sensor is None:
             events = size = 0
-            for c in self._parse(lambda n: tuple(np.empty(n, d) for d in _DTYPES), state):
-                held.append(c._replace(cols=tuple(a[:c.n].copy() for a in c.cols)))
+            for c in self._parse(lambda n: _POOL.take(n), state):
+                if held:  # the last chunk keeps its pooled columns (a file of one chunk: no copy), the others shrink
+                    held[-1] = held[-1]._replace(cols=tuple(a[:held[-1].n].copy() for a in held[-1].cols))
+                held.append(c)
                 events += c.n
                 size += c.size
                 if events > _HOLD or size > _HOLD_BYTES:  # too much to hold: a pass for the extent only
@@ -484,7 +486,7 @@ class TextSource(FileSource):
         if held:
             for c in held:
                 for a, b in zip(asm.reserve(c.n), c.cols):
-                    a[:] = b
+                    a[:] = b[:c.n]
                 yield from asm.commit(c.n, c.pos, c.where)
         else:
             for c in self._parse(asm.reserve, state):
