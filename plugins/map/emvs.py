@@ -37,6 +37,10 @@ Steps (IJCV 2018 Sec. 3-4; the kernels are in :mod:`._dsi`):
    times the votes). Views that end together (at a gap, at the end of
    stream) hold the events of the oldest among them from a later start:
    only the oldest becomes a map (the others counted in ``superseded``).
+   With ``interim`` n > 1 (and one view at a time), a view's DSI so far
+   also becomes a map after each ``keyframe_baseline / n`` of travel, the
+   view going on: maps as often, all from one reference view (its pose,
+   its depth planes) until it ends.
 4. Map: per pixel the plane with most votes (the depth, refined between
    planes by a parabola when ``refine``) and its vote count (the
    confidence); pixels whose confidence exceeds its Gaussian-filtered
@@ -167,6 +171,7 @@ class _View:
     voted: bool = False
     last_t: int = 0
     run: int = 0
+    shown: int = 0  # interim maps made so far
 
 
 class Emvs(Operator):
@@ -201,6 +206,10 @@ class Emvs(Operator):
         Reference views in progress at once (1: one after the other): a new
         one every ``keyframe_baseline / overlap`` of the scene depth, each
         integrating ``keyframe_baseline`` of it.
+    interim:
+        Maps per reference view: its DSI so far becomes a map after each
+        ``keyframe_baseline / interim`` of the scene depth (1: at its end
+        only); with ``overlap`` 1 only.
     refine:
         Sub-plane depth by a parabola through the votes either side.
     threshold_sigma:
@@ -228,8 +237,8 @@ class Emvs(Operator):
     def __init__(self, calib: str = "", planes: int = 100, min_depth: float = 0.3, max_depth: float = 5.0,
                  spacing: Literal["inverse", "depth"] = "inverse", segment_events: int = 1024,
                  segment_us: int = 10_000, keyframe_baseline: float = 0.15, min_baseline: float = 0.02,
-                 overlap: int = 1, refine: bool = True, threshold_sigma: float = 2.0, threshold_c: float = 0.05,
-                 median_size: int = 5, points: bool = True, gap_us: int = 20_000) -> None:
+                 overlap: int = 1, interim: int = 1, refine: bool = True, threshold_sigma: float = 2.0,
+                 threshold_c: float = 0.05, median_size: int = 5, points: bool = True, gap_us: int = 20_000) -> None:
         self.camera: Camera = camera_from(calib)
         self.depths = depth_planes(planes, min_depth, max_depth, spacing)
         self.rho = np.ascontiguousarray(1.0 / self.depths)
@@ -245,6 +254,10 @@ class Emvs(Operator):
         if overlap < 1:
             raise ValueError(f"map.emvs: overlap must be >= 1 reference view, got {overlap}")
         self.overlap = int(overlap)
+        if interim < 1 or (interim > 1 and overlap > 1):
+            raise ValueError(f"map.emvs: interim must be >= 1 map per view, and overlap or interim 1 (one of them "
+                             f"at a time), got interim {interim}, overlap {overlap}")
+        self.interim = int(interim)
         self.map_options = {"refine": bool(refine), "threshold_sigma": float(threshold_sigma),
                             "threshold_c": float(threshold_c), "median_size": int(median_size)}
         self.points = bool(points)
@@ -456,6 +469,11 @@ class Emvs(Operator):
                     left.append(v)
                 else:
                     v.baseline = max(v.baseline, b)
+                    if v.baseline > reach * (v.shown + 1) / self.interim and (s > v.run or v.voted):
+                        self._vote(v, segs[v.run:s], pos[v.run:s], q[v.run:s])  # an interim map, view goes on
+                        v.run = s
+                        out += self._finalize(v, interim=True)
+                        v.shown = int(v.baseline * self.interim / reach)
             if left:
                 out += self._end_views(left, segs[:s], pos[:s], q[:s])
                 self._views = [v for v in self._views if all(v is not w for w in left)]
@@ -531,9 +549,10 @@ class Emvs(Operator):
             vote(trace, first[seg[i:j]], self.rho, view.dsi)
         view.last_t, view.voted = int(self._t[b - 1]), True
 
-    def _finalize(self, view: _View) -> list[Packet]:
+    def _finalize(self, view: _View, interim: bool = False) -> list[Packet]:
         """``view``'s DSI as a map (and cloud), or nothing when the camera
-        did not translate enough."""
+        did not translate enough; an ``interim`` map leaves the scene depth
+        as it is."""
         R_wr, t_wr, t_ref, t_map = view.R_wr, view.t_wr, view.t_ref, view.last_t
         if view.baseline < self.min_baseline * self.scene_depth:
             self.counts["no_translation"] += 1
@@ -544,7 +563,7 @@ class Emvs(Operator):
             return []
         depth, conf = depth_map(view.dsi, self.depths, **self.map_options)  # type: ignore[arg-type]
         known = np.isfinite(depth)
-        if known.any():
+        if known.any() and not interim:
             self.scene_depth = float(np.median(depth[known]))
         self.counts["maps"] += 1
         pose = np.concatenate([t_wr, rot_to_quat(R_wr)])

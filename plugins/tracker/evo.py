@@ -27,7 +27,8 @@ __all__ = ["Evo"]
 
 #: parameters handed to ``tracker.edge_align`` and to ``map.emvs``
 _TRACKER = ("bootstrap_us", "plane_depth", "window_events", "step_events")
-_MAPPER = ("planes", "min_depth", "max_depth", "keyframe_baseline", "min_baseline", "overlap", "segment_us")
+_MAPPER = ("planes", "min_depth", "max_depth", "keyframe_baseline", "min_baseline", "overlap", "interim",
+           "segment_us")
 
 
 class Evo(Macro):
@@ -72,6 +73,9 @@ class Evo(Macro):
         Mapper: reference views in progress at once (a map every
         ``keyframe_baseline / overlap`` of the scene depth, each over
         ``keyframe_baseline``).
+    interim:
+        Mapper: maps per reference view (its DSI so far after each
+        ``keyframe_baseline / interim``).
     segment_us:
         Mapper: longest time a segment of events sharing one pose spans, µs.
     """
@@ -86,7 +90,7 @@ class Evo(Macro):
                  plane_depth: float | None = None, window_events: int | None = None, step_events: int | None = None,
                  planes: int | None = None, min_depth: float | None = None, max_depth: float | None = None,
                  keyframe_baseline: float | None = None, min_baseline: float | None = None,
-                 overlap: int | None = None, segment_us: int | None = None) -> None:
+                 overlap: int | None = None, interim: int | None = None, segment_us: int | None = None) -> None:
         if delay_us < 1:
             raise ValueError(f"tracker.evo: delay_us must be >= 1 µs, got {delay_us}")
         self.calib, self.delay_us = calib, int(delay_us)

@@ -198,6 +198,23 @@ def test_overlapping_views_give_fresh_maps_with_long_baselines():
     assert min(base) > 1.25 * max(float(m.baseline[0]) for m in short)  # each still over the long baseline
     assert max(error(m) for m in full) < 0.13 < np.median([error(m) for m in short[1:-1]])
 
+
+def test_interim_maps_come_between_those_of_one_view_from_the_same_reference():
+    s = _scene(depth=(1.5, 2.5), velocity=(2.0, 0.5, 0.0))
+    _, whole, clouds = _run(s, keyframe_baseline=0.08)
+    op, maps, interim_clouds = _run(s, keyframe_baseline=0.08, interim=2)
+    # the views are the same: each ends in the same map, and an interim map of its DSI so far comes before
+    finals = [m for i, m in enumerate(maps) if i + 1 == len(maps) or int(maps[i + 1].t_ref[0]) != int(m.t_ref[0])]
+    tectum.testing.assert_streams_equal(whole, finals, "the views' final maps")
+    early = [m for m in maps if all(m is not f for f in finals)]
+    assert len(early) >= len(whole) - 1 and op.counts["maps"] == len(maps) == len(interim_clouds)
+    for m in early:
+        final = next(f for f in finals if int(f.t_ref[0]) == int(m.t_ref[0]))
+        assert int(m.t[0]) < int(final.t[0]) and 0.4 < float(m.baseline[0]) / float(final.baseline[0]) < 0.75
+    assert np.all(np.diff([int(m.t[0]) for m in maps]) > 0)
+    with pytest.raises(ValueError, match="overlap or interim 1"):
+        Emvs(**OPTS, interim=2, overlap=2)
+
 def test_pure_rotation_gives_no_depth_and_says_so(caplog):
     s = _rotating_points(duration_us=40_000, sensor=SENSOR, f=F, omega=(0.3, 3.0, 0.5))
     t = np.arange(0, 40_001, 1_000, dtype=np.int64)
