@@ -1,9 +1,9 @@
-"""EVO on the bench's plane from several start times: the measurement behind
-``docs/evo.md`` (single runs of the loop are noisy: 13-29 % of the path from
-one start to the next with the same settings).
+"""EVO on the bench's plane (or boxes) from several start times: the
+measurement behind ``docs/evo.md`` (single runs of the loop are noisy: 13-29 %
+of the path from one start to the next with the same settings).
 
-One simulation of ``PLANE`` (seed 1, 240x180) as long as the last start
-needs; per start, either
+One simulation of the bench's scene (``plane``: ``PLANE``; ``boxes_3d``; seed
+1, 240x180) as long as the last start needs; per start, either
 
 * ``loop``: :func:`~tectum.evaluation.suites._pose_evo.evo_loop` (tracker and
   mapper) bootstrapped with ``boot_us`` of the true poses, then ``tracked_us``
@@ -12,13 +12,15 @@ needs; per start, either
   maps ``map.emvs`` made from the true poses of the whole simulation (made
   once), so only the tracker's own error counts;
 
-scored as the bench scores (position RMSE over the path, %, the rotation's
-median error, the share of lost rows).
+scored as the bench scores (position RMSE over the path, %, the final error
+over the path, the rotation's median error, the share of lost rows), with
+the bench's tracker and mapper settings for the scene.
 
 From a shell (JSON for the parameters that differ from the bench's)::
 
     python -m tectum.evaluation.suites._pose_evo_spread loop
     python -m tectum.evaluation.suites._pose_evo_spread alone --mapper '{"keyframe_baseline": 0.1}'
+    python -m tectum.evaluation.suites._pose_evo_spread loop --scene boxes_3d --mapper '{"overlap": 2}'
 """
 
 from __future__ import annotations
@@ -31,40 +33,45 @@ from typing import Any
 import numpy as np
 
 from tectum import MapPacket, Packet, PosePacket, concat
-from tectum.evaluation.suites._pose_evo import MAPPERS, PLANE, TRACKER, evo_loop, scores, simulate
+from tectum.evaluation.suites._pose_evo import MAPPERS, PLANE, TRACKERS, evo_loop, scores, simulate
 from tectum.plugins.map.emvs import Emvs
 from tectum.plugins.tracker.edge_align import EdgeAlign
 from tectum.testing import feed_ports
 
 __all__ = ["spread", "LOOP_STARTS_S", "ALONE_STARTS_S"]
 
-#: start times of the loop (s): 0.3 s of bootstrap, then 2 s tracked
-LOOP_STARTS_S = (0.0, 1.0, 1.7, 0.5, 1.3, 2.0)
-#: start times of the tracker alone (s): 0.1 s of bootstrap before, then 0.7 s tracked
-ALONE_STARTS_S = (0.4, 0.9, 1.4, 1.9, 2.4, 2.9)
+#: the scenes by name: the bench's plane and the built-in boxes
+SCENES: dict[str, str | dict[str, Any]] = {"plane": PLANE, "boxes_3d": "boxes_3d"}
+#: start times of the loop per scene (s): 0.3 s of bootstrap, then 2 s tracked
+LOOP_STARTS_S = {"plane": (0.0, 1.0, 1.7, 0.5, 1.3, 2.0), "boxes_3d": (0.0, 0.15, 0.3)}
+#: start times of the tracker alone per scene (s): 0.1 s of bootstrap before, then 0.7 s tracked
+ALONE_STARTS_S = {"plane": (0.4, 0.9, 1.4, 1.9, 2.4, 2.9), "boxes_3d": (0.4, 0.9, 1.4, 1.9)}
 
 
 def spread(mode: str, starts_s: Sequence[float] | None = None, tracked_us: int | None = None,
            boot_us: int | None = None, tracker: dict[str, Any] | None = None, mapper: dict[str, Any] | None = None,
-           scene: dict[str, Any] | None = None, duration_us: int | None = None) -> list[dict[str, Any]]:
-    """One row per start (``start_s``, ``pos_pct``, ``rot_median_deg``,
-    ``lost``, ``path_m``, ...) of ``mode`` ``"loop"`` or ``"alone"`` (see the
-    module) with the bench's tracker and plane mapper parameters updated by
-    ``tracker`` and ``mapper``. Defaults: the loop 0.3 s of bootstrap
+           scene: str = "plane", duration_us: int | None = None) -> list[dict[str, Any]]:
+    """One row per start (``start_s``, ``pos_pct``, ``drift_pct``,
+    ``rot_median_deg``, ``lost``, ``path_m``, ...) of ``mode`` ``"loop"`` or
+    ``"alone"`` (see the module) on ``scene`` (a name of :data:`SCENES`) with
+    the bench's tracker and mapper parameters for it updated by ``tracker``
+    and ``mapper``. Defaults: the loop 0.3 s of bootstrap
     from each start then 2 s; alone 0.1 s of bootstrap ending at each start
     then 0.7 s. ``duration_us`` (µs) cuts the simulation short (every run
     ends with it at the latest)."""
     if mode not in ("loop", "alone"):
         raise ValueError(f"spread: mode is 'loop' or 'alone', got {mode!r}")
+    if scene not in SCENES:
+        raise ValueError(f"spread: scene is one of {sorted(SCENES)}, got {scene!r}")
     loop = mode == "loop"
     starts = [int(s * 1e6) for s in (starts_s if starts_s is not None else
-                                      (LOOP_STARTS_S if loop else ALONE_STARTS_S))]
+                                      (LOOP_STARTS_S if loop else ALONE_STARTS_S)[scene])]
     tracked = tracked_us if tracked_us is not None else (2_000_000 if loop else 700_000)
     boot = boot_us if boot_us is not None else (300_000 if loop else 100_000)
-    trk = {**TRACKER, **(tracker or {})}
-    mpr = {**MAPPERS["plane"], **(mapper or {})}
+    trk = {**TRACKERS[scene], **(tracker or {})}
+    mpr = {**MAPPERS[scene], **(mapper or {})}
     end = max(starts) + tracked + (boot if loop else 0)
-    ev, truth, calib = simulate(scene or PLANE, min(end, duration_us) if duration_us else end)
+    ev, truth, calib = simulate(SCENES[scene], min(end, duration_us) if duration_us else end)
     maps: list[Packet] = []
     if not loop:
         mp = Emvs(calib=calib, **mpr)
@@ -90,20 +97,22 @@ def spread(mode: str, starts_s: Sequence[float] | None = None, tracked_us: int |
 
 def main(argv: Sequence[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m tectum.evaluation.suites._pose_evo_spread",
-                                 description="EVO on the bench's plane from several start times (see the module)")
+                                 description="EVO on a bench scene from several start times (see the module)")
     ap.add_argument("mode", choices=("loop", "alone"))
+    ap.add_argument("--scene", choices=sorted(SCENES), default="plane")
     ap.add_argument("--tracker", default="{}", help="tracker.edge_align parameters (JSON) over the bench's")
-    ap.add_argument("--mapper", default="{}", help="map.emvs parameters (JSON) over the bench's plane mapper")
+    ap.add_argument("--mapper", default="{}", help="map.emvs parameters (JSON) over the bench's for the scene")
     ap.add_argument("--starts", type=float, nargs="*", help="start times, s")
     args = ap.parse_args(argv)
-    rows = spread(args.mode, args.starts, tracker=json.loads(args.tracker), mapper=json.loads(args.mapper))
+    rows = spread(args.mode, args.starts, tracker=json.loads(args.tracker), mapper=json.loads(args.mapper),
+                  scene=args.scene)
     for r in rows:
-        print(f"start {r['start_s']:.1f} s: position RMSE {r['pos_pct']:.1f} % of {r['path_m']:.2f} m, rotation "
-              f"median {r['rot_median_deg']:.2f} deg, lost {100 * r['lost']:.0f} %")
+        print(f"start {r['start_s']:.2f} s: position RMSE {r['pos_pct']:.1f} % of {r['path_m']:.2f} m, final "
+              f"{r['drift_pct']:.1f} %, rotation median {r['rot_median_deg']:.2f} deg, lost {100 * r['lost']:.0f} %")
     pos = np.array([r["pos_pct"] for r in rows])
     rot = np.array([r["rot_median_deg"] for r in rows])
-    print(f"mean: position RMSE {np.nanmean(pos):.1f} % of the path (median {np.nanmedian(pos):.1f} %), rotation "
-          f"median {np.nanmean(rot):.2f} deg")
+    print(f"mean: position RMSE {np.nanmean(pos):.1f} % of the path (median {np.nanmedian(pos):.1f} %), final "
+          f"{np.nanmean([r['drift_pct'] for r in rows]):.1f} %, rotation median {np.nanmean(rot):.2f} deg")
 
 
 if __name__ == "__main__":

@@ -1,5 +1,6 @@
 """The EVO spread measurement (docs/evo.md): one scored row per start, the
-tracker alone against maps from the true poses tracks the plane, bad mode."""
+tracker alone against maps from the true poses tracks the plane, the boxes
+with their own settings, bad mode and scene."""
 
 from __future__ import annotations
 
@@ -23,3 +24,35 @@ def test_alone_gives_one_tracked_row_per_start() -> None:
 def test_mode_is_checked() -> None:
     with pytest.raises(ValueError, match="'loop' or 'alone'"):
         spread("both")
+
+
+def test_the_boxes_run_with_their_own_settings(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``scene="boxes_3d"`` simulates the boxes and maps them with the bench's
+    boxes mapper (their first map from the true poses comes only after 1.1 s:
+    too long a run for a test, so the mapper is stopped as it is made)."""
+    from tectum.evaluation.suites import _pose_evo_spread as S
+
+    seen: dict[str, object] = {}
+
+    class Stop(Exception):
+        pass
+
+    def fake_simulate(scene: object, duration_us: int) -> tuple[None, None, str]:
+        seen["scene"], seen["duration_us"] = scene, duration_us
+        return None, None, "200;200;119.5;89.5"
+
+    def fake_emvs(**kw: object) -> None:
+        seen["mapper"] = kw
+        raise Stop
+
+    monkeypatch.setattr(S, "simulate", fake_simulate)
+    monkeypatch.setattr(S, "Emvs", fake_emvs)
+    with pytest.raises(Stop):
+        spread("alone", scene="boxes_3d", mapper={"overlap": 2})
+    assert seen["scene"] == "boxes_3d" and seen["duration_us"] == 2_600_000  # the last start 1.9 s + 0.7 s
+    assert seen["mapper"] == {"calib": "200;200;119.5;89.5", **S.MAPPERS["boxes_3d"], "overlap": 2}
+
+
+def test_scene_is_checked() -> None:
+    with pytest.raises(ValueError, match="scene is one of"):
+        spread("loop", scene="cube")
