@@ -17,7 +17,7 @@ from tectum.sinks.files import SINKS
 from tectum.sinks.files._common import write_all
 from tectum.sources.files import _kernels as K
 from tectum.sources.files import open_file, prophesee
-from tectum.sources.files._common import ColumnPool
+from tectum.sources.files._common import HUGE_SET, ColumnPool
 
 EXT = {"text": ".txt", "aedat4": ".aedat4", "evt2": ".raw", "evt3": ".evt3.raw", "dat": ".dat"}
 
@@ -60,6 +60,30 @@ def test_pool_never_hands_out_columns_in_use() -> None:
     assert all(len(s) == 4 for s in pool._sets) and len(pool._sets) <= 2
 
 
+def test_pool_big_sets_share_an_aligned_block_and_stay_busy_while_viewed() -> None:
+    """A set from HUGE_SET bytes on is carved from one block (huge-page
+    aligned, columns apart): a packet's view of any column refers to the
+    block, and keeps the set from being handed out again."""
+    pool = ColumnPool(max_sets=2)
+    n = HUGE_SET // 13 + 1000
+    cols = pool.take(n)
+    assert [c.dtype for c in cols] == [np.int64, np.uint16, np.uint16, np.int8]
+    assert all(c.shape[0] >= n and c.base is cols[0].base is not None for c in cols)
+    assert cols[0].ctypes.data % (1 << 21) == 0
+    for k in range(4):  # no column overlaps another
+        cols[k][:] = k + 1
+    assert [int(c.min()) == int(c.max()) == k + 1 for k, c in enumerate(cols)] == [True] * 4
+    first = id(cols[0])
+    for j in range(4):
+        held = cols[j][5:10]  # what a packet holds: a view of one column, whose base is the block
+        del cols
+        assert id(pool.take(n)[0]) != first  # busy: another set
+        del held
+        cols = pool.take(n)
+        assert id(cols[0]) == first  # free again: the same set
+    del cols
+
+
 @pytest.mark.parametrize("fmt", list(EXT))
 def test_kept_packets_stay_intact_while_decoding_goes_on(fmt: str, files) -> None:
     kw = {"sensor": "64x48"} if fmt == "text" else {}
@@ -74,6 +98,29 @@ def test_kept_packets_stay_intact_while_decoding_goes_on(fmt: str, files) -> Non
               for q in open_file(str(files[fmt]), chunk_bytes=256, **kw).packets() if isinstance(q, EventPacket)]
     assert np.array_equal(np.concatenate([c[0] for c in copies]), ref.t)
     assert np.array_equal(np.concatenate([c[1] for c in copies]), ref.x)
+
+
+def test_kept_big_packets_stay_intact_while_decoding_goes_on(tmp_path: Path) -> None:
+    """Packets of chunks big enough for block-carved column sets (see
+    test_pool_big_sets...) stay intact while later chunks, and a second
+    pass over the file, are decoded; so do packets of the second pass."""
+    n = 3 * (HUGE_SET // 13) + 777
+    rng = np.random.default_rng(5)
+    t = np.cumsum(rng.integers(0, 3, n)).astype(np.uint64)
+    data = rng.integers(0, 640, n).astype(np.uint64) | (rng.integers(0, 480, n).astype(np.uint64) << np.uint64(14))
+    data |= rng.integers(0, 2, n).astype(np.uint64) << np.uint64(28)
+    path = tmp_path / "big.dat"
+    path.write_bytes(b"% Width 640\n% Height 480\n\x0c\x08" + (t | (data << np.uint64(32))).astype("<u8").tobytes())
+    chunk = 8 * (HUGE_SET // 13 + 100)  # each chunk's set past HUGE_SET bytes
+
+    def copies(pkts):
+        return [(q, q.t.copy(), q.x.copy(), q.y.copy(), q.p.copy()) for q in pkts]
+    first = copies(q for q in open_file(str(path), chunk_bytes=chunk).packets() if isinstance(q, EventPacket))
+    second = copies(q for q in open_file(str(path), chunk_bytes=chunk).packets() if isinstance(q, EventPacket))
+    assert len(first) >= 3 and sum(len(c[0]) for c in first) == n
+    for q, *cols in first + second:
+        assert all(np.array_equal(a, b) for a, b in zip((q.t, q.x, q.y, q.p), cols))
+    assert np.array_equal(np.concatenate([c[1] for c in first]), t.astype(np.int64))
 
 
 @pytest.mark.parametrize("fmt", sorted(EXT))
