@@ -1,21 +1,24 @@
-"""The common event text lines parsed from the positions of their non-digits.
+"""The common event text lines parsed from the places of their non-digits.
 
 Most event text files hold one layout line after line: ``t x y p`` with the
 time a decimal (``0.003811000 96 133 0``, the RPG ``events.txt``) or an
-integer (µs CSV). In such a line every byte is a digit except a few at
-known places: the time's ``.``, three separators, the polarity's ``-`` and
-the newline. :func:`fast_lines` first marks the non-digits of 64 bytes at a
-time in a 64-bit mask (a loop LLVM vectorises) and lists their positions;
-a line is then read from the next positions in that list: the fields lie
-between them, all digits by construction, so each number is converted from
-one 64-bit word with three multiplications (:func:`run_value`), with no
-loop over its digits and no branch on its length. Nothing on a line's path
-waits on the line before, so the processor overlaps consecutive lines.
+integer (µs CSV). In such a line every byte is a digit except a few at known
+places: the time's ``.``, three separators, the polarity's ``-``, a ``\r``
+and the newline. :func:`fast_lines` takes a window of a few kB at a time:
+first the masks of its non-digits and of its newlines, 64 bytes to a 64-bit
+word (a loop LLVM vectorises), and the list of its newlines; then each line
+from its start and its newline, the non-digits between them read off the
+mask (``tzcnt``). The fields lie between those, all digits by construction,
+so each number is converted from one 64-bit word by three multiplications
+(:func:`digits_value`): no loop over its digits, no branch on its length,
+and no line waits on the one before (its start comes from the list), so the
+processor overlaps consecutive lines.
 
 A line of any other form (a sign on the time, a coordinate of six or more
 digits, blanks around a field, a comment, a header, a bad polarity) ends the
 run, and the caller parses it the careful way: the fast path decides nothing
-the careful one would decide differently.
+the careful one would decide differently (tests/sources/files/test_text_fast.py
+compares the two on drawn and on edge inputs).
 
 Words are read little-endian (byte ``i`` lowest): LLVM turns the eight
 byte loads of :func:`word` into one unaligned load. All word arithmetic is
@@ -30,7 +33,7 @@ from llvmlite import ir
 from numba import config, njit, types
 from numba.extending import intrinsic
 
-__all__ = ["REACH", "cttz", "fast_lines", "nondigits", "run_value", "word"]
+__all__ = ["REACH", "cttz", "digits_value", "fast_lines", "marks_and_newlines", "popcount", "run_value", "word"]
 
 #: Bytes past ``end`` :func:`fast_lines` may read (the marks of the last
 #: 64 bytes: ``buf`` must extend that far).
@@ -112,27 +115,21 @@ def digits_value(v, k):  # type: ignore[no-untyped-def]  # pragma: no cover - nu
 
 
 @njit(cache=True, nogil=True, inline="always")
-def nondigits(buf, at):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
-    """A mask of the bytes of ``buf[at:at + 64]`` that are no ASCII digit
-    (bit j for byte ``at + j``)."""
-    bits = _U(0)
+def marks_and_newlines(buf, at):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+    """Masks of the bytes of ``buf[at:at + 64]`` that are no ASCII digit and
+    of its newlines (bit j for byte ``at + j``), in one vectorised loop."""
+    marks = _U(0)
+    lines = _U(0)
     for j in range(64):
-        bits |= _U(np.uint8(buf[np.uint64(at + j)] - 48) > 9) << _U(j)
-    return bits
+        c = buf[np.uint64(at + j)]
+        marks |= _U((c < 48) | (c > 57)) << _U(j)
+        lines |= _U(c == 10) << _U(j)
+    return marks, lines
 
 
 @njit(cache=True, nogil=True, inline="always")
 def _blank(c):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     return (c == 32) | (c == 9) | (c == 44)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def newlines(buf, at):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
-    """A mask of the newlines of ``buf[at:at + 64]`` (bit j for byte ``at + j``)."""
-    bits = _U(0)
-    for j in range(64):
-        bits |= _U(buf[np.uint64(at + j)] == 10) << _U(j)
-    return bits
 
 
 @njit(cache=True, nogil=True)
@@ -167,11 +164,10 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
         base = i
         lim = min(base + _SPAN, end)
         words = (lim - base + 63) >> 6
-        k = 0
+        k = np.int64(0)
         for b in range(words):
             at = base + 64 * b
-            marks[b] = nondigits(buf, at)
-            bits = newlines(buf, at)
+            marks[b], bits = marks_and_newlines(buf, at)
             if b == words - 1:
                 bits &= (_U(2) << _U(lim - at - 1)) - _U(1)  # newlines before lim only
             count = np.int64(popcount(bits))
@@ -183,7 +179,8 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
                 ends[k] = at + np.int64(cttz(bits))
                 k += 1
                 bits &= bits - _U(1)
-            k += count - max(count, 4)
+            if count < 4:
+                k += count - 4
         marks[words] = 0
         if k == 0:
             break
@@ -211,7 +208,7 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
             places = s1 - a - 1
             w = word(buf, i + a + 1)  # the places (when dot)
             if dot and a + digits <= 8:  # the whole part and the places down to 1 µs in one word
-                v = (word(buf, i) - _ZEROS) & _LOW_BYTES[_U(min(a, 8))]
+                v = (word(buf, i) - _ZEROS) & _LOW_BYTES[_U(a if a < 8 else 8)]
                 v |= ((w - _ZEROS) & _LOW_BYTES[_U(min(places, digits))]) << (_U(a << 3) & _U(63))
                 tv = np.int64(digits_value(v, a + digits))
                 ok = (a > 0) & (size < 64)
