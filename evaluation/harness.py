@@ -50,21 +50,26 @@ def throughput(fn: Callable[[], Any], n_events: int, *, repeat: int = 5, warmup:
 
 
 def interleaved(fns: dict[str, Callable[[], Any]], n_events: dict[str, int] | int, *, repeat: int = 5,
-                warmup: int = 1) -> dict[str, dict[str, Any]]:
+                warmup: int = 1, shuffle: bool = False) -> dict[str, dict[str, Any]]:
     """Run every function of ``fns`` in turn, ``repeat`` rounds (a, b, a, b,
     ...), after ``warmup`` rounds, so load from other processes falls on
     all of them alike. Per function: the median and the spread (min, max)
     of Mev/s by the wall clock and per CPU second of this process (all its
     threads), and the per-round times (s) that :func:`versus` pairs up.
-    ``n_events``: events each function processes (one number for all)."""
+    ``n_events``: events each function processes (one number for all).
+    ``shuffle``: each round in its own order (seeded, so runs repeat), so
+    no function always runs just after the same one: what one leaves in the
+    caches (a file it read, memory it dirtied) falls on all of them alike."""
     counts = {k: n_events if isinstance(n_events, int) else n_events[k] for k in fns}
     for _ in range(warmup):
         for fn in fns.values():
             fn()
     wall: dict[str, list[float]] = {k: [] for k in fns}
     cpu: dict[str, list[float]] = {k: [] for k in fns}
+    rng = np.random.default_rng(0)
     for _ in range(repeat):
-        for k, fn in fns.items():
+        for k in (rng.permutation(list(fns)).tolist() if shuffle else list(fns)):
+            fn = fns[k]
             c0, t0 = time.process_time(), time.perf_counter()
             fn()
             wall[k].append(time.perf_counter() - t0)

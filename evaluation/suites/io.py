@@ -154,7 +154,9 @@ def _limits(fmt: str, path: Path, n: int, bw: float, r: dict[str, dict[str, Any]
 
 def peer_targets(quick: bool) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """Decoding against the fastest peer, medians of interleaved rounds (the
-    readers in turn, every round), by the wall clock and per CPU second;
+    readers in turn, every round, in a shuffled order: none always decodes
+    just after another pulled the file into the caches or filled them with
+    its own memory), by the wall clock and per CPU second;
     goal :data:`GOALS`. Where the goal is past what memory allows, the
     arithmetic: the bytes a decoder must touch per event (the file's bytes,
     read, plus :data:`COLUMN_BYTES` written) over the machine's copy
@@ -181,7 +183,7 @@ def peer_targets(quick: bool) -> tuple[list[dict[str, Any]], list[dict[str, Any]
             if alone is not None:
                 fns[LZ4_ALONE] = alone
         try:
-            r = interleaved(fns, n, repeat=repeat)
+            r = interleaved(fns, n, repeat=repeat, shuffle=True)
         except Exception as e:  # a peer that cannot read the file is reported, not fatal
             rows.append({"format": fmt, "note": f"{type(e).__name__}: {str(e)[:60]}"})
             continue
