@@ -16,7 +16,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-__all__ = ["TextLayout", "text_layout", "first_lines", "UNITS"]
+__all__ = ["TextLayout", "text_layout", "first_lines", "LETTERS", "UNITS"]
 
 #: Units of the time column and their names in headers.
 UNITS = {"s": "s", "sec": "s", "seconds": "s", "ms": "ms", "msec": "ms", "us": "us", "µs": "us", "usec": "us",
@@ -27,7 +27,8 @@ _UNIT = "|".join(sorted(map(re.escape, UNITS), key=len, reverse=True))
 # a time column's name with its unit: t_us, timestamp-ns, time (s), t[us]
 _TIME_WITH_UNIT = re.compile(rf"^({'|'.join(_TIME)})(?:[ _-]+({_UNIT})|\s*[\[(]\s*({_UNIT})\s*[\])])$")
 _EPOCH_NS_DIGITS = 18  # 1e17 ns is 1973: shorter integers are taken for µs
-_LETTERS = re.compile(rb"[A-Za-z]")
+#: A letter (a header line has some, a data line none)
+LETTERS = re.compile(rb"[A-Za-z]")
 _FIELD_SEP = re.compile(rb"[ \t,;]+")
 
 
@@ -65,7 +66,7 @@ def _header(head: bytes) -> tuple[list[str], list[bytes]]:
     """The header's names (lower case, ``@size`` dropped; empty without a
     header) and the first data lines."""
     lines = first_lines(head, 21)
-    if lines and _LETTERS.search(lines[0]):
+    if lines and LETTERS.search(lines[0]):
         text = lines[0].decode("utf-8", "replace").lower()
         return [re.sub(r"@\d+$", "", n.strip()) for n in re.split(r"[,\t;]| (?![\[(])", text) if n.strip()], lines[1:21]
     return [], lines[:20]

@@ -31,7 +31,7 @@ from tectum import FramePacket, ImuPacket, Kind, Packet, PosePacket, interleave
 
 from ._common import POOL as _POOL
 from ._common import EventAssembler, FileSource
-from ._text_layout import TextLayout, first_lines, text_layout
+from ._text_layout import LETTERS, TextLayout, first_lines, text_layout
 from ._text_swar import REACH, fast_lines
 
 __all__ = ["TextSource", "parse_lines"]
@@ -265,7 +265,6 @@ def parse_lines(buf, order, digits, state, skip, t, x, y, p, where, bad, fast=Tr
 
 _NUM = rb"[+-]?(?:\d+\.?\d*|\.\d+)"
 _LINE = re.compile(rb"^\s*" + _NUM + rb"(?:[ \t,]+" + _NUM + rb"){2}[ \t,]+(" + _NUM + rb")\s*$")  # group 1: the 4th
-_LETTERS = re.compile(rb"[A-Za-z]")
 
 
 def looks_like_events_text(head: bytes) -> bool:
@@ -273,7 +272,7 @@ def looks_like_events_text(head: bytes) -> bool:
     if head.startswith(b"# tectum ") and not head.startswith(b"# tectum events"):
         return False  # a sample stream (tectum.sources.files.samples_csv)
     lines = first_lines(head, 21, strip=False)
-    if lines and _LETTERS.search(lines[0]) and b"," in lines[0]:
+    if lines and LETTERS.search(lines[0]) and b"," in lines[0]:
         lines = lines[1:]  # CSV header
     if len(lines) < 2:
         return len(lines) == 1 and len(head) < 4096 and bool(_LINE.match(lines[0]))
@@ -379,7 +378,7 @@ class TextSource(FileSource):
                 nl = buf.find(b"\n")
                 while nl >= 0 and (buf.startswith((b"#", b"%"), k) or not buf[k:nl].strip()):
                     k, nl = nl + 1, buf.find(b"\n", nl + 1)
-                if nl >= 0 and _LETTERS.search(buf[k:nl]):
+                if nl >= 0 and LETTERS.search(buf[k:nl]):
                     pos += nl + 1
                     buf = buf[nl + 1:]
             arr = np.frombuffer(buf, np.uint8)
