@@ -349,8 +349,11 @@ class TextSource(FileSource):
         same pass: time is linear and memory bounded by the chunk size
         whatever the input."""
         f = self._open()
-        data = f.read(max(self.chunk_bytes, 1 << 16))  # the first chunk holds the head
+        data = f.read(self.chunk_bytes)  # the first chunk, which holds the head
         head = data[:1 << 16]
+        if len(data) == self.chunk_bytes < 1 << 16:  # small chunks: the head reads on
+            head += f.read((1 << 16) - len(data))
+            f.seek(len(data))
         if not head.strip():
             self._fail("empty file: no events" if not head else "empty file: only blank lines", 0)
         self.layout = lay = text_layout(head, self.columns, self.time_unit)
