@@ -33,7 +33,8 @@ from llvmlite import ir
 from numba import config, njit, types
 from numba.extending import intrinsic
 
-__all__ = ["REACH", "cttz", "digits_value", "fast_lines", "marks_and_newlines", "popcount", "run_value", "word"]
+__all__ = ["REACH", "cttz", "digits_value", "fast_lines", "marks_and_newlines", "popcount", "run_value", "scratch",
+           "word"]
 
 #: Bytes past ``end`` :func:`fast_lines` may read (the marks of the last
 #: 64 bytes: ``buf`` must extend that far).
@@ -133,7 +134,13 @@ def _blank(c):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+def scratch():  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+    """The room :func:`fast_lines` needs (marks, ends): made once per buffer, not per call."""
+    return np.empty(_SPAN // 64 + 2, np.uint64), np.empty(_SPAN + 4, np.int64)
+
+
+@njit(cache=True, nogil=True)
+def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where, marks, ends):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     """Parse lines of the plain form ``t x y p`` from ``buf[i]`` (a line's
     start) while they come, up to a line ending before ``end`` (``buf``
     readable :data:`REACH` bytes past it), into the columns from index
@@ -145,10 +152,11 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
     a polarity ``0``, ``1`` or ``-1`` in the convention of ``state[0]`` (as
     in :func:`tectum.sources.files.text.parse_lines`, which sets it on the
     first 0 or -1; ``state[1:3]`` get the largest coordinates), ``\\n`` or
-    ``\\r\\n``, the whole line shorter than 64 bytes.
+    ``\\r\\n``, the whole line shorter than 64 bytes. ``marks`` (uint64)
+    and ``ends`` (int64) are room for the window, of :func:`scratch`.
     Returns (the start of the first line not parsed, n).
 
-    A window of :data:`_SPAN` bytes at a time: first the masks of its
+    A window of up to :data:`_SPAN` bytes at a time: first the masks of its
     non-digits and the list of its newlines, then its lines, each from its
     start and newline (so no line waits on the one before) and the
     non-digits between them."""
@@ -156,13 +164,13 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
     for _ in range(digits):
         scale *= 10
     track = where.shape[0] > 0
-    marks = np.empty(_SPAN // 64 + 2, np.uint64)
-    ends = np.empty(_SPAN + 4, np.int64)
     conv, xmax, ymax = state[0], state[1], state[2]
     ok = True
+    span = 256  # the window grows while its lines are all plain: an odd line soon after costs little
     while ok:
         base = i
-        lim = min(base + _SPAN, end)
+        lim = min(base + span, end)
+        span = min(2 * span, _SPAN)
         words = (lim - base + 63) >> 6
         k = np.int64(0)
         for b in range(words):

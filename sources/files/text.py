@@ -32,7 +32,7 @@ from tectum import FramePacket, ImuPacket, Kind, Packet, PosePacket, interleave
 from ._common import POOL as _POOL
 from ._common import EventAssembler, FileSource
 from ._text_layout import LETTERS, TextLayout, first_lines, text_layout
-from ._text_swar import REACH, fast_lines
+from ._text_swar import REACH, fast_lines, scratch
 
 __all__ = ["TextSource", "parse_lines"]
 
@@ -63,6 +63,91 @@ def _sep(c):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     return c == 32 or c == 9 or c == 44 or c == 13
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _digits(buf, j):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+    """The unsigned decimal integer at ``buf[j:]``: (value, digits, end).
+    Loops here are ``while True`` with a ``break``: numba compiles ``while
+    48 <= c <= 57`` into a loop about 5x slower."""
+    v = np.int64(0)
+    k = j
+    while True:
+        d = _at(buf, k) - 48
+        if d < 0 or d > 9:
+            break
+        v = v * 10 + d
+        k += 1
+    return v, k - j, k
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _blanks(buf, j):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+    """The index of the first byte from ``j`` on that is no space, tab or comma."""
+    while True:
+        c = _at(buf, j)
+        if c != 32 and c != 9 and c != 44:
+            return j
+        j += 1
+
+
+@njit(cache=True, nogil=True)
+def _plain_line(buf, i, digits, scale, big):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+    """The common line in the order ``t x y p``: four plain numbers, the
+    time with at most one ``.``, the polarity with at most a ``-``, parsed
+    without the checks only odd lines need. Returns (ok, index of the line's
+    newline, t, x, y, p); not ok (the caller parses the line the careful
+    way) on anything else: another sign, a fraction on a coordinate, 19 or
+    more digits, a time past the int64 µs range, a coordinate above 65535,
+    a fifth column, a stray character. ``scale`` is ``10 ** digits``
+    (``digits >= 0``), ``big`` the largest whole part of a time."""
+    j = _blanks(buf, i)
+    tv, nd, j = _digits(buf, j)
+    if nd == 0 or nd > 18 or tv >= big:
+        return False, j, 0, 0, 0, 0
+    tv *= scale
+    if _at(buf, j) == 46:
+        j += 1
+        frac = np.int64(0)
+        fd = 0
+        while fd < digits:
+            d = _at(buf, j) - 48
+            if d < 0 or d > 9:
+                break
+            frac = frac * 10 + d
+            fd += 1
+            j += 1
+        for _ in range(digits - fd):
+            frac *= 10
+        tv += frac
+        d = _at(buf, j) - 48
+        if 0 <= d and d <= 9:  # the first digit below 1 µs rounds half up
+            if d >= 5:
+                tv += 1
+            while True:
+                j += 1
+                d = _at(buf, j) - 48
+                if d < 0 or d > 9:
+                    break
+    if not _sep(_at(buf, j)):
+        return False, j, 0, 0, 0, 0
+    xv, nx, j = _digits(buf, _blanks(buf, j))
+    yv, ny, j = _digits(buf, _blanks(buf, j))
+    j = _blanks(buf, j)
+    neg = _at(buf, j) == 45
+    if neg:
+        j += 1
+    pv, n_p, j = _digits(buf, j)
+    if neg:
+        pv = -pv
+    while True:
+        c = _at(buf, j)
+        if not _sep(c):
+            break
+        j += 1
+    ok = (c == 10 and 0 < nx <= 18 and 0 < ny <= 18 and n_p == 1 and xv <= 65535 and yv <= 65535
+          and (pv == 1 or pv == 0 or pv == -1))
+    return ok, j, tv, xv, yv, pv
+
+
 @njit(cache=True, nogil=True)
 def parse_lines(buf, order, digits, state, skip, t, x, y, p, where, bad, fast=True):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     """Parse complete lines of ``buf`` (uint8) in one pass into the columns
@@ -81,8 +166,9 @@ def parse_lines(buf, order, digits, state, skip, t, x, y, p, where, bad, fast=Tr
     past bad lines until a new run finds ``bad`` full, so one pass over the
     bytes parses any input in bounded memory.
     With ``fast``, runs of lines of the plain form ``t x y p`` are parsed by
-    :func:`._text_swar.fast_lines` (the same results; False: every line the
-    careful way, for tests to compare with).
+    :func:`._text_swar.fast_lines` (the same results; False: line by line,
+    for tests to compare with), the others line by line: ``_plain_line``
+    for the common forms, the careful way for the rest.
     Returns (n_events, bytes consumed, runs in ``bad``, reason of the
     first bad line or 0)."""
     n = 0
@@ -92,26 +178,34 @@ def parse_lines(buf, order, digits, state, skip, t, x, y, p, where, bad, fast=Tr
     runs = 0
     why = 0
     big = np.int64(9223372036854775807)  # the largest whole part of a time in the unit
+    scale = np.int64(1)
     for _ in range(max(digits, 0)):
         big //= 10
+        scale *= 10
     joined = False  # the next bad line joins the last run (nothing good since)
-    plain = fast and digits >= 0 and order[0] == 0 and order[1] == 1 and order[2] == 2  # t x y p
+    plain = digits >= 0 and order[0] == 0 and order[1] == 1 and order[2] == 2  # t x y p
+    xmax, ymax = state[1], state[2]  # the largest coordinates of the lines parsed the quick way
     # the last complete line ends at the last newline
     last = m - 1
     while last >= 0 and _at(buf, last) != 10:
         last -= 1
     end = min(last + 1, m - REACH)  # the lines fast_lines may parse end before
-    wait = 0  # lines to parse the careful way before trying fast_lines again
+    wait = 0  # lines to parse line by line before trying fast_lines again
+    backoff = 64
+    marks, ends = scratch()
     while i <= last:
-        if plain and wait == 0:
-            i, k = fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where)
+        if fast and plain and wait == 0:
+            i, k = fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where, marks, ends)
             if k > n:
                 joined = False
-                n = k
-                if i > last:
-                    break
-            else:  # not the plain form here: try again later
-                wait = 64
+            if k - n < 4:  # few plain lines here: try again later, later each time
+                wait = backoff
+                backoff = min(2 * backoff, 1 << 14)
+            else:
+                backoff = 64
+            n = k
+            if i > last:
+                break
         wait = max(wait - 1, 0)
         start = i
         c = _at(buf, i)
@@ -120,6 +214,24 @@ def parse_lines(buf, order, digits, state, skip, t, x, y, p, where, bad, fast=Tr
                 i += 1
             i += 1
             continue
+        if plain:
+            ok, j, tv, xv, yv, pv = _plain_line(buf, i, digits, scale, big)
+            if ok and (pv == 1 or state[0] == (1 if pv == 0 else 2) or state[0] == 0):
+                if pv != 1 and state[0] == 0:
+                    state[0] = 1 if pv == 0 else 2
+                joined = False
+                k = np.uint64(n)  # unsigned: no negative-index checks
+                t[k] = tv
+                x[k] = xv
+                y[k] = yv
+                p[k] = 1 if pv == 1 else -1
+                xmax = max(xmax, xv)
+                ymax = max(ymax, yv)
+                if track:
+                    where[k] = start
+                n += 1
+                i = j + 1
+                continue
         col = 0
         code = 0
         tv = np.int64(0)
@@ -234,6 +346,7 @@ def parse_lines(buf, order, digits, state, skip, t, x, y, p, where, bad, fast=Tr
                 bad[runs - 1, 1] = i
                 bad[runs - 1, 2] += 1
             elif runs == bad.shape[0]:
+                state[1], state[2] = max(state[1], xmax), max(state[2], ymax)
                 return n, start, runs, why
             else:
                 bad[runs, 0] = start
@@ -242,6 +355,7 @@ def parse_lines(buf, order, digits, state, skip, t, x, y, p, where, bad, fast=Tr
                 runs += 1
                 joined = True
             if not skip:
+                state[1], state[2] = max(state[1], xmax), max(state[2], ymax)
                 return n, start, runs, why
             i += 1
             continue
@@ -260,6 +374,7 @@ def parse_lines(buf, order, digits, state, skip, t, x, y, p, where, bad, fast=Tr
         if track:
             where[n] = start
         n += 1
+    state[1], state[2] = max(state[1], xmax), max(state[2], ymax)
     return n, last + 1, runs, why
 
 
