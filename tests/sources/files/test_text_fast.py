@@ -1,12 +1,12 @@
 """The fast path of the event text parser (:func:`fast_lines`, runs of
-plain ``t x y p`` lines read from the positions of their non-digits) gives
-what the careful line-by-line path gives on any input: the same events, byte
-offsets, polarity convention, largest coordinates, bad-line runs and reasons,
-with and without ``skip``, for every time unit. Inputs are drawn from a
-grammar of near-plain lines (every field's edge: digit counts around the
-word size and the limits, separators, signs, CR, blanks, comments, junk),
-so most lines take the fast path and the rest fall back to the careful one
-in the middle of a run."""
+plain ``t x y p`` lines read from the places of their non-digits) gives what
+the line-by-line parser gives (``parse_lines(..., fast=False)``, the parser
+as it was) on any input: the same events, byte offsets, polarity convention,
+largest coordinates, bad-line runs and reasons, with and without ``skip``,
+for every time unit. Inputs are drawn from a grammar of near-plain lines
+(every field's edge: digit counts around the word size and the limits,
+separators, signs, CR, blanks, comments, junk), so most lines take the fast
+path and the rest fall back to the line-by-line one in the middle of a run."""
 
 from __future__ import annotations
 
