@@ -24,6 +24,10 @@ Words are read little-endian (byte ``i`` lowest): LLVM turns the eight
 byte loads of :func:`word` into one unaligned load. All word arithmetic is
 on uint64 (numba turns uint64 mixed with int64 into float64, so every
 constant is a ``np.uint64``).
+
+Numba's cache of :func:`tectum.sources.files.text.parse_lines` holds this
+module's code and is keyed on text.py alone: after editing only this file,
+delete ``sources/files/__pycache__/text.*.nb?`` (or the tests run the old code).
 """
 
 from __future__ import annotations
