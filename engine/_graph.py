@@ -27,7 +27,7 @@ from typing import Any, Generic, Protocol, TypeVar
 from ._operator import Operator, as_packets
 from ._packet import EventPacket, Kind, Packet, accepts
 from ._pipeline import Plan
-from ._stats import NodeStats, Stats
+from ._stats import NodeStats, Stats, _add
 from ._stream import concat, empty_like, merge
 from .errors import NodeError, TectumError
 
@@ -808,10 +808,10 @@ class Graph:
         st.packets_out += len(res)
         nxt, writer = rec.chain, rec.writer
         for q in res:
-            if q.kind is _EVENTS:
+            if (kind := q.kind) is _EVENTS:
                 st.events_out += q.t.shape[0]
-            else:
-                st.gave(q)
+            else:  # st.gave(q), inlined (a frame per window: per packet)
+                _add(st.samples_out, kind, q.t.shape[0])
             if nxt is not None:
                 self._run(nxt, q, out)
             elif writer is not None:

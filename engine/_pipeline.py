@@ -16,6 +16,7 @@ import os
 import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from types import MappingProxyType
 from typing import Any, Literal
 
@@ -360,7 +361,18 @@ class Plan:
     loops: tuple[tuple[str, ...], ...] = ()
 
     def of_role(self, role: Role) -> list[PlanNode]:
-        return [self.nodes[n] for n in self.order if self.nodes[n].role == role]
+        """The nodes of ``role``, in order (a new list each call)."""
+        return list(self._roles.get(role, ()))
+
+    @cached_property
+    def _roles(self) -> dict[str, tuple[PlanNode, ...]]:
+        """The nodes by role, in order: read several times per run (the
+        scheduler's set-up), sorted once."""
+        roles: dict[str, list[PlanNode]] = {}
+        for n in self.order:
+            node = self.nodes[n]
+            roles.setdefault(node.spec.role, []).append(node)
+        return {r: tuple(v) for r, v in roles.items()}
 
     def explain(self) -> str:
         """See :meth:`Pipeline.explain`."""
@@ -413,8 +425,7 @@ def _validate(p: Pipeline, reg: Registry) -> Plan:
                 raise PipelineError(f"node {s.id!r} reads from unknown node {i!r} (known: {sorted(specs)})")
             if specs[i].role == "sink":
                 raise PipelineError(f"node {s.id!r} reads from sink {i!r}; sinks have no output")
-    loops, feedback = _loops(specs, inputs_of, ports_of, named)
-    order = _toposort(specs, {n: tuple(i for i in ins if (n, i) not in feedback) for n, ins in inputs_of.items()})
+    loops, feedback, order = _loops(specs, inputs_of, ports_of, named)
     nodes: dict[str, PlanNode] = {}
     provides_of: dict[str, frozenset[Kind]] = {  # a loop's nodes (named ports) give what they declare
         n: frozenset(getattr(specs[n].component or classes[n], "produces", ())) for loop in loops for n in loop}
@@ -467,10 +478,12 @@ def _validate(p: Pipeline, reg: Registry) -> Plan:
 
 def _loops(specs: Mapping[str, NodeSpec], inputs_of: Mapping[str, tuple[str, ...]],
            ports_of: Mapping[str, Mapping[str, Port]],
-           named: Mapping[str, Mapping[str, str]]) -> tuple[tuple[tuple[str, ...], ...], set[tuple[str, str]]]:
+           named: Mapping[str, Mapping[str, str]]
+           ) -> tuple[tuple[tuple[str, ...], ...], set[tuple[str, str]], list[str]]:
     """The pipeline's feedback loops (strongly connected sets of nodes, in
-    declaration order) and its feedback edges ((consumer, producer): the
-    delayed edges inside a loop). Every cycle must hold a delayed edge."""
+    declaration order), its feedback edges ((consumer, producer): the
+    delayed edges inside a loop) and its nodes in topological order of the
+    other edges. Every cycle must hold a delayed edge."""
     delayed = {(n, up) for n, s in specs.items() for q, up in named.get(n, {}).items() if q in s.delays}
     for n, s in specs.items():
         if s.delays and n not in ports_of:
@@ -478,10 +491,10 @@ def _loops(specs: Mapping[str, NodeSpec], inputs_of: Mapping[str, tuple[str, ...
         if s.delays and not [q for q in named[n] if q not in s.delays] + list(s.inputs):
             raise PipelineError(f"node {n!r} ({s.name}): every input is delayed; a delayed port needs another, "
                                 "undelayed input to the node (whose stream starts the delayed one's)")
-    _toposort(specs, {n: tuple(i for i in ins if (n, i) not in delayed) for n, ins in inputs_of.items()},
-              loop_hint=True)
-    if not delayed:  # no cycle without a delayed edge: none at all
-        return (), set()
+    order = _toposort(specs, {n: tuple(i for i in ins if (n, i) not in delayed) for n, ins in inputs_of.items()},
+                      loop_hint=True)
+    if not delayed:  # no cycle without a delayed edge: none at all (and the order is the one just found)
+        return (), set(), order
     comps = _strongly_connected(list(specs), inputs_of)
     loops: list[tuple[str, ...]] = []
     feedback: set[tuple[str, str]] = set()
@@ -497,7 +510,8 @@ def _loops(specs: Mapping[str, NodeSpec], inputs_of: Mapping[str, tuple[str, ...
                     "their inputs on named ports")
         loops.append(loop)
         feedback |= {(n, up) for n, up in delayed if n in members and up in members}
-    return tuple(loops), feedback
+    order = _toposort(specs, {n: tuple(i for i in ins if (n, i) not in feedback) for n, ins in inputs_of.items()})
+    return tuple(loops), feedback, order
 
 
 def _strongly_connected(ids: Sequence[str], inputs_of: Mapping[str, tuple[str, ...]]) -> list[list[str]]:

@@ -29,7 +29,7 @@ from ._operator import Sink, Source
 from ._packet import _NO_COLUMNS, EventPacket, Kind, Packet, join_consecutive
 from ._pipeline import BatchPolicy, EdgePolicy, Pipeline, Plan
 from ._registry import Registry
-from ._stats import LatencyRecorder, Stats
+from ._stats import LatencyRecorder, Stats, _add
 from .errors import NodeError, TectumError
 
 __all__ = ["run", "arun", "open_pipeline", "RunningPipeline"]
@@ -376,7 +376,10 @@ class _InlineSink:
     def __call__(self, pkt: Packet) -> None:
         st = self.st
         st.packets_in += 1
-        st.took(pkt)
+        if (kind := pkt.kind) is _EVENTS:  # st.took(pkt), inlined (per packet)
+            st.events_in += pkt.t.shape[0]
+        else:
+            _add(st.samples_in, kind, pkt.t.shape[0])
         t0 = perf_counter_ns()
         try:
             self.write(pkt)

@@ -66,8 +66,15 @@ _EVENTS = Kind.EVENTS
 
 
 def _add(counts: dict[str, int], kind: str, n: int) -> None:
-    key = str(kind)
+    key = _KEYS.get(kind)
+    if key is None:  # a kind not seen yet: its plain str, kept (str(Kind) is a Python-level call)
+        key = _KEYS[kind] = str.__str__(kind)
     counts[key] = counts.get(key, 0) + n
+
+
+#: Each kind's plain ``str`` (the counts' keys): a packet of samples costs a
+#: dict lookup, not a call of ``Kind.__str__``.
+_KEYS: dict[str, str] = {}
 
 
 def amounts(counts: dict[str, int]) -> str:
