@@ -4,7 +4,9 @@ against a photometric map (Gallego et al., TPAMI 2018; Bryner et al., ICRA
 
 **Model.** A pixel fires when its log intensity has changed by the contrast
 ``C`` since its last event, so the events since a reference time, summed
-with their polarity, sample the brightness increment since then:
+with their polarity, sample the brightness increment since then (an OFF
+threshold other than the ON one scales the OFF events' and residues'
+terms, the ``off`` of :func:`event_weights`):
 ``ΔL_obs(u) = Σ_k w_k`` at pixel ``u`` (blurred by a Gaussian of σ px,
 :func:`splat`), with ``w_k = C p_k`` plus the half-threshold term of
 :func:`event_weights`, refined per pixel by the time since its last event
@@ -128,7 +130,7 @@ def splat(ux, uy, p, c, sigma, img):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def event_weights(x, y, t, p, c, last, tlast, dtp, out, first=1.5, refractory=0.0):  # type: ignore[no-untyped-def]
+def event_weights(x, y, t, p, c, last, tlast, dtp, out, first=1.5, refractory=0.0, off=1.0):  # type: ignore[no-untyped-def]
     """Each event's share of the brightness increment, in order: ``c p``
     plus ``c/2 (p - p_prev)``, ``p_prev`` the polarity of the pixel's
     previous event (``last`` (H, W) int8 keeps them and is updated; 0
@@ -151,12 +153,18 @@ def event_weights(x, y, t, p, c, last, tlast, dtp, out, first=1.5, refractory=0.
     change during the hold is never signalled. A pixel changing at a steady
     rate fires every ``d = refractory + C / rate``: its event after such an
     interval stands for ``C d / (d - refractory)`` of change (at most 4 C),
-    not ``C`` (:func:`residue_image` scales its estimate the same way)."""
-    h = 0.5 * c
+    not ``C`` (:func:`residue_image` scales its estimate the same way).
+
+    ``off``: the OFF threshold over the ON one, ``C_off / C_on`` (``c`` is
+    ``C_on``): an OFF event stands for ``off c``, and so do the half
+    thresholds of pixels whose last event was OFF."""
     for k in range(x.shape[0]):
         q = last[y[k], x[k]]
         d = t[k] - tlast[y[k], x[k]] if q == p[k] else -1
-        out[k] = c * p[k] * _gain(d, refractory) + (h * (p[k] - q) if q != 0 else (first - 1.0) * c * p[k])
+        cp = c if p[k] > 0 else off * c  # this event's threshold, and the last one's
+        cq = c if q > 0 else off * c
+        half = 0.5 * (cp * p[k] - cq * q) if q != 0 else (first - 1.0) * cp * p[k]
+        out[k] = cp * p[k] * _gain(d, refractory) + half
         dtp[y[k], x[k]] = d
         tlast[y[k], x[k]] = t[k]
         last[y[k], x[k]] = p[k]
@@ -183,7 +191,7 @@ def _residue(p, tl, d, t_now, c, refractory):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def residue_image(last, tlast, dtp, t_now, c, base, out, quiet, unfired=1.0, refractory=0.0):  # type: ignore[no-untyped-def]
+def residue_image(last, tlast, dtp, t_now, c, base, out, quiet, unfired=1.0, refractory=0.0, off=1.0):  # type: ignore[no-untyped-def]
     """``out`` (H, W): the sub-threshold change of each pixel at ``t_now``
     (µs) beyond the ``c/2`` of :func:`event_weights`, log intensity, less
     ``base`` (H, W; e.g. the same at the reference view). A pixel
@@ -198,7 +206,8 @@ def residue_image(last, tlast, dtp, t_now, c, base, out, quiet, unfired=1.0, ref
 
     With ``refractory`` (µs) the estimate is scaled as the events are
     (:func:`event_weights`): the change since the last event goes on at
-    ``C / (dt - refractory)`` per µs.
+    ``C / (dt - refractory)`` per µs. ``off`` (``C_off / C_on``, ``c`` being
+    ``C_on``): a pixel whose last event was OFF holds ``off`` times as much.
 
     The pixels whose change this cannot tell, those without an event yet,
     get ``unfired`` in ``quiet`` (H, W; their share of a silent pixel, see
@@ -212,7 +221,7 @@ def residue_image(last, tlast, dtp, t_now, c, base, out, quiet, unfired=1.0, ref
             p = last[y, x]
             tl = tlast[y, x]
             d = dtp[y, x]
-            out[y, x] = _residue(p, tl, d, t_now, c, refractory) - base[y, x]
+            out[y, x] = _residue(p, tl, d, t_now, c if p > 0 else off * c, refractory) - base[y, x]
             if with_quiet:
                 quiet[y, x] = unfired if p == 0 else 0.0
 
