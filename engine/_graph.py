@@ -358,9 +358,9 @@ class _Node:
     __slots__ = ("id", "op", "consumes", "takes_events", "st", "routes", "chain", "writer", "tapped", "join", "ports",
                  "offload", "ticks", "advances", "settles", "feedback_from", "feedback_ports", "done")
 
-    def __init__(self, nid: str) -> None:
+    def __init__(self, nid: str, st: NodeStats) -> None:
         self.id = nid
-        self.st: NodeStats = NodeStats()
+        self.st = st  # the run's stats of the node (Stats.node)
         self.op: Operator | None = None
         self.consumes: tuple[Kind, ...] = ()
         self.takes_events = False  # an operator run here (not offloaded) that consumes events
@@ -665,13 +665,13 @@ class Graph:
     # tested against tuples (identity first), lengths read from t.shape.
     def _wire(self) -> None:
         plan = self.plan
-        recs = {nid: _Node(nid) for nid in plan.order}
+        nodes = self.stats.nodes
+        recs = {nid: _Node(nid, nodes[nid]) for nid in plan.order}
         for nid, rec in recs.items():
             node = plan.nodes[nid]
             op = self.ops.get(nid)
             rec.op = op
             rec.consumes = tuple(op.consumes) if op is not None else ()
-            rec.st = self.stats.nodes[nid]
             rec.tapped = nid in self.taps
             rec.offload = nid in self.offloaded
             rec.ticks = op is not None and type(op).on_tick is not Operator.on_tick
