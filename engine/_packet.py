@@ -658,17 +658,26 @@ def _slice_index(t, x, y, p, ot, ox, oy, op):  # type: ignore[no-untyped-def]
     return i
 
 
-class _Build(EventPacket):
-    """An :class:`EventPacket` under construction: ``_Build()`` is blank (no
-    ``__init__`` of its own to call), its slots are set with plain attribute
-    stores (the generic setattr: 4x faster than a call per slot, a packet per
-    event in event-by-event mode), then it becomes an EventPacket (same
-    slots, so the class can change) and is immutable. :func:`_built` does
-    all of it; :meth:`Packet.batches` inlines it per event."""
+def builder(cls: type) -> type:
+    """``cls`` under construction: a subclass with the same layout (no slots
+    of its own), the generic setattr (packets refuse attribute stores: they
+    are immutable) and a blank ``__init__``. A blank instance takes plain
+    stores (4x faster than a call per slot: a packet per event in
+    event-by-event mode), then becomes a ``cls`` (``__class__`` swapped:
+    same layout). One per class, made once (:func:`_built` for
+    :class:`EventPacket`, :meth:`Packet.batches` inlining it per event,
+    ``SamplePacket._trusted`` for the sample kinds)."""
+    build = _BUILDERS.get(cls)
+    if build is None:
+        build = _BUILDERS[cls] = type(f"_Build{cls.__name__}", (cls,), {
+            "__slots__": (), "__setattr__": object.__setattr__, "__init__": object.__init__,
+            "__module__": cls.__module__})
+    return build
 
-    __slots__ = ()
-    __setattr__ = object.__setattr__  # type: ignore[assignment]
-    __init__ = object.__init__  # blank: every slot is stored by the builder
+
+#: Each packet class's :func:`builder`.
+_BUILDERS: dict[type, type] = {}
+_Build = builder(EventPacket)
 
 
 def _built(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, sensor: tuple[int, int], t_start: int,

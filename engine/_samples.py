@@ -32,7 +32,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ._packet import Kind, Packet, as_times, register_kind
+from ._packet import Kind, Packet, as_times, builder, register_kind
 from .errors import PacketError
 
 __all__ = [
@@ -147,12 +147,9 @@ class SamplePacket(Packet):
         and shapes). Skips the checks, not the copy of ``data``'s mapping
         (the packet owns its mapping; a mapping proxy, already read-only, is
         kept as it is). Built as :func:`tectum._packet._built` builds events:
-        a mutable twin of the class (:func:`_builder`), plain stores, then
+        a mutable twin of the class (:func:`tectum._packet.builder`), plain stores, then
         the class swapped (~0.5 µs a packet instead of ~1)."""
-        build = _BUILDERS.get(cls)
-        if build is None:
-            build = _builder(cls)
-        pkt: Any = build()
+        pkt: Any = builder(cls)()
         pkt.t = t
         pkt.data = data if type(data) is MappingProxyType else MappingProxyType(dict(data))
         pkt.t_start = int(t_start)
@@ -226,21 +223,6 @@ class SamplePacket(Packet):
     def __repr__(self) -> str:
         return (f"{type(self).__name__}({len(self)} samples, [{self.t_start}, {self.t_end}) µs, "
                 f"fields={list(self.data)})")
-
-
-#: Each sample packet class's builder (see :func:`_builder`).
-_BUILDERS: dict[type, type] = {}
-
-
-def _builder(cls: type[SamplePacket]) -> type:
-    """A subclass of ``cls`` with the same layout (no slots of its own), the
-    generic setattr (``cls`` refuses attribute stores: packets are
-    immutable) and a blank ``__init__``: a blank instance takes plain
-    stores, then becomes a ``cls`` (``__class__`` swapped: same layout)."""
-    build = type(f"_Build{cls.__name__}", (cls,), {"__slots__": (), "__setattr__": object.__setattr__,
-                                                     "__init__": object.__init__, "__module__": __name__})
-    _BUILDERS[cls] = build
-    return build
 
 
 def _fields(**fields: Field) -> Mapping[str, Field]:
