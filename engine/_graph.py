@@ -710,37 +710,29 @@ class Graph:
                                            for q, up in recs[c].ports.items() if up == nid)
         self._recs = recs
 
-    def joinable(self, node_id: str) -> bool:
-        """True when packets pushed at ``node_id`` may be joined before they
-        go in: no operator below it acts on ticks (``on_tick`` runs after
-        each input packet, so its calls would change)."""
+    def _below(self, node_id: str) -> Iterator[_Node]:
+        """``node_id``'s record and those of every node below it, each once."""
         todo, seen = [node_id], set()
         while todo:
             nid = todo.pop()
             if nid in seen:
                 continue
             seen.add(nid)
-            if self._recs[nid].ticks:
-                return False
+            yield self._recs[nid]
             todo += self.plan.nodes[nid].children
-        return True
+
+    def joinable(self, node_id: str) -> bool:
+        """True when packets pushed at ``node_id`` may be joined before they
+        go in: no operator below it acts on ticks (``on_tick`` runs after
+        each input packet, so its calls would change)."""
+        return not any(rec.ticks for rec in self._below(node_id))
 
     def join_span(self, node_id: str) -> int:
         """The longest span (µs) of packets pushed at ``node_id`` that may be
         joined into one: the least :meth:`~tectum.Operator.join_us` of the
         operators below it (2**62 when none states one)."""
-        todo, seen, span = [node_id], set(), 1 << 62
-        while todo:
-            nid = todo.pop()
-            if nid in seen:
-                continue
-            seen.add(nid)
-            op = self._recs[nid].op
-            us = op.join_us() if op is not None else None
-            if us is not None:
-                span = min(span, max(int(us), 1))
-            todo += self.plan.nodes[nid].children
-        return span
+        spans = [us for rec in self._below(node_id) if rec.op is not None and (us := rec.op.join_us()) is not None]
+        return min((max(int(us), 1) for us in spans), default=1 << 62)
 
     def _emit(self, rec: _Node, pkt: Packet, out: list[Delivery]) -> None:
         if rec.tapped:
