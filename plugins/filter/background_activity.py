@@ -47,6 +47,15 @@ def background_activity_kernel(t, x, y, support, dt_us, keep):  # type: ignore[n
     return n
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _rows_max(m, a, b):  # type: ignore[no-untyped-def]
+    """The latest of the three cells from ``a`` and the three from ``b`` of
+    the flat map ``m`` (an event's neighbours on the rows above and below)."""
+    one = np.uintp(1)
+    two = np.uintp(2)
+    return max(max(max(m[a], m[a + one]), max(m[a + two], m[b])), max(m[b + one], m[b + two]))
+
+
 @njit(cache=True, nogil=True)
 def background_activity_select(t, x, y, p, last, base, dt_us, ot, ox, oy, op, idx, want_idx, row_first):  # type: ignore[no-untyped-def]
     """The filter of :func:`background_activity_kernel`, fused with the
@@ -88,9 +97,9 @@ def background_activity_select(t, x, y, p, last, base, dt_us, ot, ox, oy, op, id
             ok = mid >= lim
             by_row += int(ok)
             if not ok:
-                ok = max(max(max(m[a], m[a + one]), max(m[a + two], m[b])), max(m[b + one], m[b + two])) >= lim
+                ok = _rows_max(m, a, b) >= lim
         else:
-            ok = max(mid, max(max(m[a], m[a + one]), max(m[a + two], m[b])), max(m[b + one], m[b + two])) >= lim
+            ok = max(mid, _rows_max(m, a, b)) >= lim
         ot[n] = ti
         ox[n] = xi
         oy[n] = yi
