@@ -268,34 +268,33 @@ def _windows(mode, width, vmin, vmax, x, y, p, splits, state, touched, n_touched
     (the entry point takes it at run time: :func:`numba.literally` there
     would cost a dispatch of milliseconds a call)."""
     literally(mode)
-    s_size = state.shape[0]
     n_win = splits.shape[0]
+    s_size = frames.shape[0] // n_marks.shape[0] if n_win else 0
     cap = marks.shape[1]
-    for k in range(n_win):  # what the frame's last use left (a recycled block)
-        m = n_marks[k]
+    lo = 0
+    for k in range(n_win):
+        # each frame zeroed (where its last use wrote, if a recycled block) just
+        # before it is filled: one frame's memory at a time in the cache
         f = frames[k * s_size:(k + 1) * s_size]
+        m = n_marks[k]
         if m < 0:
             f[:] = 0
         else:
             for j in range(m):
                 f[marks[k, j]] = 0
-    m0 = 0  # indices frame 0 took from the state
-    if n_win > 0:
-        m0 = n_touched[0]
-        for j in range(m0 if m0 >= 0 else s_size):
-            i = touched[j] if m0 >= 0 else j
-            if state[i] != 0:  # a signed sum may list a pixel twice (it went back to zero)
-                frames[i] = state[i]
-                state[i] = 0
-        if 0 <= m0 <= cap:
-            for j in range(m0):
-                marks[0, j] = touched[j]
-        n_touched[0] = 0
-    lo = 0
-    for k in range(n_win):
+        first = 0  # indices frame 0 took from the state
+        if k == 0:
+            first = n_touched[0]
+            for j in range(first if first >= 0 else s_size):
+                i = touched[j] if first >= 0 else j
+                if state[i] != 0:  # a signed sum may list a pixel twice (it went back to zero)
+                    f[i] = state[i]
+                    state[i] = 0
+            if 0 <= first <= cap:
+                for j in range(first):
+                    marks[0, j] = touched[j]
+            n_touched[0] = 0
         hi = splits[k]
-        f = frames[k * s_size:(k + 1) * s_size]
-        first = m0 if k == 0 else 0
         if 0 <= first and first + hi - lo <= cap:
             _fill_marked(mode, width, vmin, vmax, x[lo:hi], y[lo:hi], p[lo:hi], f, marks[k, first:])
             n_marks[k] = first + hi - lo
@@ -314,8 +313,10 @@ def windows_kernel(mode, width, vmin, vmax, x, y, p, splits, state, touched, n_t
     :data:`SIGNED`: ``+p`` at ``y W + x``; :data:`COUNT`: ``+1`` there),
     ``width`` W (px), values saturate at ``vmin`` and ``vmax``. ``state``
     (S,) is the flat image of the window in progress, non-zero only at
-    ``touched[:n_touched[0]]`` (-1: anywhere); ``frames`` (N S,) the flat
-    images of the ``N = len(splits)`` windows this packet completes. Window
+    ``touched[:n_touched[0]]`` (-1: anywhere), or empty (and ``touched``)
+    while it holds nothing and no event stays in it; ``frames`` (N S,) the
+    flat images of the ``N = len(splits)`` windows this packet completes
+    (S is ``frames``' size over ``len(n_marks)``). Window
     ``k`` gets events ``[splits[k - 1], splits[k])`` (window 0 also what
     ``state`` held; ``state`` is zeroed where it was touched); events from
     ``splits[-1]`` on go into ``state``.

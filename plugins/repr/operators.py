@@ -46,14 +46,24 @@ class _Image(Windowed):
         self._limits = (int(info.min), int(info.max))
 
     def _start(self, sensor: tuple[int, int]) -> None:
-        self.state: np.ndarray = np.zeros((sensor[1], sensor[0], *self.shape_tail), self.dtype)
-        self._flat = self.state.reshape(-1)
-        self._touched = np.empty(self._flat.shape[0], np.int64)  # state indices that left zero
+        self._shape = (sensor[1], sensor[0], *self.shape_tail)
+        frame_bytes = math.prod(self._shape) * self.dtype.itemsize
+        # the window in progress (flat) and the indices that left zero in it: made
+        # when events first stay in it (:meth:`_state`; a stream cut on the
+        # window edges never needs them: no 720 kB zeroed and pushed through the
+        # cache per run for nothing)
+        self._flat = np.zeros(0, self.dtype)
+        self._touched = _NO_TOUCHED
         self._n_touched = np.zeros(1, np.int64)
-        self._pool = pool(self.state.shape, self.dtype, max(1, BLOCK_BYTES // self.state.nbytes),
-                          marks=min(self.state.nbytes // MARK_BYTES, MARKS))
-        self._no_frames = Block(np.empty((0, *self.state.shape), self.dtype), 0)
+        self._pool = pool(self._shape, self.dtype, max(1, BLOCK_BYTES // frame_bytes),
+                          marks=min(frame_bytes // MARK_BYTES, MARKS))
+        self._no_frames = Block(np.empty((0, *self._shape), self.dtype), 0)
         self._width = sensor[0]
+
+    def _state(self) -> None:
+        """The state image, made now (all zero: nothing was added yet)."""
+        self._flat = np.zeros(math.prod(self._shape), self.dtype)
+        self._touched = np.empty(self._flat.shape[0], np.int64)
 
     def _by_time(self, pk: EventPacket, frames: list[tuple[int, np.ndarray]]) -> None:
         w, end = int(self.window_us), self._end  # type: ignore[arg-type]
@@ -82,6 +92,8 @@ class _Image(Windowed):
         events at 0.1 Mev/s)."""
         n_win, n = splits.shape[0], pk.t.shape[0]
         self._n = n - int(splits[-1]) if n_win else self._n + n
+        if self._n and not self._flat.shape[0]:  # events stay in the window in progress
+            self._state()
         if not n_win:
             if n:
                 self._kernel(pk.x, pk.y, pk.p, splits, self._no_frames)
@@ -108,7 +120,7 @@ class _Image(Windowed):
 
     def _frame(self, t0: int, t1: int) -> np.ndarray:
         """The window in progress as a new image (the state is zeroed)."""
-        out = Block(np.zeros((1, *self.state.shape), self.dtype), 0)
+        out = Block(np.zeros((1, *self._shape), self.dtype), 0)
         self._kernel(_NO_XY, _NO_XY, _NO_P, _ONE_SPLIT, out)
         return out.images[0]
 
@@ -131,6 +143,7 @@ BLOCK_BYTES = 1 << 21
 MARK_BYTES = 64
 MARKS = 2048
 _NO_XY, _NO_P = np.empty(0, np.uint16), np.empty(0, np.int8)
+_NO_TOUCHED = np.empty(0, np.int64)
 _ONE_SPLIT = np.zeros(1, np.int64)
 
 
