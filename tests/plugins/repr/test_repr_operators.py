@@ -195,3 +195,23 @@ def test_in_a_pipeline_of_small_packets_each_call_gets_two_windows(ev):
     want = concat(feed(R.EventFrame(window_us=2000), [ev]))
     got = concat([q for q in sink.packets if q.kind == tectum.Kind.FRAMES])
     assert np.array_equal(got.t, want.t) and np.array_equal(got.images, want.images)
+
+
+@pytest.mark.parametrize("make", [R.EventFrame, R.Accumulate, R.CountImage])
+def test_the_window_in_progress_is_made_only_when_events_stay_in_it(ev, make):
+    """Packets cut on the window edges fill their frames directly: the
+    state image of the window in progress is never made (no zeroed 720 kB
+    per run at 346x260); a cut inside a window makes it, and both give the
+    frames of one array."""
+    want = concat(feed(make(window_us=1000), [ev]))
+    edges = [ev.slice_time(a, a + 1000) for a in range(ev.t_start, ev.t_end, 1000)]
+    op = make(window_us=1000)
+    got = [q for pk in edges[:-1] for q in op.process(pk)]
+    assert op._flat.shape[0] == 0 and len(got) == len(edges) - 1
+    got += feed(op, edges[-1:])  # the last ends at the stream's end, inside a window
+    inside = [ev.slice_time(a, a + 700) for a in range(ev.t_start, ev.t_end, 700)]
+    op2 = make(window_us=1000)
+    got2 = feed(op2, inside)
+    assert op2._flat.shape[0] == 16 * 10 * (2 if make is R.EventFrame else 1)
+    for out in (concat(got), concat(got2)):
+        assert np.array_equal(out.t, want.t) and np.array_equal(out.images, want.images)
