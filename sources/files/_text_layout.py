@@ -46,20 +46,21 @@ class TextLayout:
 def first_lines(head: bytes, k: int, *, strip: bool = True, comments: tuple[bytes, ...] = (b"#", b"%")) -> list[bytes]:
     """Up to ``k`` complete lines of ``head`` (a last one without its newline
     left out) that are not blank nor start with ``comments``; with ``strip``
-    stripped (and tested for comments so), else as they are. Stops after
-    ``k``: a sniffer reads the first lines of a 64 kB head, not all of them."""
-    out: list[bytes] = []
-    start = 0
-    while len(out) < k:
-        end = head.find(b"\n", start)
-        if end < 0:
-            break
-        raw = head[start:end]
-        ln = raw.strip()
-        if ln and not (ln if strip else raw).startswith(comments):
-            out.append(ln if strip else raw)
-        start = end + 1
-    return out
+    stripped (and tested for comments so), else as they are. Splits only as
+    many lines as it needs (a few more than ``k``, more while too many were
+    blank or comments): a sniffer reads the first lines of a 64 kB head, not
+    all of them."""
+    m = k + 8
+    while True:
+        pieces = head.split(b"\n", m)
+        del pieces[-1]  # the rest of head, or the last line without its newline
+        if strip:
+            out = [ln for ln in map(bytes.strip, pieces) if ln and not ln.startswith(comments)]
+        else:
+            out = [raw for raw in pieces if not raw.startswith(comments) and raw.strip()]
+        if len(out) >= k or len(pieces) < m:  # enough, or every line of head seen
+            return out[:k]
+        m *= 4
 
 
 def _header(head: bytes) -> tuple[list[str], list[bytes]]:

@@ -4,15 +4,15 @@ Most event text files hold one layout line after line: ``t x y p`` with the
 time a decimal (``0.003811000 96 133 0``, the RPG ``events.txt``) or an
 integer (µs CSV). In such a line every byte is a digit except a few at known
 places: the time's ``.``, three separators, the polarity's ``-``, a ``\r``
-and the newline. :func:`fast_lines` takes a window of a few kB at a time:
-first the masks of its non-digits and of its newlines, 64 bytes to a 64-bit
-word (a loop LLVM vectorises), and the list of its newlines; then each line
-from its start and its newline, the non-digits between them read off the
-mask (``tzcnt``). The fields lie between those, all digits by construction,
-so each number is converted from one 64-bit word by three multiplications
-(:func:`digits_value`): no loop over its digits, no branch on its length,
-and no line waits on the one before (its start comes from the list), so the
-processor overlaps consecutive lines.
+and the newline. :func:`fast_lines` reads 64 bytes at a time from the start
+of the next line: one vector load and two compares give the masks of its
+non-digits and of its newlines (:func:`masks64`), and each line ending in
+those 64 bytes is parsed from its start and its newline, the non-digits
+between them read off the mask (``tzcnt``). The fields lie between those,
+all digits by construction, so each number is converted from one 64-bit word
+by three multiplications (:func:`digits_value`): no loop over its digits, no
+branch on its length, and no line waits on the one before but for its
+start, one ``tzcnt`` away, so the processor overlaps consecutive lines.
 
 A line of any other form (a sign on the time, a coordinate of six or more
 digits, blanks around a field, a comment, a header, a bad polarity) ends the
@@ -37,21 +37,20 @@ from llvmlite import ir
 from numba import config, njit, types
 from numba.extending import intrinsic
 
-__all__ = ["REACH", "cttz", "digits_value", "fast_lines", "marks_and_newlines", "popcount", "run_value", "scratch",
-           "word"]
+__all__ = ["REACH", "cttz", "digits_value", "fast_lines", "masks64", "run_value", "word"]
 
-#: Bytes past ``end`` :func:`fast_lines` may read (the marks of the last
-#: 64 bytes: ``buf`` must extend that far).
-REACH = 64
-_SPAN = 4096  # bytes of the window fast_lines marks at a time
+#: Bytes past ``end`` :func:`fast_lines` may read (``buf`` must extend that
+#: far): the 64 bytes of the masks from a line's start before ``end``, and
+#: a word from its 65th byte.
+REACH = 80
 
 _U = np.uint64
 _ZEROS = _U(0x3030303030303030)  # "00000000"
 _PAIRS = _U(0x00FF00FF00FF00FF)
 _QUADS = _U(0x0000FFFF0000FFFF)
 _POW10 = np.array([10 ** k for k in range(9)], np.uint64)
-#: ``_LOW_BYTES[k]``: a mask of the k lowest bytes of a word
-_LOW_BYTES = np.array([(1 << (8 * k)) - 1 for k in range(8)] + [(1 << 64) - 1], np.uint64)
+#: ``_LOW_BYTES[k]``: a mask of the k lowest bytes of a word (all for 8 to 15)
+_LOW_BYTES = np.array([(1 << (8 * k)) - 1 for k in range(8)] + [(1 << 64) - 1] * 8, np.uint64)
 
 if config.DISABLE_JIT:  # plain Python (the coverage run): an intrinsic has no Python form
 
@@ -60,9 +59,14 @@ if config.DISABLE_JIT:  # plain Python (the coverage run): an intrinsic has no P
         v = int(v)
         return _U((v & -v).bit_length() - 1 if v else 64)
 
-    def popcount(v):  # type: ignore[no-untyped-def]
-        """The number of one bits of the uint64 ``v``."""
-        return _U(bin(int(v)).count("1"))
+    def masks64(buf, i):  # type: ignore[no-untyped-def]
+        """(mask of the bytes of ``buf[i:i + 64]`` that are no ASCII digit,
+        mask of its newlines): bit j for byte ``i + j``."""
+        nd = nl = 0
+        for j, c in enumerate(bytes(buf[i:i + 64])):
+            nd |= (not 48 <= c <= 57) << j
+            nl |= (c == 10) << j
+        return _U(nd), _U(nl)
 
 else:
 
@@ -79,15 +83,25 @@ else:
         return types.uint64(v), codegen
 
     @intrinsic
-    def popcount(typingctx, v):  # type: ignore[no-untyped-def]
-        """The number of one bits of the uint64 ``v``: one ``popcnt`` instruction."""
-        if not isinstance(v, types.Integer) or v.bitwidth != 64:
+    def masks64(typingctx, buf, i):  # type: ignore[no-untyped-def]
+        """(mask of the bytes of ``buf[i:i + 64]`` (uint8, ``i >= 0``) that
+        are no ASCII digit, mask of its newlines): bit j for byte ``i + j``.
+        One unaligned 64-byte load, two compares and their bit masks: a few
+        vector instructions (LLVM's, for whatever vector width the CPU has)."""
+        if not isinstance(buf, types.Array) or buf.dtype != types.uint8 or not isinstance(i, types.Integer):
             return None
 
         def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
-            return builder.ctpop(args[0])
+            data = context.make_array(signature.args[0])(context, builder, value=args[0]).data
+            vec = ir.VectorType(ir.IntType(8), 64)
+            v = builder.load(builder.bitcast(builder.gep(data, [args[1]]), vec.as_pointer()), align=1)
+            digit = builder.sub(v, ir.Constant(vec, [48] * 64))
+            other = builder.icmp_unsigned(">", digit, ir.Constant(vec, [9] * 64))
+            newline = builder.icmp_unsigned("==", v, ir.Constant(vec, [10] * 64))
+            bits = [builder.bitcast(m, ir.IntType(64)) for m in (other, newline)]
+            return context.make_tuple(builder, signature.return_type, bits)
 
-        return types.uint64(v), codegen
+        return types.UniTuple(types.uint64, 2)(buf, i), codegen
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -100,13 +114,20 @@ def word(buf, i):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True, inline="always")
-def run_value(w, k, have=8):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+def run_value(w, k):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     """The value of the ``k`` (0 to 8) decimal digits in the lowest bytes of
-    ``w`` (0 for ``k == 0``), of which only the first ``have`` are there (ASCII
-    digits; those after count as 0): moved to the word's top (the last digit in
-    the highest byte), then pairs, quads and the eight digits combined by three
-    multiplications."""
-    return digits_value((w - _ZEROS) & _LOW_BYTES[_U(min(k, have))], k)
+    ``w`` (0 for ``k == 0``; ASCII digits): moved to the word's top (the last
+    digit in the highest byte), then pairs, quads and the eight digits
+    combined by three multiplications. Any other ``k`` gives a meaningless
+    value, never a read past the tables."""
+    return digits_value((w - _ZEROS) & _low(k), k)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _low(k):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+    """The mask of the ``k`` (0 to 8) lowest bytes of a word; one of the
+    table's for any other ``k``, a negative one too (one ``and``, no branch)."""
+    return _LOW_BYTES[_U(k) & _U(15)]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -119,32 +140,18 @@ def digits_value(v, k):  # type: ignore[no-untyped-def]  # pragma: no cover - nu
     return (v * _U(1 + (10000 << 32))) >> _U(32)
 
 
-@njit(cache=True, nogil=True, inline="always")
-def marks_and_newlines(buf, at):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
-    """Masks of the bytes of ``buf[at:at + 64]`` that are no ASCII digit and
-    of its newlines (bit j for byte ``at + j``), in one vectorised loop."""
-    marks = _U(0)
-    lines = _U(0)
-    for j in range(64):
-        c = buf[np.uint64(at + j)]
-        marks |= _U((c < 48) | (c > 57)) << _U(j)
-        lines |= _U(c == 10) << _U(j)
-    return marks, lines
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _blank(c):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
-    return (c == 32) | (c == 9) | (c == 44)
+#: Separators (space, tab, comma) as bits of a word: bit c for byte c
+_BLANKS = _U((1 << 32) | (1 << 9) | (1 << 44))
+#: The ends of a plain line after its last separator, read as a word: the
+#: polarity, an optional CR and the newline
+_ONE, _ONE_CR, _ZERO, _ZERO_CR, _MINUS, _MINUS_CR = (_U(int.from_bytes(e, "little")) for e in (
+    b"1\n", b"1\r\n", b"0\n", b"0\r\n", b"-1\n", b"-1\r\n"))
 
 
 @njit(cache=True, nogil=True)
-def scratch():  # type: ignore[no-untyped-def]  # pragma: no cover - numba
-    """The room :func:`fast_lines` needs (marks, ends): made once per buffer, not per call."""
-    return np.empty(_SPAN // 64 + 2, np.uint64), np.empty(_SPAN + 4, np.int64)
-
-
-@njit(cache=True, nogil=True)
-def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where, marks, ends):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     """Parse lines of the plain form ``t x y p`` from ``buf[i]`` (a line's
     start) while they come, up to a line ending before ``end`` (``buf``
     readable :data:`REACH` bytes past it), into the columns from index
@@ -152,57 +159,34 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where, marks, end
     form: a time of 1 to 16 whole digits below ``big`` (the largest whole
     part) with an optional ``.`` and places (the first ``digits``, 0 to 6,
     are the µs, the next rounds half up), one separator (space, tab or
-    comma, the same three times), coordinates of 1 to 5 digits up to 65535,
+    comma, the same three times), coordinates of 1 to 8 digits up to 65535,
     a polarity ``0``, ``1`` or ``-1`` in the convention of ``state[0]`` (as
     in :func:`tectum.sources.files.text.parse_lines`, which sets it on the
     first 0 or -1; ``state[1:3]`` get the largest coordinates), ``\\n`` or
-    ``\\r\\n``, the whole line shorter than 64 bytes. ``marks`` (uint64)
-    and ``ends`` (int64) are room for the window, of :func:`scratch`.
+    ``\\r\\n``, the whole line shorter than 64 bytes.
     Returns (the start of the first line not parsed, n).
 
-    A window of up to :data:`_SPAN` bytes at a time: first the masks of its
-    non-digits and the list of its newlines, then its lines, each from its
-    start and newline (so no line waits on the one before) and the
-    non-digits between them."""
+    From the start of the next line, 64 bytes: the masks of their non-digits
+    and newlines (:func:`masks64`), then each line that ends in them, from
+    its start, its newline and the non-digits between."""
     scale = np.int64(1)
     for _ in range(digits):
         scale *= 10
     track = where.shape[0] > 0
-    conv, xmax, ymax = state[0], state[1], state[2]
+    conv = state[0]
+    first = n
     ok = True
-    span = 256  # the window grows while its lines are all plain: an odd line soon after costs little
-    while ok:
+    while ok and i < end:
         base = i
-        lim = min(base + span, end)
-        span = min(2 * span, _SPAN)
-        words = (lim - base + 63) >> 6
-        k = np.int64(0)
-        for b in range(words):
-            at = base + 64 * b
-            marks[b], bits = marks_and_newlines(buf, at)
-            if b == words - 1:
-                bits &= (_U(2) << _U(lim - at - 1)) - _U(1)  # newlines before lim only
-            count = np.int64(popcount(bits))
-            for j in range(4):  # the usual few whatever their number: no branch to mispredict
-                ends[k + j] = at + np.int64(cttz(bits))
-                bits &= bits - _U(1)
-            k += 4
-            while bits:
-                ends[k] = at + np.int64(cttz(bits))
-                k += 1
-                bits &= bits - _U(1)
-            if count < 4:
-                k += count - 4
-        marks[words] = 0
-        if k == 0:
+        other, lines = masks64(buf, base)
+        if end - base < 64:
+            lines &= (_U(1) << _U(end - base)) - _U(1)  # newlines before end only
+        if lines == 0:  # no line ends in the 64 bytes (or before end)
             break
-        for li in range(k):
-            nl = ends[np.uint64(li)]
-            off = _U(i - base)
-            wi = off >> _U(6)
-            sh = off & _U(63)
-            w = (marks[wi] >> sh) | ((marks[wi + _U(1)] << _U(1)) << (_U(63) - sh))  # the marks from i on
-            size = nl - i  # the newline's offset
+        while lines:
+            nl = base + np.int64(cttz(lines))
+            lines &= lines - _U(1)
+            w = other >> _U(i - base)  # the non-digits from i on
             a = np.int64(cttz(w))  # the first: the time's '.' or the first separator
             w &= w - _U(1)
             b1 = np.int64(cttz(w))
@@ -210,57 +194,59 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where, marks, end
             b2 = np.int64(cttz(w))
             w &= w - _U(1)
             b3 = np.int64(cttz(w))
-            dot = buf[np.uint64(i + a)] == 46
+            dot = buf[_U(i + a)] == 46
             s1 = b1 if dot else a
             s2 = b2 if dot else b1
             s3 = b3 if dot else b2
-            minus = buf[np.uint64(i + s3 + 1)] == 45  # the polarity's '-'
-            cr = buf[np.uint64(nl - 1)] == 13
             # the fields: digits between the marks (values of garbage when ok is False)
             places = s1 - a - 1
             w = word(buf, i + a + 1)  # the places (when dot)
+            frac = (w - _ZEROS) & _low(min(places, digits))  # the places down to 1 µs, then zeros
             if dot and a + digits <= 8:  # the whole part and the places down to 1 µs in one word
-                v = (word(buf, i) - _ZEROS) & _LOW_BYTES[_U(a if a < 8 else 8)]
-                v |= ((w - _ZEROS) & _LOW_BYTES[_U(min(places, digits))]) << (_U(a << 3) & _U(63))
+                v = ((word(buf, i) - _ZEROS) & _low(a)) | (frac << (_U(a << 3) & _U(63)))
                 tv = np.int64(digits_value(v, a + digits))
-                ok = (a > 0) & (size < 64)
+                ok = a > 0
             else:
                 tv = np.int64(run_value(word(buf, i), min(a, 8)))
                 if a > 8:
-                    rest = a - 8 if a < 16 else 8
+                    rest = min(a - 8, 8)
                     tv = tv * np.int64(_POW10[rest]) + np.int64(run_value(word(buf, i + 8), rest))
-                ok = (a > 0) & (a <= 16) & (tv < big) & (size < 64)
+                ok = (a > 0) & (a <= 16) & (tv < big)
                 tv *= scale
                 if dot:
-                    tv += np.int64(run_value(w, digits, places))  # the places down to 1 µs
+                    tv += np.int64(digits_value(frac, digits))
             # the first place below 1 µs rounds half up
             tv += np.int64(dot & (places > digits) & (((w >> _U(digits << 3)) & _U(255)) >= _U(53)))
-            sep = buf[np.uint64(i + s1)]
+            sep = buf[_U(i + s1)]
             nx = s2 - s1 - 1
-            xv = np.int64(run_value(word(buf, i + s1 + 1), min(nx, 8)))
             ny = s3 - s2 - 1
-            yv = np.int64(run_value(word(buf, i + s2 + 1), min(ny, 8)))
-            pc = buf[np.uint64(nl - 1 - cr)]
-            one = np.int64(pc == 49)
-            neg = np.int64(minus)
-            need = 2 * neg + (1 - one) * (1 - neg)  # the convention the polarity needs: 0 any, 1 0/1, 2 -1/+1
-            ok &= (_blank(sep) & (buf[np.uint64(i + s2)] == sep) & (buf[np.uint64(i + s3)] == sep)
-                   & (nx > 0) & (nx <= 5) & (ny > 0) & (ny <= 5) & (xv <= 65535) & (yv <= 65535)
-                   & (size - s3 - 1 - np.int64(cr) == 1 + neg) & ((one == 1) | ((pc == 48) & (neg == 0)))
-                   & ((need == 0) | (conv == 0) | (conv == need)))
+            xv = np.int64(run_value(word(buf, i + s1 + 1), nx))
+            yv = np.int64(run_value(word(buf, i + s2 + 1), ny))
+            tail = nl - i - s3  # the bytes after the last separator, the newline's included
+            e = word(buf, i + s3 + 1) & _low(tail)
+            one = (e == _ONE) | (e == _ONE_CR)
+            zero = (e == _ZERO) | (e == _ZERO_CR)
+            minus = (e == _MINUS) | (e == _MINUS_CR)
+            need = np.int64(zero) + 2 * np.int64(minus)  # the convention the polarity needs: 0 any, 1 0/1, 2 -1/+1
+            ok &= ((sep < 64) & (((_BLANKS >> _U(sep & 63)) & _U(1)) == _U(1))
+                   & (buf[_U(i + s2)] == sep) & (buf[_U(i + s3)] == sep)
+                   & (_U((nx - 1) | (ny - 1)) < _U(8)) & ((xv | yv) < 65536)
+                   & (_U(tail - 2) < _U(3)) & (one | zero | minus) & ((need == 0) | (conv == 0) | (conv == need)))
             if not ok:
                 break
-            conv += need * np.int64(conv == 0)
-            o = np.uint64(n)
+            conv |= need
+            o = _U(n)
             t[o] = tv
             x[o] = xv
             y[o] = yv
-            p[o] = 2 * one * (1 - neg) - 1
-            xmax = max(xmax, xv)
-            ymax = max(ymax, yv)
+            p[o] = 2 * np.int64(one) - 1
             if track:
                 where[o] = i
             n += 1
             i = nl + 1
+    xmax, ymax = state[1], state[2]
+    for k in range(first, n):  # apart: the loop above has registers enough for its own work
+        xmax = max(xmax, np.int64(x[k]))
+        ymax = max(ymax, np.int64(y[k]))
     state[0], state[1], state[2] = conv, xmax, ymax
     return i, n

@@ -21,7 +21,7 @@ from __future__ import annotations
 import functools
 import os
 import re
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Generator, Iterator, Mapping
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -30,9 +30,9 @@ from numba import njit
 from tectum import FramePacket, ImuPacket, Kind, Packet, PosePacket, interleave
 
 from ._common import POOL as _POOL
-from ._common import EventAssembler, FileSource
+from ._common import EventAssembler, FileSource, byte_buffer, read_full
 from ._text_layout import LETTERS, TextLayout, first_lines, text_layout
-from ._text_swar import REACH, fast_lines, scratch
+from ._text_swar import REACH, fast_lines
 
 __all__ = ["TextSource", "parse_lines"]
 
@@ -41,6 +41,7 @@ _HOLD = 1 << 21  # events held in memory while inferring the sensor size
 _HOLD_BYTES = 1 << 26  # text held (for error offsets) while inferring the sensor size
 _RUNS = 4096  # runs of bad lines one parse_lines call records
 _DTYPES = (np.int64, np.uint16, np.uint16, np.int8)  # t, x, y, p
+_NO_WHERE = np.empty(0, np.int64)  # parse_lines without the line offsets
 
 
 #: ``parse_lines`` reasons for a bad line
@@ -192,10 +193,9 @@ def parse_lines(buf, order, digits, state, skip, t, x, y, p, where, bad, fast=Tr
     end = min(last + 1, m - REACH)  # the lines fast_lines may parse end before
     wait = 0  # lines to parse line by line before trying fast_lines again
     backoff = 64
-    marks, ends = scratch()
     while i <= last:
         if fast and plain and wait == 0:
-            i, k = fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where, marks, ends)
+            i, k = fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where)
             if k > n:
                 joined = False
             if k - n < 4:  # few plain lines here: try again later, later each time
@@ -379,7 +379,9 @@ def parse_lines(buf, order, digits, state, skip, t, x, y, p, where, bad, fast=Tr
 
 
 _NUM = rb"[+-]?(?:\d+\.?\d*|\.\d+)"
-_LINE = re.compile(rb"^\s*" + _NUM + rb"(?:[ \t,]+" + _NUM + rb"){2}[ \t,]+(" + _NUM + rb")\s*$")  # group 1: the 4th
+_LINE = re.compile(rb"^\s*" + _NUM + rb"(?:[ \t,]+" + _NUM + rb"){2}[ \t,]+" + _NUM + rb"\s*$")
+#: Lines each ending with a newline, of 4 numbers, the 4th a polarity (blanks: whitespace but the newline)
+_EVENT_LINES = re.compile(rb"(?:[^\S\n]*" + _NUM + rb"(?:[ \t,]+" + _NUM + rb"){2}[ \t,]+(?:0|[+-]?1)[^\S\n]*\n)+")
 
 
 def looks_like_events_text(head: bytes) -> bool:
@@ -391,11 +393,20 @@ def looks_like_events_text(head: bytes) -> bool:
         lines = lines[1:]  # CSV header
     if len(lines) < 2:
         return len(lines) == 1 and len(head) < 4096 and bool(_LINE.match(lines[0]))
-    for ln in lines[:20]:
-        m = _LINE.match(ln)
-        if not m or m.group(1) not in (b"0", b"1", b"-1", b"+1"):
-            return False
-    return True
+    return _EVENT_LINES.fullmatch(b"\n".join(lines[:20]) + b"\n") is not None  # one match, not 20
+
+
+def _header_end(text: bytes) -> int | None:
+    """Where the data of a file starting with ``text`` start: after the
+    header, the first line that is no comment nor blank, if it has letters;
+    else 0. None when ``text`` ends before that line does."""
+    k = 0
+    nl = text.find(b"\n")
+    while nl >= 0 and (text.startswith((b"#", b"%"), k) or not text[k:nl].strip()):
+        k, nl = nl + 1, text.find(b"\n", nl + 1)
+    if nl < 0:
+        return None
+    return nl + 1 if LETTERS.search(text[k:nl]) else 0
 
 
 class _Chunk(NamedTuple):
@@ -462,63 +473,71 @@ class TextSource(FileSource):
         columns ``columns(capacity)`` gives (t, x, y, p, from index 0). Bad
         lines raise, or with ``skip_bad`` are counted and passed over in the
         same pass: time is linear and memory bounded by the chunk size
-        whatever the input."""
+        whatever the input. Chunks are read into pooled buffers (a fresh
+        one costs a page fault per 4 KiB), the last one (read short) with
+        the file's last line."""
         f = self._open()
-        data = f.read(self.chunk_bytes)  # the first chunk, which holds the head
-        head = data[:1 << 16]
-        if len(data) == self.chunk_bytes < 1 << 16:  # small chunks: the head reads on
-            head += f.read((1 << 16) - len(data))
-            f.seek(len(data))
-        if not head.strip():
+        size = self.chunk_bytes
+        buf = byte_buffer(size + 1)  # room for a newline after a last line without one
+        n = read_full(f, buf[:size])  # the first chunk, which holds the head
+        head = bytes(buf[:min(n, 1 << 16)])
+        if n == size < 1 << 16:  # small chunks: the head reads on
+            head += f.read((1 << 16) - n)
+            f.seek(n)
+        if not head or head.isspace():
             self._fail("empty file: no events" if not head else "empty file: only blank lines", 0)
         self.layout = lay = text_layout(head, self.columns, self.time_unit)
         order = np.array(["txyp".index(c) for c in lay.columns], np.int64)
         digits = _UNIT_DIGITS[lay.time_unit]
-        no_where = np.empty(0, np.int64)
-        runs = np.empty((_RUNS, 3), np.int64)
         pos = 0
-        rest = b""
+        rest = buf[:0]
         first = True
-        eof = False
-        while not eof:
+        while True:
             if not first:
-                data = f.read(max(self.chunk_bytes, len(rest)))  # a long line: reads double, time stays linear
-            eof = not data
-            buf = rest + data
-            if eof:
-                if not buf.strip():
-                    return
-                if not buf.endswith(b"\n"):
-                    buf += b"\n"  # last line without a newline
+                size = max(self.chunk_bytes, rest.shape[0])  # a long line: reads double, time stays linear
+                buf = byte_buffer(rest.shape[0] + size + 1)
+                buf[:rest.shape[0]] = rest
+                n = rest.shape[0] + read_full(f, buf[rest.shape[0]:rest.shape[0] + size])
+            eof = n - rest.shape[0] < size  # read_full stops short only at the end of the file
+            start = 0
             if first:  # the header: the first line that is no comment nor blank, if it has letters
                 first = False
-                k = 0
-                nl = buf.find(b"\n")
-                while nl >= 0 and (buf.startswith((b"#", b"%"), k) or not buf[k:nl].strip()):
-                    k, nl = nl + 1, buf.find(b"\n", nl + 1)
-                if nl >= 0 and LETTERS.search(buf[k:nl]):
-                    pos += nl + 1
-                    buf = buf[nl + 1:]
-            arr = np.frombuffer(buf, np.uint8)
-            at = 0
-            while True:
-                view = arr[at:]
-                cols = columns(view.shape[0] // 8 + 2)  # a line has at least 8 bytes ("0 0 0 0\n")
-                before = state.copy()
-                n, used, nruns, reason = parse_lines(view, order, digits, state, self.skip_bad, *cols, no_where, runs)
-                if nruns and not self.skip_bad:
-                    a, b = int(runs[0, 0]), int(runs[0, 1])
-                    self._fail(f"{_REASONS[reason]}: {bytes(view[a:b])[:80]!r}", pos + at + a)
-                for a, b, k in runs[:nruns].tolist():
-                    self._note_skip(pos + at + a, pos + at + b, k)
-                yield _Chunk(pos + at, n, cols, functools.partial(self._where, view[:used], before, pos + at), used)
-                at += used
-                if nruns < _RUNS:
-                    break
-            if at == 0 and len(buf) > self.chunk_bytes + (1 << 20):
-                self._fail("no line end in the last MiB: not a text event file", pos)
-            rest = buf[at:]
+                found = _header_end(head[:n])  # head holds more than the chunk when chunks are small
+                if found is None and n > len(head):  # the first 64 kB do not decide: the whole chunk
+                    found = _header_end(bytes(buf[:n]))
+                start = found or 0
+            pos += start
+            at = yield from self._lines(buf[start:n], pos, columns, state, order, digits)
+            rest = buf[start + at:n]
             pos += at
+            if at == 0 and n - start > self.chunk_bytes + (1 << 20):
+                self._fail("no line end in the last MiB: not a text event file", pos)
+            if eof:
+                if rest.shape[0] and not bytes(rest).isspace():  # the last line, without a newline
+                    buf[n] = 10
+                    yield from self._lines(buf[start + at:n + 1], pos, columns, state, order, digits)
+                return
+
+    def _lines(self, arr: np.ndarray, pos: int, columns: Callable[[int], tuple[np.ndarray, ...]], state: np.ndarray,
+               order: np.ndarray, digits: int) -> Generator[_Chunk, None, int]:
+        """The complete lines of ``arr`` (the file's bytes from ``pos``)
+        parsed as :meth:`_parse` says; returns the bytes they take."""
+        runs = np.empty((_RUNS, 3), np.int64)
+        at = 0
+        while True:
+            view = arr[at:]
+            cols = columns(view.shape[0] // 8 + 2)  # a line has at least 8 bytes ("0 0 0 0\n")
+            before = state.copy()
+            k, used, nruns, reason = parse_lines(view, order, digits, state, self.skip_bad, *cols, _NO_WHERE, runs)
+            if nruns and not self.skip_bad:
+                a, b = int(runs[0, 0]), int(runs[0, 1])
+                self._fail(f"{_REASONS[reason]}: {bytes(view[a:b])[:80]!r}", pos + at + a)
+            for a, b, c in runs[:nruns].tolist():
+                self._note_skip(pos + at + a, pos + at + b, c)
+            yield _Chunk(pos + at, k, cols, functools.partial(self._where, view[:used], before, pos + at), used)
+            at += used
+            if nruns < _RUNS:
+                return at
 
     def _where(self, view: np.ndarray, state: np.ndarray, pos: int) -> np.ndarray:
         """The byte offsets of the events of ``view`` (parsed again from
@@ -583,9 +602,10 @@ class TextSource(FileSource):
         state = np.zeros(_STATE, np.int64)
         held: list[_Chunk] = []
         if sensor is None:
+            asm = EventAssembler(self, (1, 1))  # its sensor set once the pass has found the extent
             events = size = 0
-            for c in self._parse(lambda n: _POOL.take(n), state):
-                if held:  # the last chunk keeps its pooled columns (a file of one chunk: no copy), the others shrink
+            for c in self._parse(asm.reserve, state):
+                if held:  # the last chunk stays in the assembler's reservation, the others shrink to copies
                     held[-1] = held[-1]._replace(cols=tuple(a[:held[-1].n].copy() for a in held[-1].cols))
                 held.append(c)
                 events += c.n
@@ -599,6 +619,11 @@ class TextSource(FileSource):
             self.close()
             sensor = (int(state[1]) + 1, int(state[2]) + 1)
             state[:] = 0
+            if len(held) == 1:  # a file of one chunk: committed from the reservation it was parsed into, no copy
+                asm.sensor = sensor
+                yield from asm.commit(held[0].n, held[0].pos, held[0].where)
+                yield from asm.finish()
+                return
         asm = EventAssembler(self, sensor)
         if held:
             for c in held:
