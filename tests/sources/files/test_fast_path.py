@@ -139,6 +139,47 @@ def test_packets_are_what_the_checked_constructor_builds(fmt: str, files) -> Non
         q.validate()
 
 
+def test_a_consumer_letting_packets_go_gets_the_same_columns_back(tmp_path: Path) -> None:
+    """Chunks of one size take column sets of one size whatever the run of
+    equal times each holds back (1 to 40 events here), so a consumer that
+    drops each packet before the next gets the same pooled set every packet
+    (still in the cache), and one holding the last packet two sets in turn;
+    the events are the file's either way."""
+    rng = np.random.default_rng(3)
+    n, per = 20_000, 500
+    t = np.cumsum(rng.integers(1, 4, n)).astype(np.uint64)
+    for c in range(per, n, per):  # a run across each chunk edge, of a different length each time
+        r = int(rng.integers(1, 40))
+        t[c - r:c + 1] = t[c - r]
+    t = np.maximum.accumulate(t)
+    data = rng.integers(0, 64, n).astype(np.uint64) | (rng.integers(0, 48, n).astype(np.uint64) << np.uint64(14))
+    path = tmp_path / "runs.dat"
+    path.write_bytes(b"% Width 64\n% Height 48\n\x0c\x08" + (t | (data << np.uint64(32))).astype("<u8").tobytes())
+    dropped, seen = set(), []
+    for q in open_file(str(path), chunk_bytes=8 * per).packets():
+        if q.t.base is not None:  # not the last run, held back to the end (a copy)
+            dropped.add(q.t.base.ctypes.data)
+        seen.append(q.t.copy())
+        del q  # gone before the decoder reserves the next chunk's columns
+    assert len(seen) > 30 and np.array_equal(np.concatenate(seen), t.astype(np.int64))
+    assert len(dropped) == 1
+    held = {q.t.base.ctypes.data for q in open_file(str(path), chunk_bytes=8 * per).packets() if q.t.base is not None}
+    assert len(held) == 2
+
+
+def test_dat_packets_fit_in_the_cache_by_default(tmp_path: Path, files) -> None:
+    """DAT packets are of DAT_CHUNK_BYTES of records unless chunk_bytes says
+    otherwise."""
+    n = 3 * (prophesee.DAT_CHUNK_BYTES // 8) + 5
+    rec = np.arange(n, dtype=np.uint64) | (np.uint64(5) << np.uint64(32))
+    path = tmp_path / "many.dat"
+    path.write_bytes(b"% Width 64\n% Height 48\n\x0c\x08" + rec.astype("<u8").tobytes())
+    assert open_file(str(path)).chunk_bytes == prophesee.DAT_CHUNK_BYTES
+    sizes = [len(q) for q in open_file(str(path)).packets()]
+    assert sum(sizes) == n and 4 <= len(sizes) <= 5 and max(sizes) <= prophesee.DAT_CHUNK_BYTES // 8
+    assert [len(q) for q in open_file(str(path), chunk_bytes=n * 8).packets()] == [n - 1, 1]  # the last: held back
+
+
 class _ShortReads:
     """A file whose reads return at most ``most`` bytes (a pipe, a network
     file system): readers must ask again."""
