@@ -17,6 +17,8 @@ but never added again).
 
 from __future__ import annotations
 
+import copy
+import functools
 import struct
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
@@ -69,12 +71,20 @@ class PacketEntry:
 
 
 def parse_info_node(xml: str) -> dict[int, Stream]:
-    """Streams declared by an IOHeader ``infoNode`` XML document."""
+    """Streams declared by an IOHeader ``infoNode`` XML document (each call
+    its own :class:`Stream` objects; the parse of a document is cached:
+    ~0.1 ms, 3 % of decoding a 2.6 MB file, for a file opened again)."""
+    return {s.id: copy.copy(s) for s in _parse_info_node(xml)}
+
+
+@functools.lru_cache(maxsize=16)
+def _parse_info_node(xml: str) -> tuple[Stream, ...]:
+    """:func:`parse_info_node`'s streams, parsed once per document."""
     out: dict[int, Stream] = {}
     doc = ET.fromstring(xml.strip().rstrip("\0").strip() or "<dv/>")
     info = next((n for n in doc.iter("node") if n.get("name") == "outInfo"), None)
     if info is None:
-        return out
+        return ()
     for node in info.findall("node"):
         try:
             sid = int(node.get("name", ""))
@@ -88,7 +98,7 @@ def parse_info_node(xml: str) -> dict[int, Stream]:
             sensor = (int(inner["sizeX"]), int(inner["sizeY"]))
         out[sid] = Stream(sid, attrs.get("typeIdentifier", ""), attrs.get("originalOutputName", str(sid)),
                           sensor, int(inner.get("tsOffset", "0") or 0), attrs.get("compression", ""))
-    return out
+    return tuple(out.values())
 
 
 def read_io_header(f: Any, path: str) -> tuple[int, int, str, int]:
@@ -503,6 +513,9 @@ class _Batch:
         for buf, rows in events:
             fast = (rows[:, 3] >= 0) & _lz4.AVAILABLE
             room = np.cumsum(np.where(fast, rows[:, 5] // 16, 0))  # events each packet can hold, summed
+            if room[-1] <= _RUN_EVENTS and fast.all():  # the common case: one run (no search for its end)
+                yield from self._inflate_run(buf, rows)
+                continue
             k = 0
             while k < rows.shape[0]:
                 if not fast[k]:

@@ -404,3 +404,23 @@ def test_number_in_the_info_node_that_is_not_one(tmp_path: Path) -> None:
     f.write_bytes(raw.replace(b'"sizeX" type="int">64<', b'"sizeX" type="int">!4<'))
     with pytest.raises(FormatError, match="infoNode"):
         _read(f)
+
+
+def test_info_node_parsed_once_each_caller_its_own_streams(tmp_path: Path) -> None:
+    """The infoNode document of a file opened again is parsed once: each
+    reader still gets Stream objects of its own (changing one changes no
+    other reader's), and the file rewritten with another sensor reads as the
+    new one (the cache is keyed by the document)."""
+    f = _write(tmp_path / "s.aedat4", _events(100))
+    a, b = Aedat4Source(str(f)), Aedat4Source(str(f))
+    a._open_header()
+    b._open_header()
+    assert a.streams == b.streams and a.streams[0].sensor == (64, 48)
+    assert all(a.streams[k] is not b.streams[k] for k in a.streams)
+    a.streams[0].sensor = (1, 1)
+    with open(f, "rb") as fh:
+        assert aedat4.parse_info_node(aedat4.read_io_header(fh, str(f))[2])[0].sensor == (64, 48)
+    write_all(SINK(str(f)), [EventPacket.from_arrays([1, 2], [0, 1], [0, 1], [1, -1], sensor=(32, 16))])
+    c = Aedat4Source(str(f))
+    c._open_header()
+    assert c.streams[0].sensor == (32, 16)
