@@ -96,16 +96,21 @@ def _decode_threads(path: str, threads: int) -> int:
 #: The name of the pseudo-reader that only decompresses (AEDAT 4.0): the
 #: floor every reader of the file stands on
 LZ4_ALONE = "limit: LZ4 decompression alone"
+#: The same on the threads the reader decodes on (the wall clock's floor)
+LZ4_ALONE_THREADS = "limit: LZ4 alone, {} threads"
 
 
-def _lz4_alone(path: str) -> Callable[[], int] | None:
+def _lz4_alone(path: str, threads: int = 1) -> Callable[[], int] | None:
     """A function decompressing the LZ4 event packets of the AEDAT 4.0 file
     at ``path`` into one buffer and nothing else (the file read beforehand;
     liblz4 through the reader's compiled calls): what any reader must at
-    least do per event. None when the packets are not plain LZ4 frames or
-    the compiled path is unavailable."""
+    least do per event; with ``threads``, the packets cut in that many
+    consecutive parts, decompressed at once on this thread and the reader's
+    worker threads. None when the packets are not plain LZ4 frames or the
+    compiled path is unavailable."""
     from tectum.sources.files import _aedat4_kernels as AK
     from tectum.sources.files import _lz4
+    from tectum.sources.files._common import workers
     from tectum.sources.files.aedat4 import parse_info_node, read_io_header
 
     if not _lz4.AVAILABLE:
@@ -128,15 +133,26 @@ def _lz4_alone(path: str) -> Callable[[], int] | None:
         return None
     out = np.empty(int(rows[:, 5].sum()), np.uint8)
     starts, ends = np.zeros(rows.shape[0], np.int64), np.zeros(rows.shape[0], np.int64)
-    return lambda: int(AK.inflate_packets(data, rows, out, starts, ends))
+    cuts = [round(rows.shape[0] * i / threads) for i in range(threads + 1)]
+    at = [int(rows[:c, 5].sum()) for c in cuts]  # each part's room in out
+
+    def part(i: int) -> int:
+        a, b = cuts[i], cuts[i + 1]
+        return int(AK.inflate_packets(data, rows[a:b], out[at[i]:at[i + 1]], starts[a:b], ends[a:b]))
+
+    def run() -> int:
+        futures = [workers().submit(part, i) for i in range(1, threads)]
+        return part(0) + sum(fu.result() for fu in futures)
+    return run
 
 
 def _limits(fmt: str, path: Path, n: int, bw: float, r: dict[str, dict[str, Any]]) -> dict[str, tuple[float, str]]:
     """Per clock, the fastest decoding possible (Mev/s) and why: the bytes
     an event must touch over the copy bandwidth ``bw``; for AEDAT 4.0 also
     LZ4 decompression alone (:data:`LZ4_ALONE`, measured in the same rounds;
-    by the wall clock times the threads the reader decompresses on),
-    whichever is lower."""
+    by the wall clock, on the threads the reader decompresses on, as
+    measured (:data:`LZ4_ALONE_THREADS`), else one thread's times their
+    number), whichever is lower."""
     per_event = path.stat().st_size / n
     mem = bw / (per_event + COLUMN_BYTES) / 1e6
     why = f"memory limit ({per_event:.1f} + {COLUMN_BYTES} B/event at {bw / 1e9:.1f} GB/s)"
@@ -147,6 +163,8 @@ def _limits(fmt: str, path: Path, n: int, bw: float, r: dict[str, dict[str, Any]
         threads = thread_count(0)
         for clock, key, k in (("wall", "mev_s", threads), ("cpu", "cpu_mev_s", 1)):
             lz4 = r[LZ4_ALONE][key] * k
+            if k > 1 and LZ4_ALONE_THREADS.format(k) in r:
+                lz4 = r[LZ4_ALONE_THREADS.format(k)][key]
             if lz4 < mem:
                 out[clock] = (lz4, f"LZ4 limit (decompression alone{f' on {k} threads' if k > 1 else ''})")
     return out
@@ -182,6 +200,12 @@ def peer_targets(quick: bool) -> tuple[list[dict[str, Any]], list[dict[str, Any]
             alone = _lz4_alone(str(path))
             if alone is not None:
                 fns[LZ4_ALONE] = alone
+            from tectum.sources.files._common import thread_count
+
+            threads = thread_count(0)
+            alone = _lz4_alone(str(path), threads) if threads > 1 else None
+            if alone is not None:
+                fns[LZ4_ALONE_THREADS.format(threads)] = alone
         try:
             r = interleaved(fns, n, repeat=repeat, shuffle=True)
         except Exception as e:  # a peer that cannot read the file is reported, not fatal
