@@ -103,12 +103,16 @@ class Windowed(Operator):
         return images[0][None] if len(images) == 1 else np.stack(images)
 
     # -- slicing ------------------------------------------------------------------
+    def _begin(self, packet: EventPacket) -> None:
+        """The first packet: the sensor, the state, the first window."""
+        self._sensor = packet.sensor
+        self._start(packet.sensor)
+        self._out = packet.t_start
+        self._end = packet.t_start + (self.window_us or 0)
+
     def process(self, packet: EventPacket) -> list[FramePacket]:
         if self._sensor is None:
-            self._sensor = packet.sensor
-            self._start(packet.sensor)
-            self._out = packet.t_start
-            self._end = packet.t_start + (self.window_us or 0)
+            self._begin(packet)
         frames: list[tuple[int, np.ndarray]] = []
         if self.count is None:
             self._by_time(packet, frames)
@@ -161,15 +165,19 @@ class Windowed(Operator):
         blocks, self._pending = self._pending, None
         if not blocks:
             return [self._emit(frames, t_end)]
-        out: list[FramePacket] = []
         last = len(blocks) - 1
-        for i, (ts, images) in enumerate(blocks):
-            end = max(t_end, self._out) if i == last else int(ts[-1]) + 1
-            # built here from times in order inside [t_start, end) and frames of the stream's
-            # dtype and shape: the checks FramePacket() would repeat hold by construction
-            out.append(cast(FramePacket, FramePacket._trusted(ts, {"images": images}, self._out, end)))
-            self._out = end
-        return out
+        return [self._block_packet(ts, images, t_end if i == last else None) for i, (ts, images) in enumerate(blocks)]
+
+    def _block_packet(self, ts: np.ndarray, images: np.ndarray, t_end: int | None) -> FramePacket:
+        """Frames ``images`` stamped ``ts`` (µs, in order, after the last
+        packet's) as the next packet, without a copy; it ends at the
+        watermark ``t_end`` (None: just after its last frame, when more
+        blocks of the same input packet follow)."""
+        t0 = self._out
+        self._out = end = int(ts[-1]) + 1 if t_end is None else (t_end if t_end > t0 else t0)
+        # built here from times in order inside [t0, end) and frames of the stream's dtype
+        # and shape: the checks FramePacket() would repeat hold by construction
+        return cast(FramePacket, FramePacket._trusted(ts, {"images": images}, t0, end))
 
     def _emit(self, frames: list[tuple[int, np.ndarray]], t_end: int) -> FramePacket:
         t0 = self._out

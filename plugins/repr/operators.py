@@ -43,7 +43,9 @@ class _Image(Windowed):
         if self.mode == K.SIGNED and self.dtype.kind == "u":
             raise ValueError(f"a signed sum needs a signed dtype, got {self.dtype}")
         info = np.iinfo(self.dtype)
-        self._limits = (int(info.min), int(info.max))
+        self._vmin, self._vmax = int(info.min), int(info.max)
+        self._windows = K.WINDOWS[self.mode]
+        self._w = int(self.window_us if count is None else count)  # type: ignore[arg-type]
 
     def _start(self, sensor: tuple[int, int]) -> None:
         self._shape = (sensor[1], sensor[0], *self.shape_tail)
@@ -65,27 +67,35 @@ class _Image(Windowed):
         self._flat = np.zeros(math.prod(self._shape), self.dtype)
         self._touched = np.empty(self._flat.shape[0], np.int64)
 
-    def _by_time(self, pk: EventPacket, frames: list[tuple[int, np.ndarray]]) -> None:
-        w, end = int(self.window_us), self._end  # type: ignore[arg-type]
-        n_win = (pk.t_end - end) // w + 1 if end <= pk.t_end else 0
-        self._end = end + n_win * w
-        stamps = np.arange(end - 1, self._end - 1, w, dtype=np.int64)  # each window's last µs
-        # the first event of each next window: after the last at or before the stamp (times are integers)
-        self._run(pk, pk.t.searchsorted(stamps, "right"), stamps)
+    def process(self, packet: EventPacket) -> list[FramePacket]:
+        """The windows ``packet`` completes, in one kernel call per block of
+        frames (a block per output packet; :meth:`_run`)."""
+        if self._sensor is None:
+            self._begin(packet)
+        t = packet.t
+        if self.count is None:
+            w, end, t_end = self._w, self._end, packet.t_end
+            n_win = (t_end - end) // w + 1 if end <= t_end else 0
+            self._end = end + n_win * w
+            stamps = np.arange(end - 1, self._end - 1, w, dtype=np.int64)  # each window's last µs
+            # the first event of each next window: after the last at or before the stamp (times are integers)
+            splits = t.searchsorted(stamps, "right")
+        else:
+            c, n = self._w, t.shape[0]
+            splits = np.arange(c - self._n, n + 1, c, dtype=np.int64)
+            rest = int(splits[-1]) if splits.shape[0] else 0  # the first event of the window left open
+            if rest < n and (splits.shape[0] or self._n == 0):
+                self._first = int(t[rest])
+            stamps = t[splits - 1]
+        if t.shape[0]:
+            self._last = int(t[-1])
+        return self._run(packet, splits, stamps)
 
-    def _by_count(self, pk: EventPacket, frames: list[tuple[int, np.ndarray]]) -> None:
-        c, n = int(self.count), len(pk)  # type: ignore[arg-type]
-        splits = np.arange(c - self._n, n + 1, c, dtype=np.int64)
-        rest = int(splits[-1]) if len(splits) else 0  # the first event of the window left open
-        if rest < n and (len(splits) or self._n == 0):
-            self._first = int(pk.t[rest])
-        self._run(pk, splits, pk.t[splits - 1])
-
-    def _run(self, pk: EventPacket, splits: np.ndarray, stamps: np.ndarray) -> None:
+    def _run(self, pk: EventPacket, splits: np.ndarray, stamps: np.ndarray) -> list[FramePacket]:
         """Windows ending at event indices ``splits`` (stamped ``stamps``, µs)
-        from the packet's events; the rest stays in the state. The frames
-        come in blocks of at most :data:`BLOCK_BYTES` (one packet each, in
-        ``_pending``), recycled from a pool once nobody holds them (see
+        from the packet's events, as packets; the rest stays in the state.
+        The frames come in blocks of at most :data:`BLOCK_BYTES` (one packet
+        each), recycled from a pool once nobody holds them (see
         :mod:`tectum.plugins.repr._pool`): memory still in cache, zeroed
         only where its last frames were written, where fresh pages cost a
         page fault and a zeroing each (a 720 kB frame: more than its 1000
@@ -97,26 +107,28 @@ class _Image(Windowed):
         if not n_win:
             if n:
                 self._kernel(pk.x, pk.y, pk.p, splits, self._no_frames)
-            return
+            return [self._emit([], pk.t_end)]
         g = self._pool.per_block
-        pending: list[tuple[np.ndarray, np.ndarray]] = []
-        self._pending = pending
+        if n_win <= g:  # one block (the usual case: a packet's frames fit in the cache)
+            block, images = self._pool.take()  # images: ours until handed out
+            self._kernel(pk.x, pk.y, pk.p, splits, block)
+            return [self._block_packet(stamps, images if n_win == g else images[:n_win], pk.t_end)]
+        out: list[FramePacket] = []
         for a in range(0, n_win, g):
             b = min(a + g, n_win)
-            block, images = self._pool.take(len(pending))  # images: ours until handed out
-            if b - a == n_win:  # one block: no slicing
-                self._kernel(pk.x, pk.y, pk.p, splits, block)
-            else:
-                lo = int(splits[a - 1]) if a else 0
-                hi = int(splits[b - 1]) if b < n_win else n
-                self._kernel(pk.x[lo:hi], pk.y[lo:hi], pk.p[lo:hi], splits[a:b] - lo, block)
-            pending.append((stamps[a:b], images if b - a == g else images[:b - a]))
+            block, images = self._pool.take(len(out))
+            lo = int(splits[a - 1]) if a else 0
+            hi = int(splits[b - 1]) if b < n_win else n
+            self._kernel(pk.x[lo:hi], pk.y[lo:hi], pk.p[lo:hi], splits[a:b] - lo, block)
+            out.append(self._block_packet(stamps[a:b], images if b - a == g else images[:b - a],
+                                          pk.t_end if b == n_win else None))
+        return out
 
     def _kernel(self, x: np.ndarray, y: np.ndarray, p: np.ndarray, splits: np.ndarray, frames: Block) -> None:
         """:func:`~tectum.plugins.repr.kernels.windows_kernel` (its mode's
         compiled function) into the first ``len(splits)`` frames of ``frames``."""
-        K.WINDOWS[self.mode](self._width, *self._limits, x, y, p, splits, self._flat, self._touched,
-                             self._n_touched, frames.flat, frames.marks, frames.n_marks)
+        self._windows(self._width, self._vmin, self._vmax, x, y, p, splits, self._flat, self._touched,
+                      self._n_touched, frames.flat, frames.marks, frames.n_marks)
 
     def _frame(self, t0: int, t1: int) -> np.ndarray:
         """The window in progress as a new image (the state is zeroed)."""
