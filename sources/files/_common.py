@@ -338,7 +338,8 @@ class EventAssembler:
             self.carry = None
         self._cols, self._k = cols, k
         self._set, self._origin, self._from = cols, k, 0
-        return tuple(a[k:k + n] for a in cols)
+        t, x, y, p = cols  # unpacked, not a generator: ~1 us less a chunk
+        return t[k:k + n], x[k:k + n], y[k:k + n], p[k:k + n]
 
     def resume_at(self, i: int) -> bool:
         """After :meth:`commit`: make the events a decoder wrote from index
