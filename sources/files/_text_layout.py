@@ -101,7 +101,7 @@ def text_layout(head: bytes, columns: str | None = None, time_unit: str | None =
     if named:
         return TextLayout(cols, cols_from, named[0][1], f"the header names the time column {named[0][0]!r}")
     k = cols.index("t")
-    times = [f[k] for f in map(_FIELD_SEP.split, data) if len(f) > k]
+    times = [f[k] for f in (_FIELD_SEP.split(ln, k + 1) for ln in data) if len(f) > k]  # split no further than t
     if not times:
         return TextLayout(cols, cols_from, "s", "no times to judge by: seconds, as in the RPG events.txt")
     if any(b"." in v for v in times):

@@ -37,7 +37,7 @@ from llvmlite import ir
 from numba import config, njit, types
 from numba.extending import intrinsic
 
-__all__ = ["REACH", "cttz", "digits_value", "fast_lines", "masks64", "run_value", "word"]
+__all__ = ["REACH", "ctlz", "cttz", "digits_value", "fast_lines", "masks64", "run_value", "word"]
 
 #: Bytes past ``end`` :func:`fast_lines` may read (``buf`` must extend that
 #: far): the 64 bytes of the masks from a line's start before ``end``, and
@@ -59,6 +59,10 @@ if config.DISABLE_JIT:  # plain Python (the coverage run): an intrinsic has no P
         v = int(v)
         return _U((v & -v).bit_length() - 1 if v else 64)
 
+    def ctlz(v):  # type: ignore[no-untyped-def]
+        """The number of leading zero bits of the uint64 ``v`` (64 for 0)."""
+        return _U(64 - int(v).bit_length())
+
     def masks64(buf, i):  # type: ignore[no-untyped-def]
         """(mask of the bytes of ``buf[i:i + 64]`` that are no ASCII digit,
         mask of its newlines): bit j for byte ``i + j``."""
@@ -79,6 +83,18 @@ else:
 
         def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
             return builder.cttz(args[0], ir.Constant(ir.IntType(1), 0))
+
+        return types.uint64(v), codegen
+
+    @intrinsic
+    def ctlz(typingctx, v):  # type: ignore[no-untyped-def]
+        """The number of leading zero bits of the uint64 ``v`` (64 for 0):
+        one ``lzcnt`` instruction."""
+        if not isinstance(v, types.Integer) or v.bitwidth != 64:
+            return None
+
+        def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+            return builder.ctlz(args[0], ir.Constant(ir.IntType(1), 0))
 
         return types.uint64(v), codegen
 
@@ -168,7 +184,9 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
 
     From the start of the next line, 64 bytes: the masks of their non-digits
     and newlines (:func:`masks64`), then each line that ends in them, from
-    its start, its newline and the non-digits between."""
+    its start, its newline and the non-digits between. The masks of the 64
+    bytes after the last of those newlines are loaded before those lines
+    are parsed (they do not wait on them)."""
     scale = np.int64(1)
     for _ in range(digits):
         scale *= 10
@@ -176,13 +194,16 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
     conv = state[0]
     first = n
     ok = True
-    while ok and i < end:
-        base = i
+    base = i
+    if i < end:
         other, lines = masks64(buf, base)
+    while ok and i < end:
         if end - base < 64:
             lines &= (_U(1) << _U(end - base)) - _U(1)  # newlines before end only
         if lines == 0:  # no line ends in the 64 bytes (or before end)
             break
+        after = base + 64 - np.int64(ctlz(lines))  # past the last newline: the next 64 bytes, loaded first
+        other2, lines2 = masks64(buf, after)
         while lines:
             nl = base + np.int64(cttz(lines))
             lines &= lines - _U(1)
@@ -244,6 +265,8 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
                 where[o] = i
             n += 1
             i = nl + 1
+        base = after
+        other, lines = other2, lines2
     xmax, ymax = state[1], state[2]
     for k in range(first, n):  # apart: the loop above has registers enough for its own work
         xmax = max(xmax, np.int64(x[k]))
