@@ -41,6 +41,8 @@ from .errors import PacketError
 __all__ = ["Kind", "Packet", "EventPacket", "accepts", "as_times", "register_kind", "packet_class"]
 
 _BASE = ("t", "x", "y", "p")
+#: The arrays the base columns of a packet are views of (``t``, ``x``, ``y``, ``p``): see ``EventPacket._own``.
+Owners = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 _NO_COLUMNS: Mapping[str, np.ndarray] = MappingProxyType({})
 _DTYPES = {"t": np.dtype(np.int64), "x": np.dtype(np.uint16), "y": np.dtype(np.uint16), "p": np.dtype(np.int8)}
 
@@ -247,6 +249,7 @@ class Packet:
                         q.t_end = hi
                         q._checked = checked
                         q._at = -1
+                        q._own = None
                         q.__class__ = cls
                         yield q
                         lo = hi
@@ -304,7 +307,7 @@ class EventPacket(Packet):
         Extra per-event columns, each with one row per event.
     """
 
-    __slots__ = ("t", "x", "y", "p", "sensor", "columns", "_checked", "_at")
+    __slots__ = ("t", "x", "y", "p", "sensor", "columns", "_checked", "_at", "_own")
     kind = Kind.EVENTS
     x: np.ndarray
     y: np.ndarray
@@ -318,6 +321,11 @@ class EventPacket(Packet):
     #: (:meth:`slice_time`, :meth:`batches`), so that :func:`join_consecutive`
     #: joins a source's slices as a view without looking at pointers.
     _at: int
+    #: The owner arrays themselves, ``(t, x, y, p)``, when known (with
+    #: ``_at``; else None): one tuple shared by every slice of one packet,
+    #: so that one identity test tells that two packets are views of the
+    #: same four arrays (the engine's test per slice when it joins a run).
+    _own: Owners | None
 
     def __init__(
         self,
@@ -357,20 +365,22 @@ class EventPacket(Packet):
         set_(self, "columns", MappingProxyType(cols))
         set_(self, "_checked", False)
         set_(self, "_at", -1)
+        set_(self, "_own", None)
         self._init_interval(t, t_start, t_end)
 
     # -- construction -------------------------------------------------------
     @classmethod
     def _trusted(cls, t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, sensor: tuple[int, int],
                  t_start: int, t_end: int, columns: Mapping[str, np.ndarray], checked: bool = False,
-                 at: int = -1) -> EventPacket:
+                 at: int = -1, own: Owners | None = None) -> EventPacket:
         """Internal: build from arrays already known to satisfy the contract
         (views and selections of a valid packet); skips every check.
         ``checked``: the arrays are views or selections of a packet that
-        :meth:`validate` passed (see :attr:`checked`); ``at``: see :attr:`_at`."""
+        :meth:`validate` passed (see :attr:`checked`); ``at``, ``own``: see
+        :attr:`_at` and :attr:`_own` (``own`` only with ``at``)."""
         cols = MappingProxyType(dict(columns)) if columns else _NO_COLUMNS
         if cls is EventPacket:
-            return _built(t, x, y, p, sensor, t_start, t_end, cols, checked, at)
+            return _built(t, x, y, p, sensor, t_start, t_end, cols, checked, at, own)
         pkt = _new(cls)
         _set_t(pkt, t)
         _set_x(pkt, x)
@@ -382,6 +392,7 @@ class EventPacket(Packet):
         _set_t_end(pkt, t_end)
         _set_checked(pkt, checked)
         _set_at(pkt, at)
+        _set_own(pkt, own)
         return pkt
 
     @classmethod
@@ -498,14 +509,17 @@ class EventPacket(Packet):
     def _take_slice(self, i: int, j: int, t_start: int, t_end: int) -> EventPacket:
         cols = self.columns
         t, x, y, p = self.t, self.x, self.y, self.p
-        at = self._at
+        at, own = self._at, self._own
         if at >= 0:
             at += i
         elif t.base is None and x.base is None and y.base is None and p.base is None:
-            at = i  # 1-D arrays that own their data: the slices' owners
+            at = i  # 1-D arrays that own their data: the slices' owners, one tuple for all of them
+            if own is None:
+                own = (t, x, y, p)
+                _set_own(self, own)
         return EventPacket._trusted(
             t[i:j], x[i:j], y[i:j], p[i:j], self.sensor, t_start, t_end,
-            {k: v[i:j] for k, v in cols.items()} if cols else cols, self._checked, at,
+            {k: v[i:j] for k, v in cols.items()} if cols else cols, self._checked, at, own,
         )
 
     def select(self, mask: np.ndarray) -> EventPacket:
@@ -534,6 +548,7 @@ class EventPacket(Packet):
         )
         _set_checked(pkt, self._checked)  # the same base columns and interval
         _set_at(pkt, self._at)
+        _set_own(pkt, self._own)
         return pkt
 
     def without_columns(self, *names: str) -> EventPacket:
@@ -545,6 +560,7 @@ class EventPacket(Packet):
         )
         _set_checked(pkt, self._checked)  # the same base columns and interval
         _set_at(pkt, self._at)
+        _set_own(pkt, self._own)
         return pkt
 
     def with_interval(self, t_start: int, t_end: int) -> EventPacket:
@@ -681,7 +697,8 @@ _Build = builder(EventPacket)
 
 
 def _built(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, sensor: tuple[int, int], t_start: int,
-           t_end: int, columns: Mapping[str, np.ndarray], checked: bool, at: int = -1) -> EventPacket:
+           t_end: int, columns: Mapping[str, np.ndarray], checked: bool, at: int = -1,
+           own: Owners | None = None) -> EventPacket:
     """An :class:`EventPacket` of these fields, unchecked (see :meth:`EventPacket._trusted`)."""
     pkt: Any = _Build()
     pkt.t = t
@@ -694,14 +711,15 @@ def _built(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, sensor: t
     pkt.t_end = t_end
     pkt._checked = checked
     pkt._at = at
+    pkt._own = own
     pkt.__class__ = EventPacket
     return pkt
 
 
 # Slot setters for EventPacket._trusted of subclasses (faster than object.__setattr__).
 _new = object.__new__
-_set_t, _set_x, _set_y, _set_p, _set_sensor, _set_columns, _set_checked, _set_at = (
-    EventPacket.__dict__[n].__set__ for n in ("t", "x", "y", "p", "sensor", "columns", "_checked", "_at")
+_set_t, _set_x, _set_y, _set_p, _set_sensor, _set_columns, _set_checked, _set_at, _set_own = (
+    EventPacket.__dict__[n].__set__ for n in ("t", "x", "y", "p", "sensor", "columns", "_checked", "_at", "_own")
 )
 _set_t_start, _set_t_end = (Packet.__dict__[n].__set__ for n in ("t_start", "t_end"))
 
