@@ -134,11 +134,11 @@ def _lz4_alone(path: str, threads: int = 1) -> Callable[[], int] | None:
     out = np.empty(int(rows[:, 5].sum()), np.uint8)
     starts, ends = np.zeros(rows.shape[0], np.int64), np.zeros(rows.shape[0], np.int64)
     cuts = [round(rows.shape[0] * i / threads) for i in range(threads + 1)]
-    at = [int(rows[:c, 5].sum()) for c in cuts]  # each part's room in out
+    into = [int(rows[:c, 5].sum()) for c in cuts]  # where each part's room in out starts
 
     def part(i: int) -> int:
         a, b = cuts[i], cuts[i + 1]
-        return int(AK.inflate_packets(data, rows[a:b], out[at[i]:at[i + 1]], starts[a:b], ends[a:b]))
+        return int(AK.inflate_packets(data, rows[a:b], out[into[i]:into[i + 1]], starts[a:b], ends[a:b]))
 
     def run() -> int:
         futures = [workers().submit(part, i) for i in range(1, threads)]
