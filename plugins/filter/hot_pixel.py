@@ -9,7 +9,7 @@ from numba import njit
 
 from tectum import EventPacket, Operator
 
-from ._state import select
+from ._state import same_sensor, select
 
 __all__ = ["HotPixel", "count_kernel", "hot_pixels", "mask_kernel"]
 
@@ -69,6 +69,7 @@ class HotPixel(Operator):
         self.counts: np.ndarray | None = None
         self.hot: np.ndarray | None = None
         self._learn_end: int | None = None
+        self._sensor = (0, 0)  # (width, height) the state was made for
 
     @property
     def learned(self) -> bool:
@@ -89,9 +90,11 @@ class HotPixel(Operator):
 
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self.counts is None:
-            w, h = packet.sensor
+            w, h = self._sensor = packet.sensor
             self.counts = np.zeros((h, w), np.int64)
             self._learn_end = packet.t_start + self.learn_us
+        elif packet.sensor is not self._sensor:
+            self._sensor = same_sensor(self.name, self._sensor, packet)
         out = []
         if self.hot is None:
             assert self._learn_end is not None

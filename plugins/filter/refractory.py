@@ -7,7 +7,7 @@ from numba import njit
 
 from tectum import EventPacket, Operator
 
-from ._state import NEVER, select
+from ._state import NEVER, same_sensor, select
 
 __all__ = ["Refractory", "refractory_kernel"]
 
@@ -43,6 +43,7 @@ class Refractory(Operator):
             raise ValueError("period_us must be >= 0")
         self.period_us = int(period_us)
         self.last: np.ndarray | None = None
+        self._sensor = (0, 0)  # (width, height) the state was made for
 
     def memory_us(self) -> None:
         """Whether an event is kept depends on the last kept one, which
@@ -52,8 +53,10 @@ class Refractory(Operator):
 
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self.last is None:
-            w, h = packet.sensor
+            w, h = self._sensor = packet.sensor
             self.last = np.full((h, w), NEVER, np.int64)
+        elif packet.sensor is not self._sensor:
+            self._sensor = same_sensor(self.name, self._sensor, packet)
         keep = np.empty(len(packet), np.bool_)
         refractory_kernel(packet.t, packet.x, packet.y, self.last, self.period_us, keep)
         return [select(packet, keep)]

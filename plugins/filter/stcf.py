@@ -7,7 +7,7 @@ from numba import njit
 
 from tectum import EventPacket, Operator
 
-from ._state import padded_timestamps, select
+from ._state import padded_timestamps, same_sensor, select
 
 __all__ = ["SpatioTemporalCorrelation", "stcf_kernel"]
 
@@ -67,6 +67,7 @@ class SpatioTemporalCorrelation(Operator):
             raise ValueError("k must be in 1..8 neighbours")
         self.dt_us, self.k, self.polarity = int(dt_us), int(k), bool(polarity)
         self.last: np.ndarray | None = None
+        self._sensor = (0, 0)  # (width, height) the state was made for
 
     def memory_us(self) -> int:
         """Only neighbours' times within ``dt_us`` count (time sharding)."""
@@ -74,7 +75,10 @@ class SpatioTemporalCorrelation(Operator):
 
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self.last is None:
+            self._sensor = packet.sensor
             self.last = padded_timestamps(packet.sensor, 2 if self.polarity else 1)
+        elif packet.sensor is not self._sensor:
+            self._sensor = same_sensor(self.name, self._sensor, packet)
         keep = np.empty(len(packet), np.bool_)
         stcf_kernel(packet.t, packet.x, packet.y, packet.p, self.last, self.dt_us, self.k, self.polarity, keep)
         return [select(packet, keep)]

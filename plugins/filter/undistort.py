@@ -10,6 +10,8 @@ from numba import njit
 from tectum import EventPacket, Operator
 from tectum.camera import Camera, read_calibration
 
+from ._state import same_sensor
+
 __all__ = ["Undistort", "undistort_lut", "packed_lut", "lut_kernel", "kept_index_kernel"]
 
 
@@ -115,6 +117,7 @@ class Undistort(Operator):
             camera = read_calibration(calib, side)
         self.camera = camera
         self.lut: np.ndarray | None = None  # packed, see packed_lut
+        self._sensor = (0, 0)  # (width, height) the table was made for
 
     def memory_us(self) -> int:
         """Each event on its own: no memory (time sharding needs no warm-up)."""
@@ -127,6 +130,9 @@ class Undistort(Operator):
                 raise ValueError(f"calibration is for a {size[0]}x{size[1]} sensor, events come from "
                                  f"{packet.sensor[0]}x{packet.sensor[1]}")
             self.lut = _cached_lut(self.camera, packet.sensor)
+            self._sensor = packet.sensor
+        elif packet.sensor is not self._sensor:
+            self._sensor = same_sensor(self.name, self._sensor, packet)
         m = len(packet)
         ot, ox, oy = np.empty(m + 1, np.int64), np.empty(m + 1, np.uint16), np.empty(m + 1, np.uint16)
         op = np.empty(m + 1, np.int8)
