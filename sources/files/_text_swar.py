@@ -226,11 +226,11 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
             if dot and a + digits <= 8:  # the whole part and the places down to 1 µs in one word
                 v = ((word(buf, i) - _ZEROS) & _low(a)) | (frac << (_U(a << 3) & _U(63)))
                 tv = np.int64(digits_value(v, a + digits))
-                ok = a > 0
+                ok = (a > 0) & dot
             else:
                 tv = np.int64(run_value(word(buf, i), min(a, 8)))
                 if a > 8:
-                    rest = min(a - 8, 8)
+                    rest = a - 8 if a < 16 else 8
                     tv = tv * np.int64(_POW10[rest]) + np.int64(run_value(word(buf, i + 8), rest))
                 ok = (a > 0) & (a <= 16) & (tv < big)
                 tv *= scale
