@@ -386,7 +386,9 @@ class DatSource(FileSource):
     """Prophesee ``.dat`` files (EventCD and the older Event2d).
 
     The records are fixed-size and sorted, so a time range is found by
-    bisection on the file, without decoding what comes before it.
+    bisection on the file, without decoding what comes before it. A packet
+    holds :data:`DAT_CHUNK_BYTES` of records unless ``chunk_bytes`` says
+    otherwise (small enough to stay in the cache, see there).
     """
 
     name = "dat"
@@ -529,8 +531,6 @@ class DatSource(FileSource):
             if asm.past_end() or n < m:  # the end, or the file shrank while read
                 break
         yield from asm.finish()
-
-
 
 
 def check_raw_header(path: str) -> str:
