@@ -160,10 +160,28 @@ def digits_value(v, k):  # type: ignore[no-untyped-def]  # pragma: no cover - nu
 
 #: Separators (space, tab, comma) as bits of a word: bit c for byte c
 _BLANKS = _U((1 << 32) | (1 << 9) | (1 << 44))
-#: The ends of a plain line after its last separator, read as a word: the
-#: polarity, an optional CR and the newline
-_ONE, _ONE_CR, _ZERO, _ZERO_CR, _MINUS, _MINUS_CR = (_U(int.from_bytes(e, "little")) for e in (
-    b"1\n", b"1\r\n", b"0\n", b"0\r\n", b"-1\n", b"-1\r\n"))
+#: The ends of a plain line after its last separator (the polarity, an
+#: optional CR, the newline), each with the polarity convention it needs
+#: (0 any, 1 0/1, 2 -1/+1) and whether it is +1
+_ENDS = {b"1\n": (0, 1), b"1\r\n": (0, 1), b"0\n": (1, 0), b"0\r\n": (1, 0), b"-1\n": (2, 0), b"-1\r\n": (2, 0)}
+#: A multiplier whose top 3 bits of the product tell the six ends apart
+_END_HASH = 0x7C65C1E582E2E663
+
+
+def _end_table() -> np.ndarray:
+    """Slot ``(end * _END_HASH mod 2**64) >> 61`` of each end read as a word:
+    the word, with its convention at bit 40 and +1 at bit 42; 0 (no end:
+    every one holds the newline) in the slots no end takes."""
+    table = np.zeros(8, np.uint64)
+    for e, (need, one) in _ENDS.items():
+        v = int.from_bytes(e, "little")
+        slot = (v * _END_HASH % (1 << 64)) >> 61
+        assert table[slot] == 0, "the multiplier must tell the ends apart"
+        table[slot] = v | need << 40 | one << 42
+    return table
+
+
+_END_TABLE = _end_table()
 
 
 @njit(cache=True, nogil=True)
@@ -245,14 +263,14 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
             yv = np.int64(run_value(word(buf, i + s2 + 1), ny))
             tail = nl - i - s3  # the bytes after the last separator, the newline's included
             e = word(buf, i + s3 + 1) & _low(tail)
-            one = (e == _ONE) | (e == _ONE_CR)
-            zero = (e == _ZERO) | (e == _ZERO_CR)
-            minus = (e == _MINUS) | (e == _MINUS_CR)
-            need = np.int64(zero) + 2 * np.int64(minus)  # the convention the polarity needs: 0 any, 1 0/1, 2 -1/+1
+            known = _END_TABLE[(e * _U(_END_HASH)) >> _U(61)]  # the one end e can be: e if it is
+            one = np.int64((known >> _U(42)) & _U(1))
+            need = np.int64((known >> _U(40)) & _U(3))  # the convention the polarity needs: 0 any, 1 0/1, 2 -1/+1
             ok &= ((sep < 64) & (((_BLANKS >> _U(sep & 63)) & _U(1)) == _U(1))
                    & (buf[_U(i + s2)] == sep) & (buf[_U(i + s3)] == sep)
                    & (_U((nx - 1) | (ny - 1)) < _U(8)) & ((xv | yv) < 65536)
-                   & (_U(tail - 2) < _U(3)) & (one | zero | minus) & ((need == 0) | (conv == 0) | (conv == need)))
+                   & (_U(tail - 2) < _U(3)) & ((known & _U(0xFFFFFFFF)) == e)
+                   & ((need == 0) | (conv == 0) | (conv == need)))
             if not ok:
                 break
             conv |= need
@@ -260,7 +278,7 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
             t[o] = tv
             x[o] = xv
             y[o] = yv
-            p[o] = 2 * np.int64(one) - 1
+            p[o] = 2 * one - 1
             if track:
                 where[o] = i
             n += 1

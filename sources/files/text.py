@@ -474,8 +474,8 @@ class TextSource(FileSource):
         lines raise, or with ``skip_bad`` are counted and passed over in the
         same pass: time is linear and memory bounded by the chunk size
         whatever the input. Chunks are read into pooled buffers (a fresh
-        one costs a page fault per 4 KiB), the last one (read short) with
-        the file's last line."""
+        one costs a page fault per 4 KiB); a read coming short is the last,
+        and a last line without its newline is parsed after it, with one."""
         f = self._open()
         size = self.chunk_bytes
         buf = byte_buffer(size + 1)  # room for a newline after a last line without one

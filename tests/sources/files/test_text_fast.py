@@ -94,13 +94,15 @@ def _row(pols: tuple[bytes, bytes], k: int = 1, t: bytes = b"0.250000", x: bytes
 
 
 def test_each_odd_field_inside_a_fast_run() -> None:
-    """Every edge of every part, alone on a line in the middle of a long
-    plain run (either polarity convention), read the same both ways."""
+    """Every edge of every part, on a line (with either polarity of either
+    convention) in the middle of a long plain run, read the same both ways."""
     for pols in ((b"1", b"0"), (b"1", b"-1")):
         plain = [_row(pols, k) for k in range(60)]
         for part, values in _EDGES.items():
             for v in values:
-                odd = [_row(pols, **{part: v})] if part != "x" else [_row(pols, x=v), _row(pols, y=v)]
+                odd = [_row(pols, k, **{part: v}) for k in (1, 3)]  # either polarity of the convention
+                if part == "x":
+                    odd += [_row(pols, k, y=v) for k in (1, 3)]
                 raw = b"".join(plain + odd + plain)
                 for digits in (6, 3, 0):
                     for skip in (False, True):
