@@ -147,6 +147,16 @@ def _low(k):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _short_value(w, k):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+    """The value of the ``k`` (1 to 4) decimal digits in the lowest bytes of
+    ``w`` (ASCII digits): :func:`run_value` without its last step (the digits
+    lie in the word's upper half, whose value the second step gives)."""
+    v = ((w - _ZEROS) & _low(k)) << ((_U(64) - (_U(k) << _U(3))) & _U(63))
+    v = (v * _U(10) + (v >> _U(8))) & _PAIRS
+    return (v * _U(1 + (100 << 16))) >> _U(48)
+
+
+@njit(cache=True, nogil=True, inline="always")
 def digits_value(v, k):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     """The value of the ``k`` (0 to 8) decimal digits in the lowest bytes of
     ``v``, one digit (0 to 9) a byte, the bytes above them 0."""
@@ -193,7 +203,7 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
     form: a time of 1 to 16 whole digits below ``big`` (the largest whole
     part) with an optional ``.`` and places (the first ``digits``, 0 to 6,
     are the µs, the next rounds half up), one separator (space, tab or
-    comma, the same three times), coordinates of 1 to 8 digits up to 65535,
+    comma, the same three times), coordinates of 1 to 4 digits (any sensor's below 10000),
     a polarity ``0``, ``1`` or ``-1`` in the convention of ``state[0]`` (as
     in :func:`tectum.sources.files.text.parse_lines`, which sets it on the
     first 0 or -1; ``state[1:3]`` get the largest coordinates), ``\\n`` or
@@ -259,8 +269,8 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
             sep = buf[_U(i + s1)]
             nx = s2 - s1 - 1
             ny = s3 - s2 - 1
-            xv = np.int64(run_value(word(buf, i + s1 + 1), nx))
-            yv = np.int64(run_value(word(buf, i + s2 + 1), ny))
+            xv = np.int64(_short_value(word(buf, i + s1 + 1), nx))
+            yv = np.int64(_short_value(word(buf, i + s2 + 1), ny))
             tail = nl - i - s3  # the bytes after the last separator, the newline's included
             e = word(buf, i + s3 + 1) & _low(tail)
             known = _END_TABLE[(e * _U(_END_HASH)) >> _U(61)]  # the one end e can be: e if it is
@@ -268,7 +278,7 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
             need = np.int64((known >> _U(40)) & _U(3))  # the convention the polarity needs: 0 any, 1 0/1, 2 -1/+1
             ok &= ((sep < 64) & (((_BLANKS >> _U(sep & 63)) & _U(1)) == _U(1))
                    & (buf[_U(i + s2)] == sep) & (buf[_U(i + s3)] == sep)
-                   & (_U((nx - 1) | (ny - 1)) < _U(8)) & ((xv | yv) < 65536)
+                   & (_U((nx - 1) | (ny - 1)) < _U(4))
                    & (_U(tail - 2) < _U(3)) & ((known & _U(0xFFFFFFFF)) == e)
                    & ((need == 0) | (conv == 0) | (conv == need)))
             if not ok:
