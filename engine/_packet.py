@@ -249,6 +249,7 @@ class Packet:
                         q.t_end = hi
                         q._checked = checked
                         q._at = -1
+                        q._stop = -1
                         q._own = None
                         q.__class__ = cls
                         yield q
@@ -307,7 +308,7 @@ class EventPacket(Packet):
         Extra per-event columns, each with one row per event.
     """
 
-    __slots__ = ("t", "x", "y", "p", "sensor", "columns", "_checked", "_at", "_own")
+    __slots__ = ("t", "x", "y", "p", "sensor", "columns", "_checked", "_at", "_stop", "_own")
     kind = Kind.EVENTS
     x: np.ndarray
     y: np.ndarray
@@ -321,10 +322,15 @@ class EventPacket(Packet):
     #: (:meth:`slice_time`, :meth:`batches`), so that :func:`join_consecutive`
     #: joins a source's slices as a view without looking at pointers.
     _at: int
-    #: The owner arrays themselves, ``(t, x, y, p)``, when known (with
-    #: ``_at``; else None): one tuple shared by every slice of one packet,
-    #: so that one identity test tells that two packets are views of the
-    #: same four arrays (the engine's test per slice when it joins a run).
+    #: Where they end there (``_at`` + the number of events; -1 with ``_at``):
+    #: the engine's per-slice test reads it instead of the length of ``t``.
+    _stop: int
+    #: The owner arrays themselves, ``(t, x, y, p)``, when known (else
+    #: None): one tuple shared by every slice of one packet (set with
+    #: ``_at`` by slicing; a packet that owns its arrays keeps the tuple its
+    #: first slice made), so that one identity test tells that two packets
+    #: are views of the same four arrays (the engine's test per slice when
+    #: it joins a run).
     _own: Owners | None
 
     def __init__(
@@ -365,6 +371,7 @@ class EventPacket(Packet):
         set_(self, "columns", MappingProxyType(cols))
         set_(self, "_checked", False)
         set_(self, "_at", -1)
+        set_(self, "_stop", -1)
         set_(self, "_own", None)
         self._init_interval(t, t_start, t_end)
 
@@ -392,6 +399,7 @@ class EventPacket(Packet):
         _set_t_end(pkt, t_end)
         _set_checked(pkt, checked)
         _set_at(pkt, at)
+        _set_stop(pkt, at + t.shape[0] if at >= 0 else -1)
         _set_own(pkt, own)
         return pkt
 
@@ -548,6 +556,7 @@ class EventPacket(Packet):
         )
         _set_checked(pkt, self._checked)  # the same base columns and interval
         _set_at(pkt, self._at)
+        _set_stop(pkt, self._stop)
         _set_own(pkt, self._own)
         return pkt
 
@@ -560,6 +569,7 @@ class EventPacket(Packet):
         )
         _set_checked(pkt, self._checked)  # the same base columns and interval
         _set_at(pkt, self._at)
+        _set_stop(pkt, self._stop)
         _set_own(pkt, self._own)
         return pkt
 
@@ -711,6 +721,7 @@ def _built(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, sensor: t
     pkt.t_end = t_end
     pkt._checked = checked
     pkt._at = at
+    pkt._stop = at + t.shape[0] if at >= 0 else -1
     pkt._own = own
     pkt.__class__ = EventPacket
     return pkt
@@ -718,8 +729,9 @@ def _built(t: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, sensor: t
 
 # Slot setters for EventPacket._trusted of subclasses (faster than object.__setattr__).
 _new = object.__new__
-_set_t, _set_x, _set_y, _set_p, _set_sensor, _set_columns, _set_checked, _set_at, _set_own = (
-    EventPacket.__dict__[n].__set__ for n in ("t", "x", "y", "p", "sensor", "columns", "_checked", "_at", "_own")
+_set_t, _set_x, _set_y, _set_p, _set_sensor, _set_columns, _set_checked, _set_at, _set_stop, _set_own = (
+    EventPacket.__dict__[n].__set__
+    for n in ("t", "x", "y", "p", "sensor", "columns", "_checked", "_at", "_stop", "_own")
 )
 _set_t_start, _set_t_end = (Packet.__dict__[n].__set__ for n in ("t_start", "t_end"))
 

@@ -407,8 +407,9 @@ def test_slices_at_the_next_index_of_other_arrays_are_not_joined_as_one_view(col
 def test_slices_of_one_packet_share_one_tuple_of_its_arrays() -> None:
     """Every slice of a packet that owns its arrays (slices of slices, with
     columns added or removed, batches, the run the engine joins) carries the
-    same ``_own`` tuple, those four arrays: the engine's one identity test per
-    slice that two slices are views of the same arrays. Another packet of the
+    same ``_own`` tuple, those four arrays, and where it ends in them
+    (``_stop``): the engine's per-slice tests that two slices are views of
+    the same arrays, one after the other. Another packet of the
     same arrays has a tuple of its own (the test then falls back on the
     arrays' owners, as for packets built by hand, which carry none)."""
     ev = _stream()
@@ -417,7 +418,7 @@ def test_slices_of_one_packet_share_one_tuple_of_its_arrays() -> None:
     part = ev.slice_time(7_000, 41_000)
     kin = [part, part.slice_time(9_000, 20_000), part.with_columns(w=np.zeros(len(part))).slice_time(20_000, 30_000),
            part.without_columns().slice_time(30_000, None), *part.batches(100)]
-    assert all(q._own is own for q in kin)
+    assert all(q._own is own and q._stop == q._at + len(q) for q in kin)
     op = _Seen()
     p = tectum.Pipeline()
     p.sink(NullSink(), p.op(op, p.source(ListSource([ev.slice_time(a, a + 500) for a in range(0, 50_000, 500)]))))
