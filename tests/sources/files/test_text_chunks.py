@@ -2,9 +2,9 @@
 any chunk size reads the same events, errors, skips and sensor as one chunk
 (pooled buffers, lines across chunks, the sensor pass holding one chunk
 without a copy or several with); a last line without its newline reads as
-with it, blanks after the last newline as nothing; the sniffer and
-``first_lines`` (which read only the first lines of a head) give what
-reading every line one by one gives."""
+with it, blanks after the last newline as nothing; the sniffer,
+``first_lines`` (which read only the first lines of a head) and the time
+unit read from the values give what reading every line one by one gives."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from tectum import EventPacket
-from tectum.sources.files._text_layout import first_lines
+from tectum.sources.files._text_layout import first_lines, text_layout
 from tectum.sources.files.text import TextSource, looks_like_events_text
 
 _ODD = [b"# comment", b"%x", b"", b"   ", b"0.5 1 2", b"0.5 1 2 7", b"-1 2 3 1", b"0.000001 70000 1 1", b"x y"]
@@ -132,3 +132,23 @@ def test_sniffer_and_first_lines_equal_reading_line_by_line(lines: bytes, newlin
             for comments in ((b"#", b"%"), (b"#",)):
                 assert first_lines(head, k, strip=strip, comments=comments) == _lines_one_by_one(
                     head, k, strip, comments)
+
+
+def _unit_one_by_one(head: bytes) -> str:
+    """The time unit the first column's values say (no header): seconds
+    for decimals or no values, ns for 18 digits and more, else µs."""
+    lines = _lines_one_by_one(head, 20, True, (b"#", b"%"))
+    times = [re.split(rb"[ \t,;]+", ln)[0] for ln in lines]
+    if not times or any(b"." in v for v in times):
+        return "s"
+    return "ns" if max(len(v.lstrip(b"+-")) for v in times) >= 18 else "us"
+
+
+_TIMES = st.sampled_from([b"12", b"0.5", b"", b"+3", b"-7", b"123456789012345678", b"12345678901234567", b"1\r2", b"."])
+
+
+@given(st.lists(st.tuples(_TIMES, _SEP, st.sampled_from([b"", b" ", b"#", b"%"])), max_size=25), st.booleans())
+def test_time_unit_from_the_values_equals_reading_line_by_line(rows: list[tuple[bytes, bytes, bytes]],
+                                                               newline: bool) -> None:
+    head = b"\n".join(lead + t + sep + b"1" + sep + b"2" for t, sep, lead in rows) + (b"\n" if newline else b"")
+    assert text_layout(head).time_unit == _unit_one_by_one(head)
