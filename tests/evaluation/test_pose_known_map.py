@@ -56,3 +56,43 @@ def test_frame_event_offset_refuses_frames_it_cannot_use(run):
         K.frame_event_offset(ev, t, log[:, :10])
     with pytest.raises(ValueError, match="no two consecutive frames"):
         K.frame_event_offset(ev, t[:2], log[:2], span_us=8000)
+
+
+def test_the_rate_counts_the_tracked_stretch_alone_and_times_the_warm_up_apart(monkeypatch):
+    # a clock that the (stand-in) tracker advances by 1 s per event it sees: the tracked stretch's CPU is its
+    # events' and the map's, the warm-up's those before the map (the real-data row's rate divides the tracked
+    # events by the first; counting the warm-up in it made that row look slower per event than it is)
+    from tectum import EventPacket, PosePacket
+
+    clock = [0.0]
+
+    class Tracker:
+        counts: dict[str, int] = {}
+
+        def __init__(self, **params: Any) -> None:
+            pass
+
+        def warmup(self) -> None:
+            clock[0] += 1000.0  # outside both
+
+        def process_ports(self, ports: dict[str, Any]) -> list[Any]:
+            clock[0] += len(ports["events"]) + (100.0 if "maps" in ports else 0.0)
+            return [PosePacket(np.array([int(ports["events"].t[-1])], np.int64), position=np.zeros((1, 3)),
+                               orientation=np.array([[0, 0, 0, 1.0]]))]
+
+        def finish(self) -> list[Any]:
+            clock[0] += 10.0
+            return []
+
+    monkeypatch.setattr(K, "Pose6Dof", Tracker)
+    monkeypatch.setattr(K.time, "thread_time", lambda: clock[0])
+
+    def events(t0: int, n: int) -> EventPacket:
+        return EventPacket(np.arange(t0, t0 + n, dtype=np.int64), np.zeros(n, np.uint16), np.zeros(n, np.uint16),
+                           np.ones(n, np.int8), sensor=(8, 8))
+
+    rows, cpu, cpu_before, _ = K.track_timed(events(1000, 7), None, before=events(0, 30))
+    assert (cpu, cpu_before) == (7 + 100 + 10, 30)
+    assert len(rows) == 2
+    assert K.track(events(1000, 7), None, before=events(0, 30))[1] == 7 + 100 + 10
+    assert K.track_timed(events(1000, 7), None)[1:3] == (117, 0)
