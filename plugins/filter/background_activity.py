@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.core import cgutils, config
+from numba.extending import intrinsic, overload
 
 from tectum import EventPacket, Operator, concat
 
-from ._state import padded_timestamps
+from ._state import NEVER
 
 __all__ = ["BackgroundActivity", "background_activity_kernel", "background_activity_select"]
 
@@ -16,6 +19,8 @@ __all__ = ["BackgroundActivity", "background_activity_kernel", "background_activ
 _SPAN_US = 1 << 30
 #: A pixel of the int32 state that has never fired (relative time).
 _NEVER32 = np.iinfo(np.int32).min
+#: Events the vector compaction copies at once (one compress per column).
+_LANES = 16
 
 
 @njit(cache=True, nogil=True)
@@ -47,79 +52,154 @@ def background_activity_kernel(t, x, y, support, dt_us, keep):  # type: ignore[n
     return n
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _rows_max(m, a, b):  # type: ignore[no-untyped-def]
-    """The latest of the three cells from ``a`` and the three from ``b`` of
-    the flat map ``m`` (an event's neighbours on the rows above and below)."""
-    one = np.uintp(1)
-    two = np.uintp(2)
-    return max(max(max(m[a], m[a + one]), max(m[a + two], m[b])), max(m[b + one], m[b + two]))
+def _neighbours_max(m, a, c, b):  # type: ignore[no-untyped-def]
+    """The latest time of an event's 8 neighbours in the flat padded map
+    ``m``: cells ``a .. a + 2`` (the row above), ``c`` and ``c + 2`` (its
+    own row, left and right) and ``b .. b + 2`` (the row below). Compiled,
+    three 4-lane vector loads (from ``a``, ``c`` and ``b``; the event's own
+    cell and each fourth lane masked out) and one max: ``m`` must hold one
+    cell after ``b + 2``. This is the plain form (``NUMBA_DISABLE_JIT``)."""
+    return max(m[a], m[a + 1], m[a + 2], m[c], m[c + 2], m[b], m[b + 1], m[b + 2])
+
+
+@intrinsic
+def _neighbours_max_ir(typingctx, m, a, c, b):  # type: ignore[no-untyped-def]
+    sig = m.dtype(m, types.uintp, types.uintp, types.uintp)
+
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        arr = context.make_array(signature.args[0])(context, builder, args[0])
+        elt = context.get_data_type(signature.args[0].dtype)
+        vec, lanes = ir.VectorType(elt, 4), ir.VectorType(ir.IntType(1), 4)
+        lowest = ir.Constant(vec, [ir.Constant(elt, -(1 << (elt.width - 1)))] * 4)
+
+        def load(k):  # type: ignore[no-untyped-def]
+            ptr = builder.bitcast(builder.gep(arr.data, [k]), vec.as_pointer())
+            return builder.load(ptr, align=elt.width // 8)
+
+        def fn(name, ret, *argtys):  # type: ignore[no-untyped-def]
+            return cgutils.get_or_insert_function(builder.module, ir.FunctionType(ret, argtys), name)
+
+        smax = fn(f"llvm.smax.v4i{elt.width}", vec, vec, vec)
+        rows = builder.call(smax, [load(args[1]), load(args[3])])
+        own_row = builder.select(ir.Constant(lanes, [1, 0, 1, 0]), load(args[2]), lowest)
+        both = builder.select(ir.Constant(lanes, [1, 1, 1, 0]), builder.call(smax, [rows, own_row]), lowest)
+        return builder.call(fn(f"llvm.vector.reduce.smax.v4i{elt.width}", elt, vec), [both])
+
+    return sig, codegen
+
+
+@overload(_neighbours_max)
+def _neighbours_max_compiled(m, a, c, b):  # type: ignore[no-untyped-def]
+    return lambda m, a, c, b: _neighbours_max_ir(m, a, c, b)
+
+
+def _compress(dst, n, src, i, keep):  # type: ignore[no-untyped-def]
+    """Copy ``src[i + k]`` for each ``k < 16`` where ``keep[i + k]`` to
+    ``dst[n:]`` in order; returns how many. Compiled, one masked vector
+    compress (AVX-512); this is the plain form."""
+    kept = 0
+    for k in range(_LANES):
+        if keep[i + k]:
+            dst[n + kept] = src[i + k]
+            kept += 1
+    return kept
+
+
+@intrinsic
+def _compress_ir(typingctx, dst, n, src, i, keep):  # type: ignore[no-untyped-def]
+    sig = types.intp(dst, types.intp, src, types.intp, keep)
+
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        d_ty, _, s_ty, _, k_ty = signature.args
+        d, s, k = (context.make_array(ty)(context, builder, v) for ty, v in zip((d_ty, s_ty, k_ty), args[::2]))
+        elt = context.get_data_type(s_ty.dtype)
+        vec, bytes_ = ir.VectorType(elt, _LANES), ir.VectorType(ir.IntType(8), _LANES)
+        flags = builder.load(builder.bitcast(builder.gep(k.data, [args[3]]), bytes_.as_pointer()), align=1)
+        mask = builder.icmp_unsigned("!=", flags, ir.Constant(bytes_, None))
+        values = builder.load(builder.bitcast(builder.gep(s.data, [args[3]]), vec.as_pointer()), align=1)
+        out = builder.gep(d.data, [args[1]])
+        store = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(ir.VoidType(), [vec, out.type, mask.type]),
+            f"llvm.masked.compressstore.v{_LANES}i{elt.width}")
+        builder.call(store, [values, out, mask])
+        word = ir.IntType(_LANES)
+        popcount = cgutils.get_or_insert_function(builder.module, ir.FunctionType(word, [word]),
+                                                  f"llvm.ctpop.i{_LANES}")
+        return builder.zext(builder.call(popcount, [builder.bitcast(mask, word)]), ir.IntType(64))
+
+    return sig, codegen
+
+
+@overload(_compress)
+def _compress_compiled(dst, n, src, i, keep):  # type: ignore[no-untyped-def]
+    return lambda dst, n, src, i, keep: _compress_ir(dst, n, src, i, keep)
+
+
+def _vector_compress() -> bool:
+    """Whether numba compiles for this CPU and it compresses vectors of 8-
+    to 64-bit lanes in one instruction (AVX-512 F and VBMI2). Elsewhere LLVM
+    expands a compress into a branch per lane, slower than the scalar copy."""
+    if config.CPU_NAME or config.CPU_FEATURES:  # a chosen target (a portable cache): maybe not this CPU's
+        return False
+    try:
+        import llvmlite.binding as llvm
+
+        features = llvm.get_host_cpu_features()
+    except RuntimeError:
+        return False
+    return bool(features.get("avx512f") and features.get("avx512vbmi2"))
+
+
+#: :func:`background_activity_select` compacts with vector compresses here.
+VECTOR_COMPRESS = _vector_compress()
 
 
 @njit(cache=True, nogil=True)
-def background_activity_select(t, x, y, p, last, base, dt_us, ot, ox, oy, op, idx, want_idx, row_first):  # type: ignore[no-untyped-def]
-    """The filter of :func:`background_activity_kernel`, fused with the
-    selection of its output: event ``i`` is kept when the latest time one
-    of its 8 neighbours fired is at or after ``t[i] - dt_us``. ``last`` is
-    a ``(1, H + 2, W + 2)`` padded map (int32 or int64) of each pixel's own
-    latest time, relative to ``base`` µs (read as one flat array with
-    unsigned indices: no negative-index fix-ups; one write per event).
-    Kept events are written to the front of ``ot, ox, oy, op`` (one spare
-    slot each: the write is branch-free) and, with ``want_idx``, their
-    input indices to ``idx``. Returns how many were kept and, with
-    ``row_first`` (else 0), how many of them by a neighbour on their own
-    row (left or right).
+def background_activity_select(t, x, y, p, last, base, dt_us, keep, ot, ox, oy, op, vector):  # type: ignore[no-untyped-def]
+    """The filter of :func:`background_activity_kernel` and the selection
+    of its output: event ``i`` is kept when the latest time one of its 8
+    neighbours fired is at or after ``t[i] - dt_us``. ``last`` is a
+    ``(1, H + 3, W + 2)`` padded map (int32 or int64) of each pixel's own
+    latest time, relative to ``base`` µs (pixel ``(x, y)`` at
+    ``[0, y + 1, x + 1]``; the second border row below is read, never
+    written: see :func:`_neighbours_max`). Writes ``keep`` (bool, per
+    event) and returns how many were kept; unless all were, copies them to
+    the front of ``ot, ox, oy, op`` (one spare slot each).
 
-    Without ``row_first`` each event reads its 8 neighbours (three rows of
-    the map) and takes their maximum, branch-free: the fastest when many
-    events are dropped. With ``row_first`` it reads its left and right
-    neighbours (its own row, the one its write touches) and reads the rows
-    above and below only when neither is recent enough: when most events
-    pass by a neighbour on their own row, most touch one row of the map
-    instead of three (and the branch is predictable). Both keep the same
-    events."""
+    Two passes, both without branches on the data: the filter (three
+    vector loads, a max and one write per event), then the copy: with
+    ``vector`` (see :data:`VECTOR_COMPRESS`) 16 events per column at once,
+    else every event written and the output index advanced by its keep
+    bit."""
     w2 = np.uintp(last.shape[2])
     m = last.reshape(-1)
     one = np.uintp(1)
-    two = np.uintp(2)
     n = 0
-    by_row = 0
     for i in range(t.shape[0]):
-        ti = t[i]
-        rel = ti - base
-        lim = rel - dt_us
-        xi = x[i]
-        yi = y[i]
-        c = (np.uintp(yi) + one) * w2 + np.uintp(xi)  # the left neighbour's cell; the pixel's is c + 1
-        a, b = c - w2, c + w2  # the rows above and below
-        mid = max(m[c], m[c + two])
-        if row_first:
-            ok = mid >= lim
-            by_row += int(ok)
-            if not ok:
-                ok = _rows_max(m, a, b) >= lim
-        else:
-            ok = max(mid, _rows_max(m, a, b)) >= lim
-        ot[n] = ti
-        ox[n] = xi
-        oy[n] = yi
-        op[n] = p[i]
-        if want_idx:
-            idx[n] = i
+        rel = t[i] - base
+        c = (np.uintp(y[i]) + one) * w2 + np.uintp(x[i])  # the left neighbour's cell; the pixel's is c + 1
+        ok = _neighbours_max(m, c - w2, c, c + w2) >= rel - dt_us
+        keep[i] = ok
         n += int(ok)
         m[c + one] = rel
-    return n, by_row
-
-
-#: The share of a packet's events kept above which the next packet is
-#: filtered ``row_first`` (see :func:`background_activity_select`), and
-#: the share kept by their own row it must keep then to stay so.
-_ROW_FIRST_SHARE = 0.75
-#: Packets filtered reading all 8 neighbours after one that did not keep
-#: enough by their own row, before the next try (counting those in the
-#: plain pass would cost it 6-12 %).
-_ROW_FIRST_RETRY = 16
-
+    if n == t.shape[0]:
+        return n
+    n = 0
+    i = 0
+    if vector:
+        while i + _LANES <= t.shape[0]:
+            _compress(ot, n, t, i, keep)
+            _compress(ox, n, x, i, keep)
+            _compress(oy, n, y, i, keep)
+            n += _compress(op, n, p, i, keep)
+            i += _LANES
+    for j in range(i, t.shape[0]):
+        ot[n] = t[j]
+        ox[n] = x[j]
+        oy[n] = y[j]
+        op[n] = p[j]
+        n += int(keep[j])
+    return n
 
 class BackgroundActivity(Operator):
     """Background-activity filter (Delbruck 2008): keep an event when at
@@ -133,13 +213,13 @@ class BackgroundActivity(Operator):
     Slower scenes need a longer ``dt_us``.
 
     State: one int32 per pixel (the latest time it fired, relative to an
-    origin that moves on every 2^30 µs) plus a one-pixel border,
-    4 x (W + 2) x (H + 2) bytes (about 365 kB for 346x260; int64 and twice
-    that for a ``dt_us`` of 2^29 µs or more). The kernel filters and
-    selects in one pass (:func:`background_activity_select`); after a
-    packet that kept over 75 % of its events, the next is filtered reading
-    each event's own row first (the same events kept, faster when most
-    pass by their own row), for as long as over 75 % pass by it.
+    origin that moves on every 2^30 µs) plus a border of one pixel and a
+    second row below, 4 x (W + 2) x (H + 3) bytes (about 366 kB for
+    346x260; int64 and twice that for a ``dt_us`` of 2^29 µs or more), and
+    one byte per event of the largest packet (the keep flags). The kernel
+    (:func:`background_activity_select`) filters, then copies the kept
+    events, neither pass with a branch on the data: its speed does not
+    depend on how many pass.
     """
 
     name = "filter.background_activity"
@@ -150,8 +230,7 @@ class BackgroundActivity(Operator):
         self.dt_us = int(dt_us)
         self.last: np.ndarray | None = None
         self.base = 0  # µs: the origin of the times in ``last``
-        self._row_first = False  # read each event's own row first (same output: see process)
-        self._retry = 0  # packets left before row_first may be tried again
+        self._keep = np.empty(0, np.bool_)  # the kernel's keep flags, reused from packet to packet
 
     def memory_us(self) -> int:
         """Only neighbours' times within ``dt_us`` count (time sharding)."""
@@ -169,30 +248,26 @@ class BackgroundActivity(Operator):
                 parts = [packet.slice_time(a, a + step) for a in range(packet.t_start, packet.t_end, step)]
                 return [concat([q for part in parts for q in self.process(part)])]
             self._rebase(packet.t_start)
-        cols = packet.columns
+        if len(self._keep) < m:
+            self._keep = np.empty(m, np.bool_)
+        keep = self._keep[:m]
         ot, ox, oy = np.empty(m + 1, np.int64), np.empty(m + 1, np.uint16), np.empty(m + 1, np.uint16)
-        op, idx = np.empty(m + 1, np.int8), np.empty(m + 1 if cols else 1, np.intp)
-        n, by_row = background_activity_select(packet.t, packet.x, packet.y, packet.p, self.last, self.base,
-                                               self.dt_us, ot, ox, oy, op, idx, bool(cols), self._row_first)
-        if self._row_first:
-            self._row_first = by_row > _ROW_FIRST_SHARE * m
-            self._retry = 0 if self._row_first else _ROW_FIRST_RETRY
-        else:
-            self._retry = max(self._retry - 1, 0)
-            self._row_first = not self._retry and n > _ROW_FIRST_SHARE * m
+        op = np.empty(m + 1, np.int8)
+        n = background_activity_select(packet.t, packet.x, packet.y, packet.p, self.last, self.base, self.dt_us,
+                                       keep, ot, ox, oy, op, VECTOR_COMPRESS)
         if n == m:
             return [packet]
         return [EventPacket._trusted(ot[:n], ox[:n], oy[:n], op[:n], packet.sensor, packet.t_start, packet.t_end,
-                                     {k: v[idx[:n]] for k, v in cols.items()}, packet.checked)]
+                                     {k: v[keep] for k, v in packet.columns.items()}, packet.checked)]
 
     def _start(self, packet: EventPacket) -> None:
         """The state, at the first packet: int32 times relative to its start
         (int64 from 0 when ``dt_us`` reaches 2^29 µs)."""
+        w, h = packet.sensor
         if self.dt_us < _SPAN_US // 2:
-            w, h = packet.sensor
-            self.last, self.base = np.full((1, h + 2, w + 2), _NEVER32, np.int32), packet.t_start
+            self.last, self.base = np.full((1, h + 3, w + 2), _NEVER32, np.int32), packet.t_start
         else:
-            self.last, self.base = padded_timestamps(packet.sensor), 0
+            self.last, self.base = np.full((1, h + 3, w + 2), NEVER, np.int64), 0
 
     def _rebase(self, base: int) -> None:
         """Move the int32 state's origin on to ``base`` µs: times more than

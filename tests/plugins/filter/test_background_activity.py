@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from tectum import EventPacket
+from tectum import EventPacket, concat
 from tectum.evaluation.metrics import binomial_pass
 from tectum.plugins.filter import BackgroundActivity, background_activity_kernel
 from tectum.plugins.filter._state import padded_timestamps
@@ -155,81 +155,80 @@ def test_the_origin_moves_on_when_a_packet_ends_past_2_30_us():
 @pytest.mark.parametrize("dt_us, dtype", [(0, np.int32), (2**29 - 1, np.int32), (2**29, np.int64)])
 def test_the_state_is_one_int32_per_pixel_below_2_29_us(dt_us, dtype):
     """The memory the class promises: one int32 per pixel plus a one-pixel
-    border, (W + 2) x (H + 2) of them; int64 from a dt_us of 2^29 µs."""
+    border and a second border row below (the kernel's vector loads read
+    one cell past the first), (W + 2) x (H + 3) of them; int64 from a
+    dt_us of 2^29 µs."""
     op = BackgroundActivity(dt_us=dt_us)
     op.process(EventPacket.from_arrays([5], [1], [2], [1], sensor=(7, 4)))
-    assert op.last is not None and op.last.dtype == dtype and op.last.shape == (1, 6, 9)
+    assert op.last is not None and op.last.dtype == dtype and op.last.shape == (1, 7, 9)
 
 
 def _dense_then_sparse(seed: int) -> EventPacket:
     """A 9x7 sensor: 3000 events 0..4 µs apart (nearly all pass a 300 µs
     window), then 600 events 0..200 µs apart (most are dropped), then
     dense again, then 1000 dense events on one column (nearly all pass,
-    by the pixels above and below: none by its own row); pixels on every
-    border too."""
+    by the pixels above and below); then every pixel in turn, the corners
+    and the last row and column included; pixels refire throughout."""
     rng = np.random.default_rng(seed)
-    steps = np.concatenate([rng.integers(0, 5, 3000), rng.integers(0, 200, 600), rng.integers(0, 5, 4000)])
+    steps = np.concatenate([rng.integers(0, 5, 3000), rng.integers(0, 200, 600), rng.integers(0, 5, 4000),
+                            np.full(63, 3)])
     n = len(steps)
-    x = rng.integers(0, 9, n)
-    x[-1000:] = 4
-    return EventPacket.from_arrays(np.cumsum(steps) + 10**9, x, rng.integers(0, 7, n), rng.choice([-1, 1], n),
-                                   sensor=(9, 7))
+    x, y = rng.integers(0, 9, n), rng.integers(0, 7, n)
+    x[-1063:-63] = 4
+    x[-63:], y[-63:] = np.arange(63) % 9, np.arange(63) // 9
+    return EventPacket.from_arrays(np.cumsum(steps) + 10**9, x, y, rng.choice([-1, 1], n), sensor=(9, 7))
 
 
-@pytest.mark.parametrize("row_first", [False, True])
+def _plain_keep(ev: EventPacket, dt_us: int) -> np.ndarray:
+    """The plain kernel's verdicts (one read of a neighbour-time map and 8
+    writes per event, no vectors, no copy)."""
+    keep = np.empty(len(ev), np.bool_)
+    background_activity_kernel(ev.t, ev.x, ev.y, padded_timestamps(ev.sensor), dt_us, keep)
+    return keep
+
+
+@pytest.mark.parametrize("vector", [True, False])
 @pytest.mark.parametrize("dtype", [np.int32, np.int64])
-def test_select_kernel_either_way_keeps_what_the_reference_keeps(row_first, dtype):
-    """The fused kernel, reading all 8 neighbours or its own row first, on
-    dense and sparse stretches: the reference's events, in order, and
-    their indices; reading its own row first, also how many a neighbour on
-    their own row keeps."""
+def test_select_kernel_keeps_what_the_plain_kernel_keeps(vector, dtype):
+    """The fused kernel (vector max of the 8 neighbours; the copy by vector
+    compress or by keep bit) on dense and sparse stretches cut into
+    packets of 0..40 events (tails shorter than 16, whole blocks, packets
+    that keep every event): per packet the plain kernel's keep flags, its
+    count, and its events copied in order."""
     from tectum.plugins.filter.background_activity import background_activity_select
 
     ev = _dense_then_sparse(seed=11)
-    exp = reference(ev, 300)
+    exp = _plain_keep(ev, 300)
+    assert np.array_equal(exp, reference(ev, 300))
     assert 0.05 < exp[3000:3600].mean() < 0.5 and exp[:3000].mean() > 0.95
     base = ev.t_start if dtype == np.int32 else 0
-    last = np.full((1, 9, 11), np.iinfo(dtype).min // (1 if dtype == np.int32 else 2), dtype)
-    m = len(ev)
-    ot, ox, oy = np.empty(m + 1, np.int64), np.empty(m + 1, np.uint16), np.empty(m + 1, np.uint16)
-    op, idx = np.empty(m + 1, np.int8), np.empty(m + 1, np.intp)
-    n, by_row = background_activity_select(ev.t, ev.x, ev.y, ev.p, last, base, 300, ot, ox, oy, op, idx, True,
-                                           row_first)
-    assert n == exp.sum() and by_row == (reference(ev, 300, rows=(0,)).sum() if row_first else 0)
-    for got, col in ((ot, ev.t), (ox, ev.x), (oy, ev.y), (op, ev.p), (idx, np.arange(m))):
-        assert np.array_equal(got[:n], col[exp])
+    last = np.full((1, 10, 11), np.iinfo(dtype).min // (1 if dtype == np.int32 else 2), dtype)
+    cuts = np.cumsum(np.random.default_rng(4).integers(0, 41, len(ev)))
+    cuts = [0, *cuts[cuts < len(ev)].tolist(), len(ev)]
+    full = 0
+    for i, j in zip(cuts, cuts[1:]):
+        t, x, y, p, m = ev.t[i:j], ev.x[i:j], ev.y[i:j], ev.p[i:j], j - i
+        keep = np.empty(m, np.bool_)
+        ot, ox, oy = np.empty(m + 1, np.int64), np.empty(m + 1, np.uint16), np.empty(m + 1, np.uint16)
+        op = np.empty(m + 1, np.int8)
+        n = background_activity_select(t, x, y, p, last, base, 300, keep, ot, ox, oy, op, vector)
+        assert np.array_equal(keep, exp[i:j]) and n == exp[i:j].sum()
+        full += 0 < n == m
+        if n < m:
+            for got, col in ((ot, t), (ox, x), (oy, y), (op, p)):
+                assert np.array_equal(got[:n], col[exp[i:j]])
+    assert full > 10 and np.all(last[0, -1] == last[0, -1, 0])  # packets kept whole; the slack row never written
 
 
-def test_the_own_row_is_read_first_after_a_packet_that_kept_most():
-    """The operator reads each event's own row first on the packet after
-    one that kept over 75 %, for as long as over 75 % pass by their own
-    row; after a packet that did not, it reads all 8 neighbours for 16
-    packets before it tries again. The reference's events across the
-    switches."""
-    from tectum.plugins.filter.background_activity import _ROW_FIRST_RETRY
-
+@pytest.mark.parametrize("packet_events", [1, 50, 10_000])
+def test_operator_keeps_what_the_plain_kernel_keeps(packet_events):
+    """Through ``process``: packets of one, 50 or all events, the output
+    (and an extra column, gathered by the keep flags) the plain kernel's."""
     ev = _dense_then_sparse(seed=12)
-    cuts = [int(t) for t in ev.t[::50]] + [ev.t_end]
+    ev = ev.with_columns(index=np.arange(len(ev), dtype=np.int64))
+    cuts = [int(t) for t in ev.t[::packet_events]] + [ev.t_end]
     pieces = [ev.slice_time(a, b) for a, b in zip(cuts, cuts[1:])]
-    op = BackgroundActivity(dt_us=300)
-    modes, out = [], []
-    for q in pieces:
-        out += op.process(q)
-        modes.append(op._row_first)
-    exp, by_row = reference(ev, 300), reference(ev, 300, rows=(0,))
-    assert np.array_equal(np.concatenate([q.t for q in out]), ev.t[exp])
-    want, row_first, retry = [], False, 0
-    for a, b in zip(cuts, cuts[1:]):
-        i, j = np.searchsorted(ev.t, [a, b])
-        if j > i:
-            if row_first:
-                row_first = by_row[i:j].mean() > 0.75
-                retry = 0 if row_first else _ROW_FIRST_RETRY
-            else:
-                retry = max(retry - 1, 0)
-                row_first = not retry and exp[i:j].mean() > 0.75
-        want.append(row_first)
-    assert modes == want
-    # the column: nearly all kept, none by their own row: row_first tried once, then again 16 packets later
-    assert exp[-1000:].mean() > 0.9 and sum(modes[-17:]) <= 1 and True in modes[:60]
-    assert any(modes[k - 17] and not any(modes[k - 16:k]) and modes[k] for k in range(17, len(modes)))
+    out = concat(feed(BackgroundActivity(dt_us=300), pieces))
+    exp = _plain_keep(ev, 300)
+    assert np.array_equal(out.columns["index"], np.flatnonzero(exp))
+    assert np.array_equal(out.t, ev.t[exp]) and np.array_equal(out.x, ev.x[exp]) and np.array_equal(out.p, ev.p[exp])
