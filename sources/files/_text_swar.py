@@ -250,22 +250,25 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
             # the fields: digits between the marks (values of garbage when ok is False)
             places = s1 - a - 1
             w = word(buf, i + a + 1)  # the places (when dot)
-            frac = (w - _ZEROS) & _low(min(places, digits))  # the places down to 1 µs, then zeros
-            if dot and a + digits <= 8:  # the whole part and the places down to 1 µs in one word
-                v = ((word(buf, i) - _ZEROS) & _low(a)) | (frac << (_U(a << 3) & _U(63)))
-                tv = np.int64(digits_value(v, a + digits))
+            if dot & (a + digits < 8) & (places > digits):  # the whole part and the places down to 0.1 µs in one word
+                v = ((word(buf, i) - _ZEROS) & _low(a)) | (((w - _ZEROS) & _low(digits + 1)) << (_U(a << 3) & _U(63)))
+                tv = np.int64((digits_value(v, a + digits + 1) + _U(5)) // _U(10))  # half up on its last digit
                 ok = (a > 0) & dot
             else:
-                tv = np.int64(run_value(word(buf, i), min(a, 8)))
-                if a > 8:
-                    rest = a - 8 if a < 16 else 8
-                    tv = tv * np.int64(_POW10[rest]) + np.int64(run_value(word(buf, i + 8), rest))
-                ok = (a > 0) & (a <= 16) & (tv < big)
-                tv *= scale
-                if dot:
-                    tv += np.int64(digits_value(frac, digits))
-            # the first place below 1 µs rounds half up
-            tv += np.int64(dot & (places > digits) & (((w >> _U(digits << 3)) & _U(255)) >= _U(53)))
+                frac = (w - _ZEROS) & _low(min(places, digits))  # the places down to 1 µs, then zeros
+                if dot & (a + digits <= 8):  # the whole part and the places down to 1 µs in one word
+                    v = ((word(buf, i) - _ZEROS) & _low(a)) | (frac << (_U(a << 3) & _U(63)))
+                    tv = np.int64(digits_value(v, a + digits))
+                    ok = (a > 0) & dot
+                else:
+                    tv = np.int64(run_value(word(buf, i), min(a, 8)))
+                    if a > 8:
+                        rest = a - 8 if a < 16 else 8
+                        tv = tv * np.int64(_POW10[rest]) + np.int64(run_value(word(buf, i + 8), rest))
+                    ok = (a > 0) & (a <= 16) & (tv < big)
+                    tv = tv * scale + np.int64(digits_value(frac, digits)) * dot
+                # the first place below 1 µs rounds half up
+                tv += np.int64(dot & (places > digits) & (((w >> _U(digits << 3)) & _U(255)) >= _U(53)))
             sep = buf[_U(i + s1)]
             nx = s2 - s1 - 1
             ny = s3 - s2 - 1
