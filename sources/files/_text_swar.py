@@ -10,11 +10,15 @@ non-digits and of its newlines (:func:`masks64`), and each line ending in
 those 64 bytes is parsed from its start and its newline, the non-digits
 between them read off the mask (``tzcnt``). The fields lie between those,
 all digits by construction, so each number is converted from one 64-bit word
-by three multiplications (:func:`digits_value`): no loop over its digits, no
-branch on its length, and no line waits on the one before but for its
-start, one ``tzcnt`` away, so the processor overlaps consecutive lines.
+by a few multiplications (:func:`digits_value`: three for eight digits, two
+for a coordinate's four; a short time's whole part, places and rounding place
+together, rounded by one division by 10): no loop over its digits, no branch
+on its length, and no line waits on the one before but for its start, one
+``tzcnt`` away, so the processor overlaps consecutive lines. The line's end
+after its last separator (polarity, CR, newline) is one word looked up in a
+table of the six it may be.
 
-A line of any other form (a sign on the time, a coordinate of six or more
+A line of any other form (a sign on the time, a coordinate of five or more
 digits, blanks around a field, a comment, a header, a bad polarity) ends the
 run, and the caller parses it the careful way: the fast path decides nothing
 the careful one would decide differently (tests/sources/files/test_text_fast.py
