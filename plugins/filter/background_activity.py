@@ -52,45 +52,46 @@ def background_activity_kernel(t, x, y, support, dt_us, keep):  # type: ignore[n
     return n
 
 
-def _neighbours_max(m, a, c, b):  # type: ignore[no-untyped-def]
-    """The latest time of an event's 8 neighbours in the flat padded map
-    ``m``: cells ``a .. a + 2`` (the row above), ``c`` and ``c + 2`` (its
-    own row, left and right) and ``b .. b + 2`` (the row below). Compiled,
-    three 4-lane vector loads (from ``a``, ``c`` and ``b``; the event's own
-    cell and each fourth lane masked out) and one max: ``m`` must hold one
-    cell after ``b + 2``. This is the plain form (``NUMBA_DISABLE_JIT``)."""
-    return max(m[a], m[a + 1], m[a + 2], m[c], m[c + 2], m[b], m[b + 1], m[b + 2])
+def _recent(m, a, c, b, lim):  # type: ignore[no-untyped-def]
+    """Whether one of an event's 8 neighbours fired at or after ``lim``
+    (µs, as the map holds them) in the flat padded map ``m``: cells
+    ``a .. a + 2`` (the row above), ``c`` and ``c + 2`` (its own row, left
+    and right) and ``b .. b + 2`` (the row below). Compiled, three 4-lane
+    vector loads (from ``a``, ``c`` and ``b``) compared with ``lim`` at
+    once, the event's own cell and each fourth lane masked out: ``m`` must
+    hold one cell after ``b + 2``, and ``lim`` fit its dtype. This is the
+    plain form (``NUMBA_DISABLE_JIT``)."""
+    return max(m[a], m[a + 1], m[a + 2], m[c], m[c + 2], m[b], m[b + 1], m[b + 2]) >= lim
 
 
 @intrinsic
-def _neighbours_max_ir(typingctx, m, a, c, b):  # type: ignore[no-untyped-def]
-    sig = m.dtype(m, types.uintp, types.uintp, types.uintp)
+def _recent_ir(typingctx, m, a, c, b, lim):  # type: ignore[no-untyped-def]
+    sig = types.boolean(m, types.uintp, types.uintp, types.uintp, types.int64)
 
     def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
         arr = context.make_array(signature.args[0])(context, builder, args[0])
         elt = context.get_data_type(signature.args[0].dtype)
         vec, lanes = ir.VectorType(elt, 4), ir.VectorType(ir.IntType(1), 4)
-        lowest = ir.Constant(vec, [ir.Constant(elt, -(1 << (elt.width - 1)))] * 4)
 
-        def load(k):  # type: ignore[no-untyped-def]
+        def recent(k):  # type: ignore[no-untyped-def]
             ptr = builder.bitcast(builder.gep(arr.data, [k]), vec.as_pointer())
-            return builder.load(ptr, align=elt.width // 8)
+            return builder.icmp_signed(">=", builder.load(ptr, align=elt.width // 8), limits)
 
-        def fn(name, ret, *argtys):  # type: ignore[no-untyped-def]
-            return cgutils.get_or_insert_function(builder.module, ir.FunctionType(ret, argtys), name)
-
-        smax = fn(f"llvm.smax.v4i{elt.width}", vec, vec, vec)
-        rows = builder.call(smax, [load(args[1]), load(args[3])])
-        own_row = builder.select(ir.Constant(lanes, [1, 0, 1, 0]), load(args[2]), lowest)
-        both = builder.select(ir.Constant(lanes, [1, 1, 1, 0]), builder.call(smax, [rows, own_row]), lowest)
-        return builder.call(fn(f"llvm.vector.reduce.smax.v4i{elt.width}", elt, vec), [both])
+        lim = builder.trunc(args[4], elt) if elt.width < 64 else args[4]
+        one = builder.insert_element(ir.Constant(vec, None), lim, ir.Constant(ir.IntType(32), 0))
+        splat = ir.Constant(ir.VectorType(ir.IntType(32), 4), [0] * 4)
+        limits = builder.shuffle_vector(one, ir.Constant(vec, None), splat)
+        rows = builder.and_(builder.or_(recent(args[1]), recent(args[3])), ir.Constant(lanes, [1, 1, 1, 0]))
+        own_row = builder.and_(recent(args[2]), ir.Constant(lanes, [1, 0, 1, 0]))
+        bits = builder.bitcast(builder.or_(rows, own_row), ir.IntType(4))
+        return builder.icmp_unsigned("!=", bits, ir.Constant(ir.IntType(4), 0))
 
     return sig, codegen
 
 
-@overload(_neighbours_max)
-def _neighbours_max_compiled(m, a, c, b):  # type: ignore[no-untyped-def]
-    return lambda m, a, c, b: _neighbours_max_ir(m, a, c, b)
+@overload(_recent)
+def _recent_compiled(m, a, c, b, lim):  # type: ignore[no-untyped-def]
+    return lambda m, a, c, b, lim: _recent_ir(m, a, c, b, lim)
 
 
 def _compress(dst, n, src, i, keep):  # type: ignore[no-untyped-def]
@@ -162,12 +163,12 @@ def background_activity_select(t, x, y, p, last, base, dt_us, keep, ot, ox, oy, 
     ``(1, H + 3, W + 2)`` padded map (int32 or int64) of each pixel's own
     latest time, relative to ``base`` µs (pixel ``(x, y)`` at
     ``[0, y + 1, x + 1]``; the second border row below is read, never
-    written: see :func:`_neighbours_max`). Writes ``keep`` (bool, per
+    written: see :func:`_recent`). Writes ``keep`` (bool, per
     event) and returns how many were kept; unless all were, copies them to
     the front of ``ot, ox, oy, op`` (one spare slot each).
 
     Two passes, both without branches on the data: the filter (three
-    vector loads, a max and one write per event), then the copy: with
+    vector compares and one write per event), then the copy: with
     ``vector`` (see :data:`VECTOR_COMPRESS`) 16 events per column at once,
     else every event written and the output index advanced by its keep
     bit."""
@@ -178,7 +179,7 @@ def background_activity_select(t, x, y, p, last, base, dt_us, keep, ot, ox, oy, 
     for i in range(t.shape[0]):
         rel = t[i] - base
         c = (np.uintp(y[i]) + one) * w2 + np.uintp(x[i])  # the left neighbour's cell; the pixel's is c + 1
-        ok = _neighbours_max(m, c - w2, c, c + w2) >= rel - dt_us
+        ok = _recent(m, c - w2, c, c + w2, rel - dt_us)
         keep[i] = ok
         n += int(ok)
         m[c + one] = rel
