@@ -153,6 +153,10 @@ def _vector_compress() -> bool:
 
 #: :func:`background_activity_select` compacts with vector compresses here.
 VECTOR_COMPRESS = _vector_compress()
+#: Events per kernel call: a packet the engine joined (up to 2^18 events)
+#: is filtered in calls of this many, so the events the copy reads back
+#: are still in the L2 cache (8 % faster at 2^18, interleaved, loaded).
+_CALL_EVENTS = 1 << 16
 
 
 @njit(cache=True, nogil=True)
@@ -252,14 +256,41 @@ class BackgroundActivity(Operator):
         if len(self._keep) < m:
             self._keep = np.empty(m, np.bool_)
         keep = self._keep[:m]
-        ot, ox, oy = np.empty(m + 1, np.int64), np.empty(m + 1, np.uint16), np.empty(m + 1, np.uint16)
-        op = np.empty(m + 1, np.int8)
-        n = background_activity_select(packet.t, packet.x, packet.y, packet.p, self.last, self.base, self.dt_us,
-                                       keep, ot, ox, oy, op, VECTOR_COMPRESS)
-        if n == m:
+        cols = (packet.t, packet.x, packet.y, packet.p)
+        out = (np.empty(m + 1, np.int64), np.empty(m + 1, np.uint16), np.empty(m + 1, np.uint16),
+               np.empty(m + 1, np.int8))
+        if m <= _CALL_EVENTS:
+            n = background_activity_select(*cols, self.last, self.base, self.dt_us, keep, *out, VECTOR_COMPRESS)
+            whole = n == m
+        else:
+            n, whole = self._in_calls(cols, keep, out)
+        if whole:
             return [packet]
-        return [EventPacket._trusted(ot[:n], ox[:n], oy[:n], op[:n], packet.sensor, packet.t_start, packet.t_end,
+        ot, ox, oy, op = (o[:n] for o in out)
+        return [EventPacket._trusted(ot, ox, oy, op, packet.sensor, packet.t_start, packet.t_end,
                                      {k: v[keep] for k, v in packet.columns.items()}, packet.checked)]
+
+    def _in_calls(self, cols: tuple[np.ndarray, ...], keep: np.ndarray,
+                  out: tuple[np.ndarray, ...]) -> tuple[int, bool]:
+        """The kernel over the columns ``cols`` in calls of
+        :data:`_CALL_EVENTS` events: how many were kept (in ``out``, unless
+        all were) and whether all were. The kernel copies nothing from a
+        call that keeps all its events: copied here once one did not."""
+        m = len(keep)
+        n, whole = 0, True
+        for a in range(0, m, _CALL_EVENTS):
+            b = min(a + _CALL_EVENTS, m)
+            got = background_activity_select(*(c[a:b] for c in cols), self.last, self.base, self.dt_us, keep[a:b],
+                                             *(o[n:] for o in out), VECTOR_COMPRESS)
+            if got == b - a and not whole:
+                for o, c in zip(out, cols):
+                    o[n:n + got] = c[a:b]
+            elif got < b - a and whole:  # the first drop: the events before it (n == a) go first
+                for o, c in zip(out, cols):
+                    o[:a] = c[:a]
+                whole = False
+            n += got
+        return n, whole
 
     def _start(self, packet: EventPacket) -> None:
         """The state, at the first packet: int32 times relative to its start

@@ -232,3 +232,31 @@ def test_operator_keeps_what_the_plain_kernel_keeps(packet_events):
     exp = _plain_keep(ev, 300)
     assert np.array_equal(out.columns["index"], np.flatnonzero(exp))
     assert np.array_equal(out.t, ev.t[exp]) and np.array_equal(out.x, ev.x[exp]) and np.array_equal(out.p, ev.p[exp])
+
+
+def test_packets_past_one_kernel_call():
+    """A packet of over 2^16 events is filtered in kernel calls of 2^16:
+    the first call keeps all (not copied until the second drops some), the
+    third and fourth keep all again (copied after the drop); a big packet
+    kept whole comes back as itself. The plain kernel's events."""
+    from tectum.plugins.filter.background_activity import _CALL_EVENTS
+
+    rng = np.random.default_rng(7)
+    dense = [rng.integers(0, 3, k) for k in (70_000, 130_000)]  # ~1 event/µs on 63 pixels: all pass 1000 µs
+    steps = np.concatenate([np.ones(63, np.int64), dense[0], np.full(50, 3000), dense[1]])
+    x, y = rng.integers(0, 9, len(steps)), rng.integers(0, 7, len(steps))
+    x[:63], y[:63] = np.arange(63) % 9, np.arange(63) // 9  # every pixel once first
+    ev = EventPacket.from_arrays(np.cumsum(steps) + 10**6, x, y, rng.choice([-1, 1], len(steps)), sensor=(9, 7))
+    exp = _plain_keep(ev, 1000)
+    calls = [exp[63 + a:63 + a + _CALL_EVENTS] for a in range(0, len(ev) - 63, _CALL_EVENTS)]
+    assert len(calls) == 4 and calls[0].all() and not calls[1].all() and calls[2].all() and calls[3].all()
+    op = BackgroundActivity(dt_us=1000)
+    cut = int(ev.t[63])
+    op.process(ev.slice_time(None, cut))
+    out = op.process(ev.slice_time(cut, None))[0]
+    assert np.array_equal(out.t, ev.t[63:][exp[63:]]) and np.array_equal(out.y, ev.y[63:][exp[63:]])
+    assert np.array_equal(out.p, ev.p[63:][exp[63:]])
+    whole = BackgroundActivity(dt_us=1000)
+    whole.process(ev.slice_time(None, cut))
+    first = ev.slice_time(cut, int(ev.t[63 + 70_000]))
+    assert len(first) > _CALL_EVENTS and whole.process(first)[0] is first
