@@ -133,6 +133,8 @@ def _compress_ir(typingctx, dst, n, src, i, keep):  # type: ignore[no-untyped-de
 
 @overload(_compress)
 def _compress_compiled(dst, n, src, i, keep):  # type: ignore[no-untyped-def]
+    if (dst.layout, src.layout, keep.layout) != ("C", "C", "C"):  # the vector loads and store need them
+        return _compress
     return lambda dst, n, src, i, keep: _compress_ir(dst, n, src, i, keep)
 
 
@@ -205,6 +207,7 @@ def background_activity_select(t, x, y, p, last, base, dt_us, keep, ot, ox, oy, 
         op[n] = p[j]
         n += int(keep[j])
     return n
+
 
 class BackgroundActivity(Operator):
     """Background-activity filter (Delbruck 2008): keep an event when at

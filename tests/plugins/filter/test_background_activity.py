@@ -260,3 +260,23 @@ def test_packets_past_one_kernel_call():
     whole.process(ev.slice_time(None, cut))
     first = ev.slice_time(cut, int(ev.t[63 + 70_000]))
     assert len(first) > _CALL_EVENTS and whole.process(first)[0] is first
+
+
+def test_select_kernel_on_strided_columns():
+    """Columns that are every other element of their arrays (not a public
+    packet's, but the kernel's arguments allow them): the vector loads and
+    compresses give way to the plain forms, and the plain kernel's events
+    come out."""
+    from tectum.plugins.filter.background_activity import background_activity_select
+
+    ev = _dense_then_sparse(seed=13)
+    t, x, y, p = (np.repeat(c, 2)[::2] for c in (ev.t, ev.x, ev.y, ev.p))
+    keep = np.empty(2 * len(ev), np.bool_)[::2]
+    assert not t.flags.c_contiguous and not keep.flags.c_contiguous
+    last = np.full((1, 10, 11), np.iinfo(np.int32).min, np.int32)
+    out = [np.empty(len(ev) + 1, d) for d in (np.int64, np.uint16, np.uint16, np.int8)]
+    n = background_activity_select(t, x, y, p, last, ev.t_start, 300, keep, *out, True)
+    exp = _plain_keep(ev, 300)
+    assert np.array_equal(keep, exp) and n == exp.sum()
+    for got, col in zip(out, (ev.t, ev.x, ev.y, ev.p)):
+        assert np.array_equal(got[:n], col[exp])
