@@ -119,20 +119,25 @@ def _quat(R: np.ndarray) -> np.ndarray:
     return q
 
 
-def gradient_correlation(image: np.ndarray, depth: np.ndarray, sigma: float, max_px: int) -> np.ndarray:
+def gradient_correlation(image: np.ndarray, depth: np.ndarray, sigma: float, max_px: int,
+                         blurred: np.ndarray | None = None) -> np.ndarray:
     """How alike the map's log-intensity gradient stays under a shift: for
     each length ``0..max_px`` px, the mean over the whole-pixel shifts ``d``
     of that length (rounded) of ``∇L(x)·∇L(x + d)`` per pair of pixels with
     depth, its magnitude over the same at ``d = 0`` (1 there; near 0 past
     the texture's grain). ``image`` blurred by σ px (the tracker's finest
-    level) first.
+    level) first (``blurred``: that blur already made, :func:`blur_and_gradients`
+    of ``image`` at σ).
 
     A reference pose's error moves a later pose's fit as far as the
     gradients the fit sees at the two views are alike: fully while the
     image is still where the reference saw it, not at all once it has
     moved past the grain (the map then pins each pose on its own)."""
-    out = np.empty((3, *image.shape))
-    blur_and_gradients(image, sigma, out)
+    if blurred is None:
+        out = np.empty((3, *image.shape))
+        blur_and_gradients(image, sigma, out)
+    else:
+        out = blurred
     m = np.isfinite(depth).astype(np.float64)
     h, w = image.shape
     shape = (next_fast_len(h + max_px), next_fast_len(w + max_px))  # zero-padded: no wrap-around up to max_px
@@ -153,15 +158,13 @@ def gradient_correlation(image: np.ndarray, depth: np.ndarray, sigma: float, max
 
 
 class _Level:
-    """The map at one blur: image and the points' values (σ px)."""
+    """The map at one blur: image and the points' values (σ px);
+    ``blurred`` (3, H, W): :func:`blur_and_gradients` of the map's image at σ."""
 
-    def __init__(self, image: np.ndarray, sigma: float, mx: np.ndarray, my: np.ndarray) -> None:
-        out = np.empty((3, *image.shape))
-        blur_and_gradients(image, sigma, out)
+    def __init__(self, blurred: np.ndarray, sigma: float, mx: np.ndarray, my: np.ndarray) -> None:
         self.sigma = sigma
-        self.image = np.ascontiguousarray(out[0])
+        self.image = np.ascontiguousarray(blurred[0])
         self.Lm = np.ascontiguousarray(self.image[my, mx])
-        self.grad = np.hypot(out[1], out[2])
 
 
 class Pose6Dof(Operator):
@@ -375,7 +378,9 @@ class Pose6Dof(Operator):
         self._raw: np.ndarray | None = None
         self._obs: list[np.ndarray] = []
         self._warp: np.ndarray | None = None  # reference_warp of the reference view and map; None: to compute
-        self._rho = np.ones(1)  # gradient_correlation of the map, per px of shift
+        self._rho: np.ndarray | None = None  # gradient_correlation of the map, per px of shift (at first use)
+        self._coarse: _Level | None = None  # the relocalising level (at first use)
+        self._fine = np.zeros((3, 0, 0))  # blur_and_gradients of the map at the finest level
         if map:
             self._set_map(load_map(map))
 
@@ -426,8 +431,13 @@ class Pose6Dof(Operator):
         if self._sensor is not None and m.size != self._sensor:
             raise ValueError(f"tracker.pose_6dof: the map is {m.size[0]}x{m.size[1]} px, the events "
                              f"{self._sensor[0]}x{self._sensor[1]} px")
-        fine = _Level(m.image, self.sigmas[-1], np.zeros(1, np.int64), np.zeros(1, np.int64))
-        ok = np.isfinite(m.depth) & (fine.grad >= self.min_gradient)
+        blurred: dict[float, np.ndarray] = {}  # per σ: each blur once (the finest serves three uses)
+        for s in self.sigmas:
+            if s not in blurred:
+                blurred[s] = np.empty((3, *m.image.shape))
+                blur_and_gradients(m.image, s, blurred[s])
+        fine = blurred[self.sigmas[-1]]
+        ok = np.isfinite(m.depth) & (np.hypot(fine[1], fine[2]) >= self.min_gradient)
         ok[:3, :] = ok[-3:, :] = False
         ok[:, :3] = ok[:, -3:] = False
         my, mx = np.nonzero(ok)
@@ -445,13 +455,34 @@ class Pose6Dof(Operator):
         self._Xr = np.ascontiguousarray(np.stack([mx.astype(np.float64), my.astype(np.float64), d], axis=1))
         self._R_wr = R_wr
         self._K = m.K
-        sig = (4.0 * self.sigmas[0], *self.sigmas)
-        self._levels = [_Level(m.image, s, mx, my) for s in sig]
-        # to twice the keyframe step (past it the last value holds; the map's own view has no σ to pass on)
-        reach = min(int(np.ceil(2 * self.keyframe_px)), min(m.size) - 1)
-        self._rho = gradient_correlation(m.image, m.depth, self.sigmas[-1], reach)
+        self._levels = [_Level(blurred[s], s, mx, my) for s in self.sigmas]
+        self._coarse = None
+        self._fine = fine
+        self._rho = None
         self._warp = None
         self.map = m
+
+    # what only some runs need, made at its first use: the same numbers as made with the map
+    def _coarse_level(self) -> _Level:
+        """The relocalising level (σ = 4 × ``sigmas[0]``)."""
+        if self._coarse is None:
+            assert self.map is not None
+            sigma = 4.0 * self.sigmas[0]
+            out = np.empty((3, *self.map.image.shape))
+            blur_and_gradients(self.map.image, sigma, out)
+            self._coarse = _Level(out, sigma, self._Xr[:, 0].astype(np.int64), self._Xr[:, 1].astype(np.int64))
+        return self._coarse
+
+    def _gradient_rho(self) -> np.ndarray:
+        """:func:`gradient_correlation` of the map at the finest level, to
+        twice the keyframe step (past it the last value holds; the map's
+        own view has no σ to pass on), for a new reference view."""
+        if self._rho is None:
+            assert self.map is not None
+            reach = min(int(np.ceil(2 * self.keyframe_px)), min(self.map.size) - 1)
+            self._rho = gradient_correlation(self.map.image, self.map.depth, self.sigmas[-1], reach,
+                                             blurred=self._fine)
+        return self._rho
 
     @staticmethod
     def _check_intrinsics(m: PhotoMap, cam: Camera) -> None:
@@ -594,20 +625,20 @@ class Pose6Dof(Operator):
                           pix[1] if self.unseen_bound else np.empty((0, 0)),
                           self.unseen_running if self._running else 1.0, self.refractory_us, self._off)
         splat_bilinear(x, y, wgt, 1.0, self._raw)
-        for lv, img in zip(self._levels[1:], self._obs):
+        for lv, img in zip(self._levels, self._obs):
             splat(x, y, wgt, 1.0, lv.sigma, img)
         Rp, tp, tprev = self._pose
         dt = max(t_end - tprev, 1)
         if self._lost:  # relocalise from the last good pose, coarse to fine
             R1, t1 = Rp.copy(), tp.copy()
             coarse = np.empty((3, *self._raw.shape))
-            blur_and_gradients(self._raw, self._levels[0].sigma, coarse)
-            levels = [(self._levels[0], np.ascontiguousarray(coarse[0])), *zip(self._levels[1:], self._obs)]
+            blur_and_gradients(self._raw, self._coarse_level().sigma, coarse)
+            levels = [(self._coarse_level(), np.ascontiguousarray(coarse[0])), *zip(self._levels, self._obs)]
         else:  # constant velocity
             dR, dp = np.empty((3, 3)), np.empty(3)
             se3_exp_kernel(self._twist * dt, dR, dp)
             R1, t1 = Rp @ dR, Rp @ dp + tp
-            levels = list(zip(self._levels[1:], self._obs))
+            levels = list(zip(self._levels, self._obs))
         R1, t1 = np.ascontiguousarray(R1), np.ascontiguousarray(t1)
         K = self._K
         if self._warp is None:
@@ -647,7 +678,8 @@ class Pose6Dof(Operator):
         self._sd_good = sd
         if stats[5] > (self.map_view_px if self._ref_is_map else self.keyframe_px):
             # the new reference's own: the old one's, as far as it still moves this pose, and the motion's since
-            rho = float(np.interp(stats[5], np.arange(len(self._rho)), self._rho))
+            rho_px = self._gradient_rho()
+            rho = float(np.interp(stats[5], np.arange(len(rho_px)), rho_px))
             self._new_reference(R1, t1, False, float(np.hypot(rho * self._sd_ref[0], rel)), t_end)
         # the velocity: the motion since the oldest good pose at most velocity_us back (one batch's is noisy)
         self._history = [h for h in self._history if h[2] >= t_end - self.velocity_us]
@@ -673,4 +705,4 @@ class Pose6Dof(Operator):
         self._dref += self._pix[0]  # the residues now
         self._pix[0] = 0.0
         self._raw = np.zeros((h, w))
-        self._obs = [np.zeros((h, w)) for _ in self._levels[1:]]
+        self._obs = [np.zeros((h, w)) for _ in self._levels]

@@ -215,7 +215,7 @@ def test_the_jacobian_is_the_residuals_derivative(silent: bool) -> None:
     ev, truth, m = _run(1.0, 30.0)
     op = Pose6Dof()
     op.process_ports({"maps": _maps(m)})
-    lv = op._levels[1]
+    lv = op._levels[0]
     part = ev.slice_time(0, 60_000)
     w = np.empty(len(part))
     state = np.zeros((180, 240), np.int64)
@@ -342,6 +342,30 @@ def test_splat_is_a_normalised_gaussian_per_event() -> None:
             inside = (xx >= x0) & (xx <= x0 + 2 * r) & (yy >= y0) & (yy <= y0 + 2 * r)
             want[inside] += 0.2 * w * k[(yy - y0)[inside], (xx - x0)[inside]]
         assert np.allclose(img, want, rtol=1e-12, atol=1e-14)
+
+
+def test_the_relocalising_level_and_gradient_correlation_are_made_at_first_use() -> None:
+    """The coarse level (only a loss needs it) and the map's gradient
+    correlation (only a new reference view) are made when first asked for,
+    not with the map, and they are what the map's own image gives; a new
+    map drops them."""
+    from tectum.plugins.tracker._generative import blur_and_gradients
+    from tectum.plugins.tracker.pose_6dof import gradient_correlation
+
+    _, _, m = _run(1.0, 30.0)
+    op = Pose6Dof()
+    op.process_ports({"maps": _maps(m)})
+    assert op._coarse is None and op._rho is None and op.map is not None
+    lv = op._coarse_level()
+    out = np.empty((3, *op.map.image.shape))
+    blur_and_gradients(op.map.image, 4.0 * op.sigmas[0], out)
+    mx, my = op._Xr[:, 0].astype(np.int64), op._Xr[:, 1].astype(np.int64)
+    assert lv.sigma == 4.0 * op.sigmas[0] and np.array_equal(lv.image, out[0]) and np.array_equal(lv.Lm, out[0][my, mx])
+    rho = op._gradient_rho()
+    assert np.array_equal(rho, gradient_correlation(op.map.image, op.map.depth, op.sigmas[-1], 16))
+    assert op._coarse_level() is lv and op._gradient_rho() is rho
+    op.process_ports({"maps": _maps(m)})
+    assert op._coarse is None and op._rho is None
 
 
 def test_the_timed_residue_beats_half_a_threshold() -> None:
