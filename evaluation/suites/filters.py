@@ -271,14 +271,18 @@ def at_rate(ev: EventPacket, rate_mev_s: float) -> EventPacket:
 
 def _pipeline(make: Callable[[], Any], pieces: list[EventPacket]) -> Callable[[], None]:
     """A run of the whole pipeline: a source of ``pieces`` (checked, as a
-    source that validated them gives them), the operator, a null sink."""
+    source that validated them gives them), the operator, a null sink. The
+    source is told it gives events (else the test double reads every
+    piece's kind when made, each run: 130-170 µs of 3,100 pieces that a file
+    source does not pay)."""
     import tectum
     from tectum.sinks.null import NullSink
     from tectum.testing import ListSource
 
     def fn() -> None:
         p = tectum.Pipeline()
-        p.sink(NullSink(), p.op(make(), p.source(ListSource(pieces), id="src"), id="op"), id="sink")
+        src = p.source(ListSource(pieces, produces=[tectum.Kind.EVENTS]), id="src")
+        p.sink(NullSink(), p.op(make(), src, id="op"), id="sink")
         tectum.run(p)
     return fn
 
