@@ -8,14 +8,13 @@ from tectum.plugins.filter._state import padded_timestamps
 from tectum.testing import assert_batch_invariant, feed
 
 
-def reference(ev, dt_us, rows=(-1, 0, 1)):
-    """Slow and obvious: keep if one of the 8 neighbours fired in [t - dt, t]
-    (of the neighbours on these rows, relative to the event's)."""
+def reference(ev, dt_us):
+    """Slow and obvious: keep if one of the 8 neighbours fired in [t - dt, t]."""
     last = {}
     keep = []
     for t, x, y in zip(ev.t.tolist(), ev.x.tolist(), ev.y.tolist()):
         ok = any(t - last.get((x + dx, y + dy), -10**18) <= dt_us
-                 for dx in (-1, 0, 1) for dy in rows if dx or dy)
+                 for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy)
         keep.append(ok)
         last[(x, y)] = t
     return np.array(keep, bool)
@@ -190,8 +189,8 @@ def _plain_keep(ev: EventPacket, dt_us: int) -> np.ndarray:
 @pytest.mark.parametrize("vector", [True, False])
 @pytest.mark.parametrize("dtype", [np.int32, np.int64])
 def test_select_kernel_keeps_what_the_plain_kernel_keeps(vector, dtype):
-    """The fused kernel (vector max of the 8 neighbours; the copy by vector
-    compress or by keep bit) on dense and sparse stretches cut into
+    """The kernel (the 8 neighbours as three vector compares; the copy by
+    vector compress or by keep bit) on dense and sparse stretches cut into
     packets of 0..40 events (tails shorter than 16, whole blocks, packets
     that keep every event): per packet the plain kernel's keep flags, its
     count, and its events copied in order."""
@@ -264,8 +263,8 @@ def test_packets_past_one_kernel_call():
 
 def test_select_kernel_on_strided_columns():
     """Columns that are every other element of their arrays (not a public
-    packet's, but the kernel's arguments allow them): the vector loads and
-    compresses give way to the plain forms, and the plain kernel's events
+    packet's, but the kernel's arguments allow them): the vector
+    compresses give way to the plain loop, and the plain kernel's events
     come out."""
     from tectum.plugins.filter.background_activity import background_activity_select
 
