@@ -631,9 +631,9 @@ class Pose6Dof(Operator):
         dt = max(t_end - tprev, 1)
         if self._lost:  # relocalise from the last good pose, coarse to fine
             R1, t1 = Rp.copy(), tp.copy()
-            coarse = np.empty((3, *self._raw.shape))
-            blur_and_gradients(self._raw, self._coarse_level().sigma, coarse)
-            levels = [(self._coarse_level(), np.ascontiguousarray(coarse[0])), *zip(self._levels, self._obs)]
+            lv0, coarse = self._coarse_level(), np.empty((3, *self._raw.shape))
+            blur_and_gradients(self._raw, lv0.sigma, coarse)
+            levels = [(lv0, np.ascontiguousarray(coarse[0])), *zip(self._levels, self._obs)]
         else:  # constant velocity
             dR, dp = np.empty((3, 3)), np.empty(3)
             se3_exp_kernel(self._twist * dt, dR, dp)
