@@ -18,6 +18,7 @@ from ._operator import Operator as Operator
 from ._operator import Port as Port
 from ._operator import Sink as Sink
 from ._operator import Source as Source
+from ._operator import same_sensor as same_sensor
 from ._packet import (
     EventPacket as EventPacket,
 )

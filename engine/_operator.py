@@ -36,7 +36,7 @@ import numpy as np
 
 from ._packet import EventPacket, Kind, Packet
 
-__all__ = ["Operator", "Port", "Source", "Sink", "component_params"]
+__all__ = ["Operator", "Port", "Source", "Sink", "component_params", "same_sensor"]
 
 
 @dataclass(frozen=True)
@@ -172,6 +172,19 @@ class Operator:
 #: Operators' settings (:func:`_settings`) whose default warm-up has run in this process.
 _WARMED: set[Any] = set()
 _PLAIN = (bool, int, float, complex, str, bytes, type(None), np.dtype, np.generic)
+
+
+def same_sensor(name: str, sensor: tuple[int, int], packet: EventPacket) -> tuple[int, int]:
+    """``packet.sensor`` when it is ``sensor`` (width, height px), the one an
+    operator's per-pixel state was made for at its first packet; else a
+    :class:`ValueError` naming both. Kernels index such state by ``x, y``
+    without bounds checks, so the events of a larger sensor would write past
+    it: an operator with per-pixel state calls this on every packet after its
+    first (one stream has one sensor)."""
+    if packet.sensor is not sensor and packet.sensor != sensor:
+        raise ValueError(f"{name}: events of a {packet.sensor[0]}x{packet.sensor[1]} sensor after its state was made "
+                         f"for {sensor[0]}x{sensor[1]} (one stream has one sensor)")
+    return packet.sensor
 
 
 def _settings(op: Operator) -> Any:

@@ -7,23 +7,11 @@ from numba import njit
 
 from tectum import EventPacket
 
-__all__ = ["NEVER", "padded_timestamps", "select", "compact_kernel", "same_sensor"]
+__all__ = ["NEVER", "padded_timestamps", "select", "compact_kernel"]
 
 #: The timestamp (µs) of a pixel that has never fired: far in the past, yet
 #: ``t - NEVER`` cannot overflow int64.
 NEVER = np.iinfo(np.int64).min // 2
-
-
-def same_sensor(name: str, sensor: tuple[int, int], packet: EventPacket) -> tuple[int, int]:
-    """``packet.sensor`` when it is ``sensor`` (width, height), the one an
-    operator's per-pixel state was made for at its first packet; else a
-    ValueError naming both: the kernels index that state by ``x, y``
-    without bounds checks, so events of a larger sensor would write past
-    it (one stream has one sensor)."""
-    if packet.sensor != sensor:
-        raise ValueError(f"{name}: events of a {packet.sensor[0]}x{packet.sensor[1]} sensor after its state was made "
-                         f"for {sensor[0]}x{sensor[1]} (one stream has one sensor)")
-    return packet.sensor
 
 
 def padded_timestamps(sensor: tuple[int, int], channels: int = 1) -> np.ndarray:

@@ -8,7 +8,7 @@ from numba import njit, types
 from numba.core import cgutils, config
 from numba.extending import intrinsic, overload
 
-from tectum import EventPacket, Operator, concat
+from tectum import EventPacket, Operator, concat, same_sensor
 
 from ._state import NEVER
 
@@ -243,6 +243,7 @@ class BackgroundActivity(Operator):
         self.last: np.ndarray | None = None
         self.base = 0  # µs: the origin of the times in ``last``
         self._keep = np.empty(0, np.bool_)  # the kernel's keep flags, reused from packet to packet
+        self._sensor = (0, 0)  # (width, height) px that ``last`` was made for
 
     def memory_us(self) -> int:
         """Only neighbours' times within ``dt_us`` count (time sharding)."""
@@ -254,6 +255,8 @@ class BackgroundActivity(Operator):
             return [packet]
         if self.last is None:
             self._start(packet)
+        elif packet.sensor is not self._sensor:
+            self._sensor = same_sensor(self.name, self._sensor, packet)
         if packet.t_end - self.base > _SPAN_US and self.last.dtype == np.int32:  # type: ignore[union-attr]
             if packet.t_end - packet.t_start > _SPAN_US // 2:  # one packet spans minutes: in parts
                 step = _SPAN_US // 4
@@ -302,7 +305,7 @@ class BackgroundActivity(Operator):
     def _start(self, packet: EventPacket) -> None:
         """The state, at the first packet: int32 times relative to its start
         (int64 from 0 when ``dt_us`` reaches 2^29 µs)."""
-        w, h = packet.sensor
+        w, h = self._sensor = packet.sensor
         if self.dt_us < _SPAN_US // 2:
             self.last, self.base = np.full((1, h + 3, w + 2), _NEVER32, np.int32), packet.t_start
         else:

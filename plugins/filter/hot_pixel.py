@@ -7,9 +7,9 @@ from typing import Literal
 import numpy as np
 from numba import njit
 
-from tectum import EventPacket, Operator
+from tectum import EventPacket, Operator, same_sensor
 
-from ._state import same_sensor, select
+from ._state import select
 
 __all__ = ["HotPixel", "count_kernel", "hot_pixels", "mask_kernel"]
 

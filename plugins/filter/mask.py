@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tectum import EventPacket, Operator
+from tectum import EventPacket, Operator, same_sensor
 
 from ._state import select
 from .hot_pixel import mask_kernel
@@ -73,6 +73,7 @@ class Mask(Operator):
         self.path = path
         self.keep = bool(keep)
         self.masked: np.ndarray | None = None
+        self._sensor = (0, 0)  # (width, height) px that ``masked`` was made for
 
     def _build(self, sensor: tuple[int, int]) -> np.ndarray:
         w, h = sensor
@@ -89,6 +90,9 @@ class Mask(Operator):
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self.masked is None:
             self.masked = self._build(packet.sensor)
+            self._sensor = packet.sensor
+        elif packet.sensor is not self._sensor:
+            self._sensor = same_sensor(self.name, self._sensor, packet)
         keep = np.empty(len(packet), np.bool_)
         mask_kernel(packet.x, packet.y, self.masked, keep)
         return [select(packet, keep)]

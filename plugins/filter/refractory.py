@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from tectum import EventPacket, Operator
+from tectum import EventPacket, Operator, same_sensor
 
-from ._state import NEVER, same_sensor, select
+from ._state import NEVER, select
 
 __all__ = ["Refractory", "refractory_kernel"]
 

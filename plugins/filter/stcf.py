@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from tectum import EventPacket, Operator
+from tectum import EventPacket, Operator, same_sensor
 
-from ._state import padded_timestamps, same_sensor, select
+from ._state import padded_timestamps, select
 
 __all__ = ["SpatioTemporalCorrelation", "stcf_kernel"]
 

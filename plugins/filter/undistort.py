@@ -7,10 +7,8 @@ from typing import Literal
 import numpy as np
 from numba import njit
 
-from tectum import EventPacket, Operator
+from tectum import EventPacket, Operator, same_sensor
 from tectum.camera import Camera, read_calibration
-
-from ._state import same_sensor
 
 __all__ = ["Undistort", "undistort_lut", "packed_lut", "lut_kernel", "kept_index_kernel"]
 

@@ -60,7 +60,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from tectum import EventPacket, concat
+from tectum import EventPacket, concat, same_sensor
 
 from .._cmax import add_sq
 from ._common import FlowOperator
@@ -382,6 +382,7 @@ class ContrastMax(FlowOperator):
         self._history: list[EventPacket] = []  # earlier whole windows, oldest first
         self._win: int | None = None  # start of the open window, µs
         self._prev_v: np.ndarray | None = None
+        self._sensor = (0, 0)  # (width, height) px of the stream (the patch grid's)
 
     def _patch(self, sensor: tuple[int, int]) -> int:
         return self.patch_px or max(sensor)
@@ -444,6 +445,9 @@ class ContrastMax(FlowOperator):
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self._win is None:
             self._win = (packet.t_start // self.window_us) * self.window_us
+            self._sensor = packet.sensor
+        elif packet.sensor is not self._sensor:
+            self._sensor = same_sensor(self.name, self._sensor, packet)
         if len(packet):
             self._pending.append(packet)
         return self._flush(packet.t_end)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from tectum import EventPacket
+from tectum import EventPacket, same_sensor
 
 from ._common import FlowOperator, new_sae, store_gradient_flow
 
@@ -88,6 +88,7 @@ class EdgeSpeed(FlowOperator):
         self.tolerance_us = int(tolerance_us)
         self._set_outputs(out_vx, out_vy, out_valid)
         self.sae: np.ndarray | None = None
+        self._sensor = (0, 0)  # (width, height) px the surface was made for
 
     def memory_us(self) -> int:
         """Neighbours older than ``window_us`` count as silent, and the pixel
@@ -98,6 +99,9 @@ class EdgeSpeed(FlowOperator):
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self.sae is None:
             self.sae = new_sae(packet.sensor)
+            self._sensor = packet.sensor
+        elif packet.sensor is not self._sensor:
+            self._sensor = same_sensor(self.name, self._sensor, packet)
         vx, vy, valid = self._alloc(len(packet))
         edge_speed_kernel(packet.t, packet.x, packet.y, packet.p, self.sae, self.window_us, self.tolerance_us,
                           self.min_speed, self.max_speed, vx, vy, valid)

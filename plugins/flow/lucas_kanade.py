@@ -29,7 +29,7 @@ from typing import Literal
 import numpy as np
 from numba import njit
 
-from tectum import EventPacket
+from tectum import EventPacket, same_sensor
 
 from ._common import NEVER, FlowOperator
 
@@ -155,6 +155,7 @@ class LucasKanade(FlowOperator):
         self.min_speed, self.max_speed = float(min_speed), float(max_speed)
         self._set_outputs(out_vx, out_vy, out_valid)
         self.ring_t: np.ndarray | None = None
+        self._sensor = (0, 0)  # (width, height) px the rings were made for
 
     def memory_us(self) -> int:
         """Only events of the last two windows, ``2 dt_us``, are counted
@@ -163,12 +164,14 @@ class LucasKanade(FlowOperator):
 
     def process(self, packet: EventPacket) -> list[EventPacket]:
         if self.ring_t is None:
-            w, h = packet.sensor
+            w, h = self._sensor = packet.sensor
             self.ring_t = np.full((h, w, K_RING), NEVER, np.int64)
             self.ring_p = np.zeros((h, w, K_RING), np.int8)
             self.head = np.zeros((h, w), np.int64)
             side = 2 * self.radius + 3
             self._c1, self._c2 = np.empty((side, side)), np.empty((side, side))
+        elif packet.sensor is not self._sensor:
+            self._sensor = same_sensor(self.name, self._sensor, packet)
         vx, vy, valid = self._alloc(len(packet))
         lucas_kanade_kernel(packet.t, packet.x, packet.y, packet.p, self.ring_t, self.ring_p, self.head,
                             self.radius, self.dt_us, self.mode == "full", self.min_cond, self.min_grad,

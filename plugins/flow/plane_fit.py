@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from tectum import EventPacket
+from tectum import EventPacket, same_sensor
 
 from ._common import FlowOperator, gradient_flow
 from ._plane import FASTMATH, SPAN, crossing_time, new_surface, plane_fit_at, plane_scratch, rel_time
@@ -88,6 +88,7 @@ class PlaneFit(FlowOperator):
         self.burst_us = int(burst_us)
         self._set_outputs(out_vx, out_vy, out_valid)
         self.sae: np.ndarray | None = None
+        self._sensor = (0, 0)  # (width, height) px the surface was made for
 
     def memory_us(self) -> int | None:
         """Points older than ``window_us`` are left out of the fit (time
@@ -99,8 +100,10 @@ class PlaneFit(FlowOperator):
         if self.sae is None:
             self.sae = new_surface(packet.sensor, self.radius)
             self.base = np.array([packet.t_start], np.int64)
-            w, h = packet.sensor
+            w, h = self._sensor = packet.sensor
             self.last = np.zeros((h, w) if self.burst_us else (1, 1), np.int64)
+        elif packet.sensor is not self._sensor:
+            self._sensor = same_sensor(self.name, self._sensor, packet)
         vx, vy, valid = self._alloc(len(packet))
         plane_flow_kernel(packet.t, packet.x, packet.y, packet.p, self.sae, self.base, self.last, self.burst_us,
                           self.radius, self.window_us, self.n_iter, self.reject_us, self.robust, self.robust_k,

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from tectum import EventPacket, FramePacket, Kind, Operator
+from tectum import EventPacket, FramePacket, Kind, Operator, same_sensor
 from tectum.plugins.flow._common import NEVER
 from tectum.plugins.flow._plane import SPAN, crossing_time, new_surface, plane_fit, plane_scratch, rel_time
 
@@ -123,6 +123,7 @@ class PlaneFitLifetime(Operator):
         self.min_life, self.max_life = float(min_life_us), float(max_life_us)
         self.frame_us, self.out = int(frame_us), out
         self.sae: np.ndarray | None = None
+        self._sensor = (0, 0)  # (width, height) px the surface was made for
         self.frame_t = np.zeros(1, np.int64)
 
     def _frames_until(self, upto: int) -> int:
@@ -150,6 +151,9 @@ class PlaneFitLifetime(Operator):
             self.pol = np.zeros((h, w), np.int8)
             if self.frame_us:
                 self.frame_t[0] = -(-packet.t_start // self.frame_us) * self.frame_us
+            self._sensor = packet.sensor
+        elif packet.sensor is not self._sensor:
+            self._sensor = same_sensor(self.name, self._sensor, packet)
         # frames due inside this packet or at its watermark (events before T are all in)
         n_frames = self._frames_until(packet.t_end)
         frames = np.zeros((n_frames, h, w), np.int8)

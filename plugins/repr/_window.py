@@ -22,7 +22,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from tectum import EventPacket, FramePacket, Kind, Operator
+from tectum import EventPacket, FramePacket, Kind, Operator, same_sensor
 
 __all__ = ["Windowed", "JOIN_BYTES", "JOIN_PIXELS"]
 
@@ -113,6 +113,8 @@ class Windowed(Operator):
     def process(self, packet: EventPacket) -> list[FramePacket]:
         if self._sensor is None:
             self._begin(packet)
+        elif packet.sensor is not self._sensor:
+            self._sensor = same_sensor(self.name, self._sensor, packet)
         frames: list[tuple[int, np.ndarray]] = []
         if self.count is None:
             self._by_time(packet, frames)

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from tectum import EventPacket, FramePacket
+from tectum import EventPacket, FramePacket, same_sensor
 
 from . import functional as F
 from . import kernels as K
@@ -72,6 +72,8 @@ class _Image(Windowed):
         frames (a block per output packet; :meth:`_run`)."""
         if self._sensor is None:
             self._begin(packet)
+        elif packet.sensor is not self._sensor:
+            self._sensor = same_sensor(self.name, self._sensor, packet)
         t = packet.t
         if self.count is None:
             w, end, t_end = self._w, self._end, packet.t_end
