@@ -24,8 +24,9 @@ run, and the caller parses it the careful way: the fast path decides nothing
 the careful one would decide differently (tests/sources/files/test_text_fast.py
 compares the two on drawn and on edge inputs).
 
-Words are read little-endian (byte ``i`` lowest): LLVM turns the eight
-byte loads of :func:`word` into one unaligned load. All word arithmetic is
+Words are read little-endian (byte ``i`` lowest), each by one unaligned
+load (:func:`word`). Each time unit has its own compiled :func:`fast_lines`
+(``digits`` a literal), its masks and shifts constants. All word arithmetic is
 on uint64 (numba turns uint64 mixed with int64 into float64, so every
 constant is a ``np.uint64``).
 
@@ -38,7 +39,7 @@ from __future__ import annotations
 
 import numpy as np
 from llvmlite import ir
-from numba import config, njit, types
+from numba import config, literally, njit, types
 from numba.extending import intrinsic
 
 __all__ = ["REACH", "ctlz", "cttz", "digits_value", "fast_lines", "masks64", "run_value", "word"]
@@ -67,14 +68,20 @@ if config.DISABLE_JIT:  # plain Python (the coverage run): an intrinsic has no P
         """The number of leading zero bits of the uint64 ``v`` (64 for 0)."""
         return _U(64 - int(v).bit_length())
 
-    def masks64(buf, i):  # type: ignore[no-untyped-def]
+    def masks64(buf, i, sep):  # type: ignore[no-untyped-def]
         """(mask of the bytes of ``buf[i:i + 64]`` that are no ASCII digit,
-        mask of its newlines): bit j for byte ``i + j``."""
-        nd = nl = 0
+        mask of its newlines, mask of its bytes ``sep``): bit j for byte
+        ``i + j``."""
+        nd = nl = se = 0
         for j, c in enumerate(bytes(buf[i:i + 64])):
             nd |= (not 48 <= c <= 57) << j
             nl |= (c == 10) << j
-        return _U(nd), _U(nl)
+            se |= (c == sep) << j
+        return _U(nd), _U(nl), _U(se)
+
+    def word(buf, i):  # type: ignore[no-untyped-def]
+        """``buf[i:i + 8]`` (uint8, ``i >= 0``) as a little-endian uint64."""
+        return _U(int.from_bytes(bytes(buf[i:i + 8]), "little"))
 
 else:
 
@@ -103,12 +110,14 @@ else:
         return types.uint64(v), codegen
 
     @intrinsic
-    def masks64(typingctx, buf, i):  # type: ignore[no-untyped-def]
+    def masks64(typingctx, buf, i, sep):  # type: ignore[no-untyped-def]
         """(mask of the bytes of ``buf[i:i + 64]`` (uint8, ``i >= 0``) that
-        are no ASCII digit, mask of its newlines): bit j for byte ``i + j``.
-        One unaligned 64-byte load, two compares and their bit masks: a few
-        vector instructions (LLVM's, for whatever vector width the CPU has)."""
-        if not isinstance(buf, types.Array) or buf.dtype != types.uint8 or not isinstance(i, types.Integer):
+        are no ASCII digit, mask of its newlines, mask of its bytes ``sep``
+        (an integer 0 to 255)): bit j for byte ``i + j``. One unaligned
+        64-byte load, three compares and their bit masks: a few vector
+        instructions (LLVM's, for whatever vector width the CPU has)."""
+        if (not isinstance(buf, types.Array) or buf.dtype != types.uint8 or not isinstance(i, types.Integer)
+                or not isinstance(sep, types.Integer)):
             return None
 
         def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
@@ -118,19 +127,30 @@ else:
             digit = builder.sub(v, ir.Constant(vec, [48] * 64))
             other = builder.icmp_unsigned(">", digit, ir.Constant(vec, [9] * 64))
             newline = builder.icmp_unsigned("==", v, ir.Constant(vec, [10] * 64))
-            bits = [builder.bitcast(m, ir.IntType(64)) for m in (other, newline)]
+            c = builder.trunc(args[2], ir.IntType(8))
+            splat = builder.insert_element(ir.Constant(vec, [0] * 64), c, ir.Constant(ir.IntType(32), 0))
+            splat = builder.shuffle_vector(splat, splat, ir.Constant(ir.VectorType(ir.IntType(32), 64), [0] * 64))
+            seps = builder.icmp_unsigned("==", v, splat)
+            bits = [builder.bitcast(m, ir.IntType(64)) for m in (other, newline, seps)]
             return context.make_tuple(builder, signature.return_type, bits)
 
-        return types.UniTuple(types.uint64, 2)(buf, i), codegen
+        return types.UniTuple(types.uint64, 3)(buf, i, sep), codegen
 
+    @intrinsic
+    def word(typingctx, buf, i):  # type: ignore[no-untyped-def]
+        """``buf[i:i + 8]`` (uint8, ``i >= 0``) as a little-endian uint64:
+        one unaligned load, whichever of its bytes the caller uses (eight
+        byte loads merged by LLVM come apart again once a constant mask
+        leaves some of them unused)."""
+        if not isinstance(buf, types.Array) or buf.dtype != types.uint8 or not isinstance(i, types.Integer):
+            return None
 
-@njit(cache=True, nogil=True, inline="always")
-def word(buf, i):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
-    """``buf[i:i + 8]`` (uint8, ``i >= 0``) as a little-endian uint64."""
-    k = _U(i)
-    return (_U(buf[k]) | (_U(buf[k + _U(1)]) << _U(8)) | (_U(buf[k + _U(2)]) << _U(16))
-            | (_U(buf[k + _U(3)]) << _U(24)) | (_U(buf[k + _U(4)]) << _U(32)) | (_U(buf[k + _U(5)]) << _U(40))
-            | (_U(buf[k + _U(6)]) << _U(48)) | (_U(buf[k + _U(7)]) << _U(56)))
+        def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+            data = context.make_array(signature.args[0])(context, builder, value=args[0]).data
+            ptr = builder.bitcast(builder.gep(data, [args[1]]), ir.IntType(64).as_pointer())
+            return builder.load(ptr, align=1)
+
+        return types.uint64(buf, i), codegen
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -172,8 +192,6 @@ def digits_value(v, k):  # type: ignore[no-untyped-def]  # pragma: no cover - nu
 
 
 
-#: Separators (space, tab, comma) as bits of a word: bit c for byte c
-_BLANKS = _U((1 << 32) | (1 << 9) | (1 << 44))
 #: The ends of a plain line after its last separator (the polarity, an
 #: optional CR, the newline), each with the polarity convention it needs
 #: (0 any, 1 0/1, 2 -1/+1) and whether it is +1
@@ -219,6 +237,7 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
     its start, its newline and the non-digits between. The masks of the 64
     bytes after the last of those newlines are loaded before those lines
     are parsed (they do not wait on them)."""
+    literally(digits)  # compiled for each unit: its shifts and masks constants
     scale = np.int64(1)
     for _ in range(digits):
         scale *= 10
@@ -227,19 +246,24 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
     first = n
     ok = True
     base = i
+    j = i  # the separator: the first line's after its time (another ends the run)
+    while j < end and (buf[j] == 46 or np.uint8(buf[j] - 48) < 10):
+        j += 1
+    sep = np.int64(buf[j]) if j < end and (buf[j] == 32 or buf[j] == 9 or buf[j] == 44) else np.int64(32)
     if i < end:
-        other, lines = masks64(buf, base)
+        other, lines, seps = masks64(buf, base, sep)
     while ok and i < end:
         if end - base < 64:
             lines &= (_U(1) << _U(end - base)) - _U(1)  # newlines before end only
         if lines == 0:  # no line ends in the 64 bytes (or before end)
             break
         after = base + 64 - np.int64(ctlz(lines))  # past the last newline: the next 64 bytes, loaded first
-        other2, lines2 = masks64(buf, after)
+        other2, lines2, seps2 = masks64(buf, after, sep)
         while lines:
             nl = base + np.int64(cttz(lines))
             lines &= lines - _U(1)
-            w = other >> _U(i - base)  # the non-digits from i on
+            nd = other >> _U(i - base)  # the non-digits from i on
+            w = nd
             a = np.int64(cttz(w))  # the first: the time's '.' or the first separator
             w &= w - _U(1)
             b1 = np.int64(cttz(w))
@@ -255,7 +279,8 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
             places = s1 - a - 1
             w = word(buf, i + a + 1)  # the places (when dot)
             if dot & (a + digits < 8) & (places > digits):  # the whole part and the places down to 0.1 µs in one word
-                v = ((word(buf, i) - _ZEROS) & _low(a)) | (((w - _ZEROS) & _low(digits + 1)) << (_U(a << 3) & _U(63)))
+                m = _low(a)  # the whole part from the word at i, the places from the one at i + 1 (past the '.')
+                v = ((word(buf, i) & m) | (word(buf, i + 1) & ~m)) - _ZEROS  # above the digits: garbage, shifted out
                 tv = np.int64((digits_value(v, a + digits + 1) + _U(5)) // _U(10))  # half up on its last digit
                 ok = (a > 0) & dot
             else:
@@ -273,7 +298,6 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
                     tv = tv * scale + np.int64(digits_value(frac, digits)) * dot
                 # the first place below 1 µs rounds half up
                 tv += np.int64(dot & (places > digits) & (((w >> _U(digits << 3)) & _U(255)) >= _U(53)))
-            sep = buf[_U(i + s1)]
             nx = s2 - s1 - 1
             ny = s3 - s2 - 1
             xv = np.int64(_short_value(word(buf, i + s1 + 1), nx))
@@ -283,11 +307,12 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
             known = _END_TABLE[(e * _U(_END_HASH)) >> _U(61)]  # the one end e can be: e if it is
             one = np.int64((known >> _U(42)) & _U(1))
             need = np.int64((known >> _U(40)) & _U(3))  # the convention the polarity needs: 0 any, 1 0/1, 2 -1/+1
-            ok &= ((sep < 64) & (((_BLANKS >> _U(sep & 63)) & _U(1)) == _U(1))
-                   & (buf[_U(i + s2)] == sep) & (buf[_U(i + s3)] == sep)
+            top = _U(63 - s3) & _U(63)  # bits 0 to s3 kept (s3 < 64 when the tail is 2 to 4 bytes)
+            ok &= ((((nd & ~(seps >> _U(i - base))) << top) == ((_U(dot) << _U(a & 63)) << top))  # the '.' alone
+                   & (_U(tail - 2) < _U(3))  # is no separator, and the tail 2 to 4 bytes
                    & (_U((nx - 1) | (ny - 1)) < _U(4))
-                   & (_U(tail - 2) < _U(3)) & ((known & _U(0xFFFFFFFF)) == e)
-                   & ((need == 0) | (conv == 0) | (conv == need)))
+                   & ((known & _U(0xFFFFFFFF)) == e)
+                   & ((conv | need) != 3))  # not one 0/1 and one -1/+1
             if not ok:
                 break
             conv |= need
@@ -301,7 +326,7 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
             n += 1
             i = nl + 1
         base = after
-        other, lines = other2, lines2
+        other, lines, seps = other2, lines2, seps2
     xmax, ymax = state[1], state[2]
     for k in range(first, n):  # apart: the loop above has registers enough for its own work
         xmax = max(xmax, np.int64(x[k]))

@@ -195,7 +195,12 @@ def parse_lines(buf, order, digits, state, skip, t, x, y, p, where, bad, fast=Tr
     backoff = 64
     while i <= last:
         if fast and plain and wait == 0:
-            i, k = fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where)
+            if digits == 6:  # each unit its own compiled fast_lines (a literal digits)
+                i, k = fast_lines(buf, i, end, 6, big, state, t, x, y, p, n, where)
+            elif digits == 3:
+                i, k = fast_lines(buf, i, end, 3, big, state, t, x, y, p, n, where)
+            else:
+                i, k = fast_lines(buf, i, end, 0, big, state, t, x, y, p, n, where)
             if k > n:
                 joined = False
             if k - n < 4:  # few plain lines here: try again later, later each time

@@ -11,6 +11,7 @@ path and the rest fall back to the line-by-line one in the middle of a run."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -109,11 +110,13 @@ def test_each_odd_field_inside_a_fast_run() -> None:
                         assert _parse(raw, digits, skip, True) == _parse(raw, digits, skip, False), (part, v)
 
 
-def test_the_fast_path_is_taken_and_rounds_like_the_careful_one() -> None:
-    """A long plain run is read by the fast path (nearly all of it: only
-    its last 64 bytes the careful way), with the rounding below 1 µs."""
+@pytest.mark.parametrize("sep", [b" ", b",", b"\t"])
+def test_the_fast_path_is_taken_and_rounds_like_the_careful_one(sep: bytes) -> None:
+    """A long plain run, with each separator, is read by the fast path
+    (nearly all of it: only its last 64 bytes the careful way), with the
+    rounding below 1 µs."""
     rows = [(k * 7919 % 100_000_000_000, k % 346, k * 31 % 260, k & 1) for k in range(3000)]
-    raw = b"".join(b"%d.%09d %d %d %d\n" % (t // 10**9, t % 10**9, x, y, p) for t, x, y, p in rows)
+    raw = b"".join(b"%d.%09d%s%d%s%d%s%d\n" % (t // 10**9, t % 10**9, sep, x, sep, y, sep, p) for t, x, y, p in rows)
     fast = _parse(raw, 6, False, True)
     assert fast == _parse(raw, 6, False, False)
     assert fast[4] == [(t + 500) // 1000 for t, *_ in rows]  # ns -> µs, half up
