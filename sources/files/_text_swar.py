@@ -173,9 +173,11 @@ def _low(k):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
 @njit(cache=True, nogil=True, inline="always")
 def _short_value(w, k):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     """The value of the ``k`` (1 to 4) decimal digits in the lowest bytes of
-    ``w`` (ASCII digits): :func:`run_value` without its last step (the digits
-    lie in the word's upper half, whose value the second step gives)."""
-    v = ((w - _ZEROS) & _low(k)) << ((_U(64) - (_U(k) << _U(3))) & _U(63))
+    ``w`` (ASCII digits, any bytes above them): :func:`run_value` without
+    its mask (the shift to the top drops the bytes above, and ``- _ZEROS``
+    borrows only upwards) nor its last step (the digits lie in the word's
+    upper half, whose value the second step gives)."""
+    v = (w - _ZEROS) << ((_U(64) - (_U(k) << _U(3))) & _U(63))
     v = (v * _U(10) + (v >> _U(8))) & _PAIRS
     return (v * _U(1 + (100 << 16))) >> _U(48)
 
@@ -202,14 +204,15 @@ _END_HASH = 0x7C65C1E582E2E663
 
 def _end_table() -> np.ndarray:
     """Slot ``(end * _END_HASH mod 2**64) >> 61`` of each end read as a word:
-    the word, with its convention at bit 40 and +1 at bit 42; 0 (no end:
+    the word, with its convention at bit 40 and its polarity as an int8 in
+    the top byte; 0 (no end:
     every one holds the newline) in the slots no end takes."""
     table = np.zeros(8, np.uint64)
     for e, (need, one) in _ENDS.items():
         v = int.from_bytes(e, "little")
         slot = (v * _END_HASH % (1 << 64)) >> 61
         assert table[slot] == 0, "the multiplier must tell the ends apart"
-        table[slot] = v | need << 40 | one << 42
+        table[slot] = v | need << 40 | (1 if one else 255) << 56
     return table
 
 
@@ -305,7 +308,6 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
             tail = nl - i - s3  # the bytes after the last separator, the newline's included
             e = word(buf, i + s3 + 1) & _low(tail)
             known = _END_TABLE[(e * _U(_END_HASH)) >> _U(61)]  # the one end e can be: e if it is
-            one = np.int64((known >> _U(42)) & _U(1))
             need = np.int64((known >> _U(40)) & _U(3))  # the convention the polarity needs: 0 any, 1 0/1, 2 -1/+1
             top = _U(63 - s3) & _U(63)  # bits 0 to s3 kept (s3 < 64 when the tail is 2 to 4 bytes)
             ok &= ((((nd & ~(seps >> _U(i - base))) << top) == ((_U(dot) << _U(a & 63)) << top))  # the '.' alone
@@ -320,7 +322,7 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
             t[o] = tv
             x[o] = xv
             y[o] = yv
-            p[o] = 2 * one - 1
+            p[o] = np.int8(np.uint8(known >> _U(56)))  # +1 or -1
             if track:
                 where[o] = i
             n += 1
