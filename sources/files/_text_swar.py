@@ -220,11 +220,11 @@ _END_TABLE = _end_table()
 
 
 @njit(cache=True, nogil=True)
-def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     """Parse lines of the plain form ``t x y p`` from ``buf[i]`` (a line's
     start) while they come, up to a line ending before ``end`` (``buf``
     readable :data:`REACH` bytes past it), into the columns from index
-    ``n`` (``where`` gets the line offsets unless it is empty). The plain
+    ``n`` (each a line of the run from ``i``, one a newline). The plain
     form: a time of 1 to 16 whole digits below ``big`` (the largest whole
     part) with an optional ``.`` and places (the first ``digits``, 0 to 6,
     are the µs, the next rounds half up), one separator (space, tab or
@@ -244,7 +244,6 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
     scale = np.int64(1)
     for _ in range(digits):
         scale *= 10
-    track = where.shape[0] > 0
     conv = state[0]
     first = n
     ok = True
@@ -323,8 +322,6 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n, where):  # type: 
             x[o] = xv
             y[o] = yv
             p[o] = np.int8(np.uint8(known >> _U(56)))  # +1 or -1
-            if track:
-                where[o] = i
             n += 1
             i = nl + 1
         base = after

@@ -195,12 +195,19 @@ def parse_lines(buf, order, digits, state, skip, t, x, y, p, where, bad, fast=Tr
     backoff = 64
     while i <= last:
         if fast and plain and wait == 0:
+            run = i
             if digits == 6:  # each unit its own compiled fast_lines (a literal digits)
-                i, k = fast_lines(buf, i, end, 6, big, state, t, x, y, p, n, where)
+                i, k = fast_lines(buf, i, end, 6, big, state, t, x, y, p, n)
             elif digits == 3:
-                i, k = fast_lines(buf, i, end, 3, big, state, t, x, y, p, n, where)
+                i, k = fast_lines(buf, i, end, 3, big, state, t, x, y, p, n)
             else:
-                i, k = fast_lines(buf, i, end, 0, big, state, t, x, y, p, n, where)
+                i, k = fast_lines(buf, i, end, 0, big, state, t, x, y, p, n)
+            if track:  # the run's lines are its events, one a newline
+                for e in range(n, k):
+                    where[np.uint64(e)] = run
+                    while _at(buf, run) != 10:
+                        run += 1
+                    run += 1
             if k > n:
                 joined = False
             if k - n < 4:  # few plain lines here: try again later, later each time
