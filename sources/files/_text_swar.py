@@ -205,14 +205,16 @@ _END_HASH = 0x7C65C1E582E2E663
 def _end_table() -> np.ndarray:
     """Slot ``(end * _END_HASH mod 2**64) >> 61`` of each end read as a word:
     the word, with its convention at bit 40 and its polarity as an int8 in
-    the top byte; 0 (no end:
-    every one holds the newline) in the slots no end takes."""
+    the top byte; 0 in the slots no end takes. The bytes after a line's last
+    separator, 1 to 15 of them taken (a tail of 16 or 32 bytes: none), are
+    never such a 0 but for none, which falls in slot 0: an end takes it."""
     table = np.zeros(8, np.uint64)
     for e, (need, one) in _ENDS.items():
         v = int.from_bytes(e, "little")
         slot = (v * _END_HASH % (1 << 64)) >> 61
         assert table[slot] == 0, "the multiplier must tell the ends apart"
         table[slot] = v | need << 40 | (1 if one else 255) << 56
+    assert table[0], "an end must take the slot of no bytes"
     return table
 
 
@@ -264,7 +266,7 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n):  # type: ignore[
         while lines:
             nl = base + np.int64(cttz(lines))
             lines &= lines - _U(1)
-            nd = other >> _U(i - base)  # the non-digits from i on
+            nd = (other >> _U(i - base)) | _U(1 << 63)  # the non-digits from i on, one at 63 at least
             w = nd
             a = np.int64(cttz(w))  # the first: the time's '.' or the first separator
             w &= w - _U(1)
@@ -308,10 +310,9 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n):  # type: ignore[
             e = word(buf, i + s3 + 1) & _low(tail)
             known = _END_TABLE[(e * _U(_END_HASH)) >> _U(61)]  # the one end e can be: e if it is
             need = np.int64((known >> _U(40)) & _U(3))  # the convention the polarity needs: 0 any, 1 0/1, 2 -1/+1
-            top = _U(63 - s3) & _U(63)  # bits 0 to s3 kept (s3 < 64 when the tail is 2 to 4 bytes)
-            ok &= ((((nd & ~(seps >> _U(i - base))) << top) == ((_U(dot) << _U(a & 63)) << top))  # the '.' alone
-                   & (_U(tail - 2) < _U(3))  # is no separator, and the tail 2 to 4 bytes
-                   & (_U((nx - 1) | (ny - 1)) < _U(4))
+            top = _U(63 - s3)  # bits 0 to s3 kept; its newline among them unless the separators are before it
+            ok &= ((((nd & ~(seps >> _U(i - base))) << top) == ((_U(dot) << _U(a)) << top))  # the '.' alone is
+                   & (_U((nx - 1) | (ny - 1)) < _U(4))  # no separator: then the tail is 1 to 63 bytes
                    & ((known & _U(0xFFFFFFFF)) == e)
                    & ((conv | need) != 3))  # not one 0/1 and one -1/+1
             if not ok:
