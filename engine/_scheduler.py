@@ -374,9 +374,12 @@ class _InlineSink:
             self.run = 0
 
     def __call__(self, pkt: Packet) -> None:
+        # One frame per packet written: st.took(pkt) and wrote(1) inlined (each
+        # call a frame more to fetch, after a kernel swept the caches: 1-5 µs a
+        # packet of frames, measured)
         st = self.st
         st.packets_in += 1
-        if (kind := pkt.kind) is _EVENTS:  # st.took(pkt), inlined (per packet)
+        if (kind := pkt.kind) is _EVENTS:
             st.events_in += pkt.t.shape[0]
         else:
             _add(st.samples_in, kind, pkt.t.shape[0])
@@ -386,7 +389,14 @@ class _InlineSink:
         except Exception as e:
             raise NodeError(self.sid, e) from e
         st.busy_ns += perf_counter_ns() - t0
-        self.wrote(1)
+        arrival = self.out.arrival
+        if arrival != self.run_arrival or not self.run:
+            if self.run:  # flush(), inlined
+                self.lat.add(self.run_done - self.run_arrival, self.run)
+                self.run = 0
+            self.run_arrival = arrival
+        self.run += 1
+        self.run_done = self.now()
 
     def wrote(self, n: int) -> None:
         """``n`` packets were just written (by :meth:`__call__`, or by a
@@ -689,34 +699,6 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                     held_end = at + n  # extends the run
                     held_t_end = pkt.t_end
                     held_checked = held_checked and pkt._checked  # type: ignore[attr-defined]
-                    if runs and held_own is not None:
-                        # The slices after it, while they continue the run: what the
-                        # branch above and the guard test, in one expression (checked
-                        # events slices of the same four arrays: the same _own tuple,
-                        # one test instead of four owners; the next index, the same
-                        # sensor, not before the last one's end, room left). They are
-                        # not kept (a run of views needs its first packet and its end
-                        # only). Their time, reading included, is the source's busy time.
-                        # (Only the packet and its ints are read, not its arrays: after a
-                        # kernel has swept the caches each line read costs; _stop instead
-                        # of len(t): 375 -> 250 ns a slice, cold.)
-                        t0 = clock_ns()
-                        start, room, mark = held_end, held_end + max_events - held_n, guard.events_mark
-                        own = held_own
-                        for q in packets:  # type: ignore[union-attr]
-                            if (type(q) is not EventPacket or q._at != held_end or q._own is not own
-                                    or not q._checked or q.columns or q.sensor is not held_sensor
-                                    or q.t_start < mark or (end := q._stop) > room
-                                    or (mark_q := q.t_end) > held_until):
-                                ahead = q
-                                break
-                            mark = mark_q
-                            held_end = end
-                        guard.events_mark = held_t_end = mark
-                        ran = held_end - start
-                        held_n += ran
-                        st.events_out += ran
-                        st.busy_ns += clock_ns() - t0
                 elif held and held_n + n <= max_events and n < small and not held_big and pkt.t_end <= held_until and (
                         type(pkt) is EventPacket and (pkt.sensor is held_sensor or pkt.sensor == held_sensor) and (
                             pkt.columns is held_cols or pkt.columns.keys() == held_cols.keys())):
@@ -780,6 +762,37 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                                     await checkpoint()
                                     last_yield = clock()
                                     arrival = trio_now()
+                if runs and held_end >= 0 and held_own is not None:
+                    # (a run of views held: one that grew by this packet, or one it
+                    # started, so the slice after the first of a run is taken here too,
+                    # not by another pass of the loop above and the guard)
+                    # The slices after it, while they continue the run: what the
+                    # branch above and the guard test, in one expression (checked
+                    # events slices of the same four arrays: the same _own tuple,
+                    # one test instead of four owners; the next index, the same
+                    # sensor, not before the last one's end, room left). They are
+                    # not kept (a run of views needs its first packet and its end
+                    # only). Their time, reading included, is the source's busy time.
+                    # (Only the packet and its ints are read, not its arrays: after a
+                    # kernel has swept the caches each line read costs; _stop instead
+                    # of len(t): 375 -> 250 ns a slice, cold.)
+                    t0 = clock_ns()
+                    start, room, mark = held_end, held_end + max_events - held_n, guard.events_mark
+                    own = held_own
+                    for q in packets:  # type: ignore[union-attr]
+                        if (type(q) is not EventPacket or q._at != held_end or q._own is not own
+                                or not q._checked or q.columns or q.sensor is not held_sensor
+                                or q.t_start < mark or (end := q._stop) > room
+                                or (mark_q := q.t_end) > held_until):
+                            ahead = q
+                            break
+                        mark = mark_q
+                        held_end = end
+                    guard.events_mark = held_t_end = mark
+                    ran = held_end - start
+                    held_n += ran
+                    st.events_out += ran
+                    st.busy_ns += clock_ns() - t0
                 if sliced and clock() - last_yield > _SLICE_S:
                     if held:
                         st.packets_out += 1

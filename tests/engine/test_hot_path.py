@@ -449,3 +449,63 @@ def test_by_default_a_source_slices_go_in_as_views_of_up_to_2_18_events() -> Non
     assert max(sizes) <= 1 << 18 and min(sizes[:-1]) > 65_536 and len(sizes) == 3
     assert all(np.shares_memory(q.t, ev.t) for q in op.seen)
     tectum.testing.assert_streams_equal([ev], sink.packets)
+
+
+class _SeenTwoSlices(_Seen):
+    """:class:`_Seen` that asks for runs of at most 1 ms (two 500 µs slices)."""
+
+    name = "filter.seen_two_slices_hot_path_test"
+
+    def join_us(self) -> int:
+        return 1000
+
+
+def test_the_slice_after_a_run_starts_is_taken_without_the_guard_again(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A run that holds two slices (an operator's join span) is made of its
+    first slice, guarded, and the next one taken by the run's own test (the
+    same checks): one guard call per run, not per slice; the operator sees
+    each run whole and the stream comes out whole."""
+    from tectum._boundary import Guard
+
+    calls = []
+    plain = Guard.__call__
+
+    def counted(self: Guard, pkt: tectum.Packet) -> tectum.Packet:
+        calls.append(pkt.t_start)
+        return plain(self, pkt)
+
+    monkeypatch.setattr(Guard, "__call__", counted)
+    ev = _stream(4000)
+    cuts = [ev.slice_time(a, a + 500) for a in range(0, 50_000, 500)]
+    op, sink = _SeenTwoSlices(), tectum.testing.ListSink()
+    p = tectum.Pipeline()
+    p.sink(sink, p.op(op, p.source(ListSource(cuts), id="src")), id="sink")
+    stats = tectum.run(p)
+    assert [(q.t_start, q.t_end) for q in op.seen] == [(a, a + 1000) for a in range(0, 50_000, 1000)]
+    assert calls == list(range(0, 50_000, 1000))
+    assert stats.nodes["src"].events_out == len(ev)
+    tectum.testing.assert_streams_equal([ev], sink.packets)
+
+
+def test_a_sink_written_inline_records_one_latency_per_run_of_packets() -> None:
+    """Packets written one after another with the same arrival are one run,
+    recorded at its last write's latency when a packet of another arrival
+    comes (or at the end): the counts and busy time per packet as before."""
+    from tectum._scheduler import _InlineSink, _Outbox
+    from tectum._stats import LatencyRecorder, Stats
+
+    clock = iter([1.010, 1.020, 1.030, 2.500, 2.700])
+    stats, out = Stats(), _Outbox({})
+    sink = _InlineSink("sink", NullSink(), stats, lambda: next(clock), out)
+    frame = tectum.FramePacket(np.array([5]), images=np.zeros((1, 2, 2)), t_start=0, t_end=10)
+    for arrival in (1.0, 1.0, 1.0, 2.0, 2.0):
+        out.arrival = arrival
+        sink(frame)
+    sink.flush()
+    want = LatencyRecorder()
+    want.add(0.030, 3)
+    want.add(0.700, 2)
+    got = stats.latency["sink"]
+    assert (got._bins, got.count, got._max) == (want._bins, 5, pytest.approx(700_000.0))
+    st = stats.nodes["sink"]
+    assert (st.packets_in, st.samples_in, st.busy_ns > 0) == (5, {"frames": 5}, True)
