@@ -48,15 +48,18 @@ def _split(text: bytes) -> list[bytes]:
 
 
 def _header(head: bytes) -> tuple[str | None, list[str] | None]:
-    """The kind line's text (if the file starts with one) and the header row's names."""
-    lines = head.split(b"\n")
+    """The kind line's text (if the file starts with one) and the header row's
+    names (of the first complete line that is no comment nor blank; lines
+    found one at a time, not all of a 64 kB head split)."""
     kind_line = None
-    if lines and lines[0].startswith(b"# tectum "):
-        kind_line = lines[0].rstrip(b"\r").decode("latin1")
-    for ln in lines[:-1]:
-        s = ln.strip()
+    if head.startswith(b"# tectum "):
+        kind_line = head.split(b"\n", 1)[0].rstrip(b"\r").decode("latin1")
+    k, nl = 0, head.find(b"\n")
+    while nl >= 0:
+        s = head[k:nl].strip()
         if s and not s.startswith(b"#"):
             return kind_line, [c.strip() for c in s.decode("latin1").split(",")]
+        k, nl = nl + 1, head.find(b"\n", nl + 1)
     return kind_line, None
 
 

@@ -51,9 +51,10 @@ class TumSource(SampleFileSource):
     def sniff(cls, head: bytes) -> bool:
         """The first lines that are not comments are 8 numbers each, the last
         four a unit quaternion."""
-        lines = first_lines(head, 20, comments=(b"#",))
-        if not lines:
+        lines = first_lines(head, 1, comments=(b"#",))  # the first alone rules out most files
+        if not lines or len(lines[0].split()) != 8:
             return False
+        lines = first_lines(head, 20, comments=(b"#",))
         for ln in lines:
             words = ln.split()
             if len(words) != 8:
