@@ -5,10 +5,11 @@ time a decimal (``0.003811000 96 133 0``, the RPG ``events.txt``) or an
 integer (µs CSV). In such a line every byte is a digit except a few at known
 places: the time's ``.``, three separators, the polarity's ``-``, a ``\r``
 and the newline. :func:`fast_lines` reads 64 bytes at a time from the start
-of the next line: one vector load and two compares give the masks of its
-non-digits and of its newlines (:func:`masks64`), and each line ending in
-those 64 bytes is parsed from its start and its newline, the non-digits
-between them read off the mask (``tzcnt``). The fields lie between those,
+of the next line: one vector load and three compares give the masks of its
+non-digits, its newlines and its separators (:func:`masks64`), and each line
+ending in those 64 bytes is parsed from its start and its newline, the
+non-digits between them read off the mask (``tzcnt``), its separators
+checked against theirs. The fields lie between those,
 all digits by construction, so each number is converted from one 64-bit word
 by a few multiplications (:func:`digits_value`: three for eight digits, two
 for a coordinate's four; a short time's whole part, places and rounding place
@@ -206,7 +207,7 @@ def _end_table() -> np.ndarray:
     """Slot ``(end * _END_HASH mod 2**64) >> 61`` of each end read as a word:
     the word, with its convention at bit 40 and its polarity as an int8 in
     the top byte; 0 in the slots no end takes. The bytes after a line's last
-    separator, 1 to 15 of them taken (a tail of 16 or 32 bytes: none), are
+    separator, 1 to 15 of them taken (a tail of 16, 32 or 48 bytes: none), are
     never such a 0 but for none, which falls in slot 0: an end takes it."""
     table = np.zeros(8, np.uint64)
     for e, (need, one) in _ENDS.items():
@@ -226,19 +227,19 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n):  # type: ignore[
     """Parse lines of the plain form ``t x y p`` from ``buf[i]`` (a line's
     start) while they come, up to a line ending before ``end`` (``buf``
     readable :data:`REACH` bytes past it), into the columns from index
-    ``n`` (each a line of the run from ``i``, one a newline). The plain
+    ``n`` (one event a line, each ending in a newline). The plain
     form: a time of 1 to 16 whole digits below ``big`` (the largest whole
     part) with an optional ``.`` and places (the first ``digits``, 0 to 6,
-    are the µs, the next rounds half up), one separator (space, tab or
-    comma, the same three times), coordinates of 1 to 4 digits (any sensor's below 10000),
+    are the µs, the next rounds half up), the run's separator three times
+    (the first line's: space, tab or comma), coordinates of 1 to 4 digits (any sensor's below 10000),
     a polarity ``0``, ``1`` or ``-1`` in the convention of ``state[0]`` (as
     in :func:`tectum.sources.files.text.parse_lines`, which sets it on the
     first 0 or -1; ``state[1:3]`` get the largest coordinates), ``\\n`` or
     ``\\r\\n``, the whole line shorter than 64 bytes.
     Returns (the start of the first line not parsed, n).
 
-    From the start of the next line, 64 bytes: the masks of their non-digits
-    and newlines (:func:`masks64`), then each line that ends in them, from
+    From the start of the next line, 64 bytes: the masks of their non-digits,
+    newlines and separators (:func:`masks64`), then each line that ends in them, from
     its start, its newline and the non-digits between. The masks of the 64
     bytes after the last of those newlines are loaded before those lines
     are parsed (they do not wait on them)."""
