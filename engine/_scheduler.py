@@ -711,8 +711,10 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                     if held:
                         st.packets_out += 1
                         out.arrival = arrival
-                        add(push(sid, _join_run(held, held_end, held_owners, held_checked, held_t_end, held_own)),
-                            arrival)
+                        # (deliveries only when a sink is not written inline: no call for nothing)
+                        if got := push(sid, _join_run(held, held_end, held_owners, held_checked, held_t_end,
+                                                      held_own)):
+                            add(got, arrival)
                         held, held_n, held_end = [], 0, -1
                     if small and type(pkt) is EventPacket and n <= max_events and (n < small or at >= 0):
                         held, held_n, held_big = [pkt], n, n >= small  # starts a run
@@ -728,7 +730,8 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                         if n <= max_events:  # goes in whole (the usual case: no cutting)
                             st.packets_out += 1
                             out.arrival = arrival
-                            add(push(sid, pkt), arrival)
+                            if got := push(sid, pkt):
+                                add(got, arrival)
                         elif chain is not None and pkt.kind is _EVENTS:
                             # cut (event by event: a piece per timestamp) and pushed through the
                             # chain of operators _CHECK_EVERY + 1 pieces at a time; a packet cut
