@@ -374,9 +374,9 @@ class _InlineSink:
             self.run = 0
 
     def __call__(self, pkt: Packet) -> None:
-        # One frame per packet written: st.took(pkt) and wrote(1) inlined (each
-        # call a frame more to fetch, after a kernel swept the caches: 1-5 µs a
-        # packet of frames, measured)
+        # st.took(pkt) and wrote(1) inlined: per packet written, each call is one
+        # more Python frame and code object to fetch after a kernel swept the
+        # caches (inline sink 6.1 -> 4.3 µs a packet of frames, event frame, cold)
         st = self.st
         st.packets_in += 1
         if (kind := pkt.kind) is _EVENTS:
