@@ -86,29 +86,26 @@ if config.DISABLE_JIT:  # plain Python (the coverage run): an intrinsic has no P
 
 else:
 
-    @intrinsic
-    def cttz(typingctx, v):  # type: ignore[no-untyped-def]
-        """The number of trailing zero bits of the uint64 ``v`` (64 for 0):
-        one ``tzcnt`` instruction."""
-        if not isinstance(v, types.Integer) or v.bitwidth != 64:
-            return None
+    def _zero_bits(which: str):  # type: ignore[no-untyped-def]
+        """An intrinsic: the number of ``which`` ("trailing" or "leading")
+        zero bits of the uint64 ``v`` (64 for 0), one ``tzcnt`` / ``lzcnt``
+        instruction (LLVM's ``cttz`` / ``ctlz``)."""
+        emit = "cttz" if which == "trailing" else "ctlz"
 
-        def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
-            return builder.cttz(args[0], ir.Constant(ir.IntType(1), 0))
+        def count(typingctx, v):  # type: ignore[no-untyped-def]
+            if not isinstance(v, types.Integer) or v.bitwidth != 64:
+                return None
 
-        return types.uint64(v), codegen
+            def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+                return getattr(builder, emit)(args[0], ir.Constant(ir.IntType(1), 0))
 
-    @intrinsic
-    def ctlz(typingctx, v):  # type: ignore[no-untyped-def]
-        """The number of leading zero bits of the uint64 ``v`` (64 for 0):
-        one ``lzcnt`` instruction."""
-        if not isinstance(v, types.Integer) or v.bitwidth != 64:
-            return None
+            return types.uint64(v), codegen
 
-        def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
-            return builder.ctlz(args[0], ir.Constant(ir.IntType(1), 0))
+        count.__doc__ = f"The number of {which} zero bits of the uint64 ``v`` (64 for 0): one instruction."
+        return intrinsic(count)
 
-        return types.uint64(v), codegen
+    cttz = _zero_bits("trailing")
+    ctlz = _zero_bits("leading")
 
     @intrinsic
     def masks64(typingctx, buf, i, sep):  # type: ignore[no-untyped-def]
