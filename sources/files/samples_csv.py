@@ -39,6 +39,7 @@ from tectum import FormatError, Kind, Packet, SamplePacket, packet_class
 from tectum.tables import Group, flat_kinds, header_layout, kinds_for_header, parse_kind_line, pose_problem
 
 from ._rows import Line, RowCheck, RowParser, RowStream, SampleFileSource, text_lines, whole_us
+from ._text_layout import first_lines
 
 __all__ = ["CsvSource"]
 
@@ -49,17 +50,14 @@ def _split(text: bytes) -> list[bytes]:
 
 def _header(head: bytes) -> tuple[str | None, list[str] | None]:
     """The kind line's text (if the file starts with one) and the header row's
-    names (of the first complete line that is no comment nor blank; lines
-    found one at a time, not all of a 64 kB head split)."""
+    names (of the first complete line that is no comment nor blank;
+    :func:`first_lines` splits no more of a 64 kB head than it needs)."""
     kind_line = None
     if head.startswith(b"# tectum "):
         kind_line = head.split(b"\n", 1)[0].rstrip(b"\r").decode("latin1")
-    k, nl = 0, head.find(b"\n")
-    while nl >= 0:
-        s = head[k:nl].strip()
-        if s and not s.startswith(b"#"):
-            return kind_line, [c.strip() for c in s.decode("latin1").split(",")]
-        k, nl = nl + 1, head.find(b"\n", nl + 1)
+    first = first_lines(head, 1, comments=(b"#",))
+    if first:
+        return kind_line, [c.strip() for c in first[0].decode("latin1").split(",")]
     return kind_line, None
 
 
