@@ -355,14 +355,15 @@ class Merger:
 class _Node:
     """A node's wiring for the hot path (one attribute load per field)."""
 
-    __slots__ = ("id", "op", "consumes", "takes_events", "st", "routes", "chain", "writer", "tapped", "join", "ports",
-                 "offload", "ticks", "advances", "settles", "feedback_from", "feedback_ports", "done")
+    __slots__ = ("id", "op", "consumes", "replaces", "takes_events", "st", "routes", "chain", "writer", "tapped",
+                 "join", "ports", "offload", "ticks", "advances", "settles", "feedback_from", "feedback_ports", "done")
 
     def __init__(self, nid: str, st: NodeStats) -> None:
         self.id = nid
         self.st = st  # the run's stats of the node (Stats.node)
         self.op: Operator | None = None
         self.consumes: tuple[Kind, ...] = ()
+        self.replaces: tuple[Kind, ...] = ()  # kinds from upstream not passed on: the operator makes its own
         self.takes_events = False  # an operator run here (not offloaded) that consumes events
         self.routes: tuple[tuple[int, Any, Any], ...] = ()
         self.chain: _Node | None = None  # the only route, when it is a one-input operator and no tap
@@ -672,6 +673,7 @@ class Graph:
             op = self.ops.get(nid)
             rec.op = op
             rec.consumes = tuple(op.consumes) if op is not None else ()
+            rec.replaces = tuple(node.replaces)
             rec.tapped = nid in self.taps
             rec.offload = nid in self.offloaded
             rec.ticks = op is not None and type(op).on_tick is not Operator.on_tick
@@ -772,7 +774,10 @@ class Graph:
             st.packets_in += 1
             st.events_in += pkt.t.shape[0]
         elif pkt.kind not in rec.consumes:
-            self._emit(rec, pkt, out)  # passes by
+            if pkt.kind in rec.replaces:
+                st.replaced_by_own(pkt)
+            else:
+                self._emit(rec, pkt, out)  # passes by
             return
         elif rec.offload:
             out.append(("offload:" + rec.id, pkt))

@@ -5,7 +5,9 @@ it consumes and produces, keeps its state in explicit attributes, and turns
 each packet into zero or more packets. Ticks (time advancing with nothing to
 report) arrive as empty packets; :meth:`Operator.finish` is called once at
 end of stream. Packets of kinds an operator does not consume pass by it
-untouched to its downstream nodes.
+untouched to its downstream nodes, except kinds it produces: its own stream
+of such a kind replaces the upstream one (counted in the node's
+``NodeStats.replaced``; ``results`` always pass by).
 
 An operator with several inputs that keep their identity (events and poses,
 a stereo pair) declares **named ports** in :attr:`Operator.inputs` and
@@ -59,7 +61,7 @@ class Operator:
 
     #: Registry name, ``family.method`` (e.g. ``filter.background_activity``).
     name: ClassVar[str] = ""
-    #: Kinds of packet this operator handles; others pass by it.
+    #: Kinds of packet this operator handles; others pass by it (except those it produces).
     consumes: ClassVar[tuple[Kind, ...]] = (Kind.EVENTS,)
     #: Kinds of packet this operator emits.
     produces: ClassVar[tuple[Kind, ...]] = (Kind.EVENTS,)

@@ -325,7 +325,9 @@ class PlanNode:
     wired ports (port name to node id, for operators with named ports) and
     whether it runs offloaded; ``delays`` (port to µs) its delayed ports, of
     which ``feedback`` are those closing a loop (their producer depends on
-    this node's output)."""
+    this node's output); ``replaces`` the kinds of an operator's upstream it
+    does not pass on because it makes a stream of that kind itself (an event
+    frame operator on a DAVIS recording: its frames, not the APS frames)."""
 
     spec: NodeSpec
     cls: type
@@ -337,6 +339,7 @@ class PlanNode:
     offload: bool = False
     delays: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
     feedback: frozenset[str] = frozenset()
+    replaces: frozenset[Kind] = frozenset()
 
     @property
     def id(self) -> str:
@@ -449,6 +452,7 @@ def _validate(p: Pipeline, reg: Registry) -> Plan:
         decl: Any = s.component if s.component is not None else cls  # instances may narrow their kinds
         inputs = inputs_of[nid]
         wired: dict[str, str] = {}
+        replaces: frozenset[Kind] = frozenset()
         if s.role == "source":
             provides = frozenset(decl.produces if s.component is not None else decl.kinds_for(s.name, params))
         elif nid in named:
@@ -467,13 +471,15 @@ def _validate(p: Pipeline, reg: Registry) -> Plan:
                     f"{', '.join(repr(i) for i in inputs)} provide only {_kinds(upstream)}"
                 )
             provides = (upstream - consumes) | frozenset(decl.produces) if s.role == "operator" else frozenset()
+            if s.role == "operator":  # its own stream of a kind it makes replaces upstream's (results add up)
+                replaces = (upstream & frozenset(decl.produces)) - consumes - {Kind.RESULTS, Kind.ANY}
             if s.role == "sink" and s.component is None and hasattr(cls, "planned_params"):
                 params = cls.planned_params(params, upstream)  # e.g. which stream a file holds
         offload = s.role == "operator" and (bool(getattr(decl, "heavy", False)) if s.offload is None else s.offload)
         provides_of[nid] = provides
         fb = frozenset(q for q, up in wired.items() if (nid, up) in feedback)
         nodes[nid] = PlanNode(s, cls, MappingProxyType(params), (), provides, inputs, MappingProxyType(wired),
-                              offload, MappingProxyType(dict(s.delays)), fb)
+                              offload, MappingProxyType(dict(s.delays)), fb, replaces)
     _check_macro_inputs(specs, nodes)
     children: dict[str, list[str]] = {i: [] for i in order}
     for nid in order:
@@ -802,6 +808,8 @@ def _explain(plan: Plan) -> str:
         extra = " ".join(f"{k}={value(v)}" for k, v in params.items())
         if n.offload:
             extra += (" " if extra else "") + "[offloaded]"
+        if n.replaces:
+            extra += (" " if extra else "") + f"[replaces upstream {', '.join(sorted(map(str, n.replaces)))}]"
         rows.append((nid, what, extra))
     w0 = max(len(r[0]) for r in rows)
     w1 = max(len(r[1]) for r in rows)

@@ -22,7 +22,9 @@ class NodeStats:
     ``busy_ns`` is the time spent inside the node's own code (operator
     calls, sink writes), in ns. ``not_written`` (sinks) counts, by kind,
     what reached the sink and was not stored (a kind its format does not
-    hold); ``counters`` are the node's own (a file source's skipped events)."""
+    hold); ``replaced`` (operators) counts, by kind, what came from upstream
+    and was not passed on because the operator makes that stream itself;
+    ``counters`` are the node's own (a file source's skipped events)."""
 
     packets_in: int = 0
     events_in: int = 0
@@ -35,6 +37,7 @@ class NodeStats:
     samples_in: dict[str, int] = field(default_factory=dict)
     samples_out: dict[str, int] = field(default_factory=dict)
     not_written: dict[str, int] = field(default_factory=dict)
+    replaced: dict[str, int] = field(default_factory=dict)
 
     def took(self, pkt: Any) -> None:
         """Count the rows of a packet that came in (events, or samples of its kind)."""
@@ -49,6 +52,11 @@ class NodeStats:
             self.events_out += pkt.t.shape[0]
         else:
             _add(self.samples_out, pkt.kind, pkt.t.shape[0])
+
+    def replaced_by_own(self, pkt: Any) -> None:
+        """Count the rows of a packet from upstream this operator did not
+        pass on: it makes the stream of that kind itself."""
+        _add(self.replaced, pkt.kind, pkt.t.shape[0])
 
     def refuse(self, kind: str, n: int) -> None:
         """Count ``n`` events or samples of ``kind`` that reached this sink
@@ -177,7 +185,8 @@ class Stats:
                 f"{s.busy_ns / 1e6:>10.1f}{s.drops:>8}"
             )
             for label, counts in (("samples in", s.samples_in), ("samples out", s.samples_out),
-                                  ("not written", s.not_written)):
+                                  ("not written", s.not_written),
+                                  ("not passed on (replaced by its own)", s.replaced)):
                 if any(counts.values()):
                     lines.append(f"  {label}: {amounts(counts)}")
             for k, v in s.repairs.items():

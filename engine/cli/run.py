@@ -99,6 +99,11 @@ def main(args: argparse.Namespace) -> int:
     for node in plan.of_role("sink"):
         for line in unwritten_lines(node.spec.name, node.cls, stats.nodes[node.id].not_written):
             print(line, file=sys.stderr)
+    for node in plan.of_role("operator"):
+        replaced = {k: n for k, n in stats.nodes[node.id].replaced.items() if n}
+        if replaced:
+            print(f"{node.id}: not passed on: {amounts(replaced)} from upstream ({node.spec.name} makes its own "
+                  f"{', '.join(replaced)})", file=sys.stderr)
     if args.stats:
         print(stats.report())
     else:
