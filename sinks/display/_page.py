@@ -107,11 +107,11 @@ async function tick() {
     $("status").textContent = fmt(s.events) + " events, " + (s.rate_ev_s / 1e6).toFixed(3) + " Mev/s, " +
       (s.maps ? fmt(s.maps) + " maps, " : "") + "frame " + fmt(s.frames) + ", event time " +
       (s.t_us / 1e6).toFixed(3) + " s";
-    if (s.view) {  // a map stream: its own title, caption and legend
+    if (s.view) {  // a map or frame stream: its own title, caption and legend
       $("title").textContent = s.view.title;
       $("caption").textContent = s.view.caption;
-      $("maplegend").hidden = false;
-      $("evlegend").hidden = !s.events;
+      $("maplegend").hidden = s.view.title !== "Map";
+      $("evlegend").hidden = !s.events && s.view.title === "Map";
     }
     $("tracks").hidden = !s.tracks;
     if (s.pipeline) showNodes(s.pipeline);

@@ -1,5 +1,10 @@
 """Rendered events to a video file (``.mp4``, ``.avi`` through OpenCV) or
-to PNG snapshots, and to a Python callback. Maps (:class:`tectum.MapPacket`,
+to PNG snapshots, and to a Python callback. Frames (:class:`tectum.FramePacket`:
+the ``repr.*`` operators' images, APS frames) are drawn one picture each (see
+:mod:`.frames`) when no events reach the sink (``frames=None``, decided when
+the pipeline is validated; a sink built in Python with ``frames=None`` draws
+frames until events come); with events the pictures are of the events and
+the frames are counted as not written. Maps (:class:`tectum.MapPacket`,
 ``map.*`` operators) are drawn as pictures, one per sample (see
 :mod:`.maps`): ``out.png`` keeps the last map of a map stream. Feature
 tracks (:class:`tectum.TrackPacket`: features, LED markers) are drawn over
@@ -10,14 +15,16 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
+from typing import Any
 
 import cv2
 import numpy as np
 
-from tectum import ClusterPacket, EventPacket, Kind, MapPacket, Packet, ResultPacket, Sink, TrackPacket
+from tectum import ClusterPacket, EventPacket, FramePacket, Kind, MapPacket, Packet, ResultPacket, Sink, TrackPacket
 from tectum.sinks.files._common import temp_beside
 
 from .clusters import ClusterOverlay, as_tracks
+from .frames import frame_picture
 from .maps import map_picture
 from .render import MODES, Mode, Renderer
 from .tracks import TrackFrames
@@ -26,12 +33,17 @@ __all__ = ["VideoSink", "PngSink", "FrameCallbackSink"]
 
 
 class _Rendering(Sink):
-    consumes = (Kind.EVENTS, Kind.RESULTS, Kind.MAPS, Kind.TRACKS, Kind.CLUSTERS)  # maps: pictures; others: over events
+    # frames and maps: pictures of their own; tracks, clusters and results: over the events
+    consumes = (Kind.EVENTS, Kind.FRAMES, Kind.RESULTS, Kind.MAPS, Kind.TRACKS, Kind.CLUSTERS)
+    holds = "pictures of the events or of the frames (frames=true), not both"
 
-    def __init__(self, fps: float, mode: Mode, tau_us: float, flow_max_px_s: float = 500.0) -> None:
+    def __init__(self, fps: float, mode: Mode, tau_us: float, flow_max_px_s: float = 500.0,
+                 frames: bool | None = None) -> None:
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
         self.fps, self.mode, self.tau_us, self.flow_max_px_s = fps, mode, tau_us, flow_max_px_s
+        self.draw_frames = frames
+        self.not_written: dict[str, int] = {}
         self.renderer: Renderer | None = None
         self.frames = 0
         self._tracks: list[ResultPacket] = []
@@ -39,7 +51,28 @@ class _Rendering(Sink):
         self.track_frames = TrackFrames(fps)  # TrackPackets: over the events, or alone (see .tracks)
         self.clusters = ClusterOverlay()  # ClusterPackets: over the events (see .clusters)
 
+    @classmethod
+    def planned_params(cls, params: dict[str, Any], upstream: frozenset[Kind]) -> dict[str, Any]:
+        """At validation: with no ``frames`` given, frames are drawn when no events reach the sink."""
+        if params.get("frames") is None:
+            return {**params, "frames": Kind.EVENTS not in upstream}
+        return params
+
+    def _skip(self, packet: Packet) -> list[tuple[int, np.ndarray]]:
+        if len(packet):
+            self.not_written[str(packet.kind)] = self.not_written.get(str(packet.kind), 0) + len(packet)
+        return []
+
     def _frames(self, packet: Packet) -> list[tuple[int, np.ndarray]]:
+        if isinstance(packet, FramePacket):
+            if self.draw_frames is None:
+                self.draw_frames = self.renderer is None  # built in Python: frames until events come
+            if not self.draw_frames:
+                return self._skip(packet)
+            images = packet.data["images"]
+            pics = [(int(t), frame_picture(images[i], int(t))) for i, t in enumerate(packet.t)]
+            self.frames += len(pics)
+            return pics
         if isinstance(packet, MapPacket):
             maps = [(int(t), map_picture(packet, i)) for i, t in enumerate(packet.t)]
             if maps:
@@ -67,6 +100,8 @@ class _Rendering(Sink):
                 self.renderer.add_tracks(packet)
             return []
         assert isinstance(packet, EventPacket)
+        if self.draw_frames:
+            return self._skip(packet)
         if self.renderer is None:
             self.renderer = self._new_renderer(packet.sensor)
             for r in self._tracks:
@@ -83,15 +118,18 @@ class _Rendering(Sink):
 
 class VideoSink(_Rendering):
     """A video of the events at ``fps`` frames per second of event time
-    (``mode`` polarity or time_surface, ``tau_us`` decay). ``.mp4`` is
+    (``mode`` polarity or time_surface, ``tau_us`` decay), or of the frames
+    of a frames stream, one picture each (``frames``: by default when no
+    events come, as after a ``repr.*`` operator). ``.mp4`` is
     written with the mp4v codec, ``.avi`` with MJPG; the file appears
     (atomically) when the run ends well."""
 
     name = "video"
     extensions = (".mp4", ".avi")
 
-    def __init__(self, path: str, fps: float = 30.0, mode: Mode = "polarity", tau_us: float = 30_000.0) -> None:
-        super().__init__(fps, mode, tau_us)
+    def __init__(self, path: str, fps: float = 30.0, mode: Mode = "polarity", tau_us: float = 30_000.0,
+                 frames: bool | None = None) -> None:
+        super().__init__(fps, mode, tau_us, frames=frames)
         self.path = path
         self._writer: cv2.VideoWriter | None = None
         self._tmp: str | None = None
@@ -140,8 +178,9 @@ class PngSink(_Rendering):
     name = "png"
     extensions = (".png",)
 
-    def __init__(self, path: str, fps: float = 30.0, mode: Mode = "polarity", tau_us: float = 30_000.0) -> None:
-        super().__init__(fps, mode, tau_us)
+    def __init__(self, path: str, fps: float = 30.0, mode: Mode = "polarity", tau_us: float = 30_000.0,
+                 frames: bool | None = None) -> None:
+        super().__init__(fps, mode, tau_us, frames=frames)
         self.path = path
         self.every = "%" in path
         self._n = 0
@@ -181,8 +220,8 @@ class FrameCallbackSink(_Rendering):
     name = "frame_callback"
 
     def __init__(self, callback: Callable[[int, np.ndarray], None], fps: float = 30.0,
-                 mode: Mode = "polarity", tau_us: float = 30_000.0) -> None:
-        super().__init__(fps, mode, tau_us)
+                 mode: Mode = "polarity", tau_us: float = 30_000.0, frames: bool | None = None) -> None:
+        super().__init__(fps, mode, tau_us, frames=frames)
         self.callback = callback
 
     def write(self, packet: Packet) -> None:

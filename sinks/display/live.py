@@ -7,7 +7,9 @@ never holds the pipeline back: it only ever gets the newest frame):
 * ``/`` an HTML page (:mod:`._page`): the newest frame scaled to the window,
   a legend for the mode, what each panel shows, and the stats, refreshed by
   script within the one page load; maps (``map.*`` operators' output) are
-  shown as pictures (:mod:`.maps`), with their own caption and legend;
+  shown as pictures (:mod:`.maps`), with their own caption and legend, and
+  so are frames (:mod:`.frames`: a ``repr.*`` operator's images) when no
+  events come;
 * ``/frame.png`` the newest frame; ``/stream.mjpg`` an MJPEG stream;
   ``/legend.png`` the colour wheel of the ``flow_wheel`` mode;
 * ``/stats.json`` events and packets seen, event rate, frames, stream time,
@@ -29,10 +31,11 @@ import cv2
 import numpy as np
 import trio
 
-from tectum import EventPacket, MapPacket, Packet
+from tectum import EventPacket, FramePacket, MapPacket, Packet
 
 from ._page import page
 from .files import _Rendering
+from .frames import frame_caption
 from .maps import map_caption
 from .render import Mode, flow_wheel_legend
 
@@ -44,13 +47,16 @@ class LiveViewSink(_Rendering):
     docstring). ``mode`` polarity, time_surface, flow_wheel or flow_arrows;
     ``tau_us`` decay of the time surface; ``flow_max_px_s`` the flow speed
     drawn in full colour; ``scale`` enlarges the served image by an integer
-    factor (the page scales it to the window anyway)."""
+    factor (the page scales it to the window anyway); ``frames`` draws the
+    frames of a frames stream instead of the events (by default when no
+    events come: a ``repr.*`` operator's images)."""
 
     name = "display"
     schemes = ("http",)
 
     def __init__(self, url: str = "http://127.0.0.1:8080", fps: float = 30.0, mode: Mode = "polarity",
-                 tau_us: float = 30_000.0, scale: int = 1, flow_max_px_s: float = 500.0) -> None:
+                 tau_us: float = 30_000.0, scale: int = 1, flow_max_px_s: float = 500.0,
+                 frames: bool | None = None) -> None:
         from urllib.parse import urlsplit
 
         u = urlsplit(url)
@@ -58,7 +64,7 @@ class LiveViewSink(_Rendering):
             raise ValueError(f"{url!r}: expected http://HOST:PORT")
         if not 1 <= scale <= 8:
             raise ValueError("scale must be 1..8")
-        super().__init__(fps, mode, tau_us, flow_max_px_s)
+        super().__init__(fps, mode, tau_us, flow_max_px_s, frames)
         self.host, self.port = u.hostname, u.port
         self.scale = scale
         self._lock = threading.Lock()
@@ -93,6 +99,9 @@ class LiveViewSink(_Rendering):
             st["maps"] += len(frames)
             st["t_us"] = int(packet.t[-1])
             st["view"] = {"title": "Map", "caption": map_caption(packet)}
+        elif isinstance(packet, FramePacket) and frames:
+            st["t_us"] = int(packet.t[-1])
+            st["view"] = {"title": "Frames", "caption": frame_caption(packet.data["images"][-1], st["t_us"])}
         if isinstance(packet, EventPacket):
             if self._t_wall0 is None:
                 self._t_wall0 = time.perf_counter()

@@ -42,7 +42,8 @@ def live_view(request: pytest.FixtureRequest) -> Iterator[str]:
     """The base URL of a live view whose first frame is ready; the fixture's
     parameter (``indirect=True``) is a dict of further LiveViewSink options,
     and ``maps: True`` shows a minute of log-intensity maps (:func:`log_map`,
-    ten a second) instead of the moving bars."""
+    ten a second) instead of the moving bars, ``op: NAME`` (with
+    ``op_params``) the bars through that operator (a ``repr.*`` one: its frames)."""
     port = free_port()
     p = tectum.Pipeline(pace=1.0)
     opts = dict(getattr(request, "param", {}))
@@ -51,6 +52,9 @@ def live_view(request: pytest.FixtureRequest) -> Iterator[str]:
     else:
         source = p.source("pattern:", sensor="96x64", duration_us=60_000_000, speed=40.0, period_px=32, bar_px=12,
                           noise_hz=0.0)
+        op = opts.pop("op", None)
+        if op is not None:
+            source = p.op(op, source, **opts.pop("op_params", {}))
     p.sink(LiveViewSink(f"http://127.0.0.1:{port}", fps=20, scale=2, **opts), source)
     th = tectum.ThreadedPipeline(p, watch=[]).start()
     base = f"http://127.0.0.1:{port}"

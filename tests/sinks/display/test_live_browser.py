@@ -142,3 +142,22 @@ def test_a_map_stream_shows_maps_with_their_caption_and_legend(live_view: str, b
     assert grey.mean() > 0.3
     errors = _console_errors(browser)
     assert not errors, errors
+
+
+@pytest.mark.parametrize("live_view", [{"op": "repr.time_surface", "op_params": {"window_us": 50_000}}],
+                         indirect=True, ids=["time_surface"])
+def test_a_representation_shows_its_frames_with_their_caption(live_view: str, browser: Any) -> None:
+    from selenium.webdriver.common.by import By
+
+    browser.get(live_view + "/")
+    img = browser.find_element(By.ID, "f")
+    _wait(browser, "the first frame is shown", lambda: browser.execute_script("return arguments[0].naturalWidth", img))
+    _wait(browser, "the title says Frames", lambda: browser.find_element(By.ID, "title").text == "Frames")
+    caption = browser.find_element(By.ID, "caption").text
+    assert "Frame (96x64 px)" in caption and "from 0 to 1" in caption, caption
+    assert not browser.find_element(By.ID, "maplegend").is_displayed()  # a depth legend would mislead here
+    assert browser.find_element(By.ID, "evlegend").is_displayed()  # ON and OFF colours
+    first = browser.find_element(By.ID, "status").text
+    _wait(browser, "the frames keep coming", lambda: browser.find_element(By.ID, "status").text != first)
+    errors = _console_errors(browser)
+    assert not errors, errors
