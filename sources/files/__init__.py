@@ -4,8 +4,10 @@ One module per format (see each for its layout and conventions): Prophesee
 RAW EVT 2.0/3.0 and DAT (:mod:`.prophesee`), jAER AEDAT 2.0 (:mod:`.aedat2`),
 AEDAT 3.1 (:mod:`.aedat31`), AEDAT 4.0 (:mod:`.aedat4`, codec in
 :mod:`.aedat4_codec`), text/CSV (:mod:`.text`), HDF5 (:mod:`.hdf5`),
-structured ``.npy`` (:mod:`.npy`), ROS 1/2 bags (:mod:`.rosbag`). All output tectum's conventions: absolute
-µs, top-left origin, polarity ±1 (see :mod:`._common`).
+structured ``.npy`` (:mod:`.npy`), ROS 1/2 bags (:mod:`.rosbag`), Event Stream 2.x ``.es`` DVS and
+ATIS (:mod:`.event_stream`, codec in :mod:`.event_stream_codec`) and the N-MNIST/N-Caltech101 40-bit
+``.bin`` (:mod:`.nmnist`: no magic number, chosen by its extension). All output tectum's conventions:
+absolute µs, top-left origin, polarity ±1 (see :mod:`._common`).
 """
 
 from __future__ import annotations
@@ -21,14 +23,16 @@ def _classes() -> list[type]:
     from .aedat2 import Aedat2Source
     from .aedat4 import Aedat4Source
     from .aedat31 import Aedat31Source
+    from .event_stream import EventStreamSource
     from .hdf5 import Hdf5Source
+    from .nmnist import NmnistSource
     from .npy import NpySource
     from .prophesee import DatSource, Evt2Source, Evt3Source
     from .rosbag import RosbagSource
     from .text import TextSource
 
     return [Evt2Source, Evt3Source, DatSource, Aedat2Source, Aedat31Source, Aedat4Source, Hdf5Source,
-            NpySource, RosbagSource, TextSource]
+            NpySource, RosbagSource, EventStreamSource, NmnistSource, TextSource]
 
 
 SOURCES = _classes()

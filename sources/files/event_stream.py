@@ -1,0 +1,135 @@
+"""Event Stream 2.x files (``.es``: sepia, loris, the neuromorphic-systems
+``event_stream`` package, faery, command_line_tools), recognised by their
+first bytes ``Event Stream``.
+
+Layout and conventions in :mod:`.event_stream_codec`. tectum reads the DVS
+and ATIS types:
+
+* DVS events become events (t µs from the file's origin 0, x, y flipped
+  from the format's bottom-left origin to tectum's top-left, p ±1).
+* ATIS change-detection events become events the same way. ATIS threshold
+  crossings (the two halves of each exposure measurement, which encode grey
+  levels by the time between them) are not events: mixed into the event
+  stream, every operator would take them for brightness changes. They are
+  skipped, counted in :attr:`EventStreamSource.counts`
+  (``atis_threshold_crossings``, shown by ``--stats``) and in ``tectum info``
+  (faery drops them without a word).
+* Generic (user bytes), Asynchronous & Modular Display and color events
+  (r, g, b, no polarity) have no event-camera equivalent: a clear
+  :class:`tectum.FormatError`.
+
+Times never decrease (they are sums of deltas), so the only bad input is a
+coordinate outside the header's sensor (raised, or with ``skip_bad`` dropped
+and counted) and a file ending inside an event (the same). The format
+re-synchronises by itself (*reset* bytes), so a bit error costs the events
+until the next reset, which may land outside the sensor and be counted.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+
+from tectum import Kind, Packet
+
+from . import event_stream_codec as C
+from ._common import EventAssembler, FileSource
+
+__all__ = ["EventStreamSource", "read_header"]
+
+
+def read_header(head: bytes, fail: Any) -> tuple[int, tuple[int, int], int]:
+    """``(type byte, (width, height), first byte of the events)`` of a DVS or
+    ATIS file whose first bytes are ``head``; anything else calls ``fail(message,
+    offset)``, which raises."""
+    if not head.startswith(C.MAGIC):
+        fail("not an Event Stream file (first bytes are not 'Event Stream')", 0)
+    if len(head) < 16:
+        fail(f"file ends inside the Event Stream header ({len(head)} of 16 bytes)", len(head))
+    major, minor, patch, kind = head[12], head[13], head[14], head[15]
+    if major != 2:
+        fail(f"Event Stream version {major}.{minor}.{patch}: tectum reads version 2.x", 12)
+    if kind not in C.TYPES:
+        fail(f"unknown Event Stream type byte 0x{kind:02x} (0 generic, 1 dvs, 2 atis, 3 display, 4 color)", 15)
+    if kind not in (C.DVS, C.ATIS):
+        what = {0: "generic events (user bytes, no pixel or polarity)",
+                3: "Asynchronous & Modular Display events (x, y, pyramid stage: a display, not a sensor)",
+                4: "color events (x, y, r, g, b: no polarity)"}[kind]
+        fail(f"the Event Stream file holds {what}: tectum reads the dvs and atis types", 15)
+    if len(head) < C.HEADER_BYTES:
+        fail(f"file ends inside the Event Stream header ({len(head)} of {C.HEADER_BYTES} bytes)", len(head))
+    w = int.from_bytes(head[16:18], "little")
+    h = int.from_bytes(head[18:20], "little")
+    if w == 0 or h == 0:
+        fail(f"the Event Stream header gives an empty sensor {w}x{h}", 16)
+    return kind, (w, h), C.HEADER_BYTES
+
+
+class EventStreamSource(FileSource):
+    """Events from Event Stream 2.x DVS and ATIS files (see the module
+    docstring for the mapping; ``sensor=`` checks the header's size)."""
+
+    name = "es"
+    format = "event_stream"
+    extensions = (".es",)
+    produces = (Kind.EVENTS,)
+
+    def __init__(self, path: str, **kw: Any) -> None:
+        super().__init__(path, **kw)
+        #: The type in the header: ``"dvs"`` or ``"atis"`` (after reading).
+        self.stream_type = ""
+        #: ATIS threshold crossings (exposure measurement halves) skipped.
+        self.threshold_crossings = 0
+
+    @classmethod
+    def sniff(cls, head: bytes) -> bool:
+        return head.startswith(C.MAGIC)
+
+    @property
+    def counts(self) -> dict[str, int]:
+        out = dict(FileSource.counts.fget(self))  # type: ignore[attr-defined]
+        if self.stream_type == "atis":
+            out["atis_threshold_crossings"] = self.threshold_crossings
+        return out
+
+    def info(self) -> dict[str, Any]:
+        out = super().info()
+        out["stream_type"] = self.stream_type
+        if self.stream_type == "atis":
+            out["atis_threshold_crossings_skipped"] = self.threshold_crossings
+        return out
+
+    def _packets(self) -> Iterator[Packet]:
+        f = self._open()
+        kind, found, pos = read_header(f.read(C.HEADER_BYTES), self._fail)
+        self.stream_type = C.TYPES[kind]
+        sensor = self._sensor(found)
+        assert sensor is not None
+        f.seek(pos)
+        state = np.zeros(C.STATE, np.int64)
+        asm = EventAssembler(self, sensor)
+        atis = kind == C.ATIS
+        stopped = False
+        while True:
+            buf = f.read(self.chunk_bytes)
+            if not buf:
+                break
+            state[7] = pos
+            m = len(buf) // 5 + 1
+            t, x, y = np.empty(m, np.int64), np.empty(m, np.uint16), np.empty(m, np.uint16)
+            p, where = np.empty(m, np.int8), np.empty(m, np.int64)
+            n = C.decode(np.frombuffer(buf, np.uint8), state, atis, sensor[1], t, x, y, p, where)
+            self.threshold_crossings = int(state[6])
+            yield from asm.push(t[:n], x[:n], y[:n], p[:n], pos, where[:n])
+            pos += len(buf)
+            if self.t_end_us is not None and asm.last_t is not None and asm.last_t >= self.t_end_us:
+                stopped = True
+                break
+        if state[0] != 0 and not stopped:
+            start = int(state[5])
+            if not self.skip_bad:
+                self._fail(f"file ends inside an event (truncated: {state[0]} of its 5 bytes)", start)
+            self._note_skip(start, pos - 1, 1)
+        yield from asm.finish()
