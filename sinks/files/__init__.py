@@ -1,5 +1,5 @@
 """File sinks: ECD text/CSV, AEDAT 4.0, Prophesee EVT 2.0/3.0 and DAT, HDF5
-(DSEC layout) and structured ``.npy``. Each streams into a temporary file
+(DSEC layout), structured ``.npy``, Event Stream 2.0 ``.es`` (DVS) and N-MNIST ``.bin``. Each streams into a temporary file
 beside the target and renames it into place on close; abort removes it."""
 
 from __future__ import annotations
@@ -19,12 +19,14 @@ __all__ = ["SINKS", "SAMPLE_SINKS"]
 
 def _classes() -> list[type[FileSink] | type[Hdf5Sink]]:  # each made from a path
     from .aedat4 import Aedat4Sink
+    from .event_stream import EventStreamSink
     from .hdf5 import Hdf5Sink
+    from .nmnist import NmnistSink
     from .npy import NpySink
     from .prophesee import DatSink, Evt2Sink, Evt3Sink
     from .text import TextSink
 
-    return [TextSink, Aedat4Sink, Evt2Sink, Evt3Sink, DatSink, Hdf5Sink, NpySink]
+    return [TextSink, Aedat4Sink, Evt2Sink, Evt3Sink, DatSink, Hdf5Sink, NpySink, EventStreamSink, NmnistSink]
 
 
 SINKS = _classes()

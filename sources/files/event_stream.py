@@ -8,12 +8,14 @@ and ATIS types:
 * DVS events become events (t µs from the file's origin 0, x, y flipped
   from the format's bottom-left origin to tectum's top-left, p ±1).
 * ATIS change-detection events become events the same way. ATIS threshold
-  crossings (the two halves of each exposure measurement, which encode grey
-  levels by the time between them) are not events: mixed into the event
-  stream, every operator would take them for brightness changes. They are
-  skipped, counted in :attr:`EventStreamSource.counts`
-  (``atis_threshold_crossings``, shown by ``--stats``) and in ``tectum info``
-  (faery drops them without a word).
+  crossings (the two halves of each exposure measurement: the time between
+  a pixel's first and second crossing encodes its grey level, shorter is
+  brighter) are not brightness changes: mixed into the event stream, every
+  operator would take them for some. They become their own stream, kind
+  ``exposures`` (:class:`ExposurePacket`: t, x, y, ``second``), which
+  ``tectum info`` lists, ``--sink x.npz`` keeps, and an operator can ask
+  for by kind (faery drops them without a word). Pairing the halves into
+  grey levels is left to the consumer: it is the raw measurement, lossless.
 * Generic (user bytes), Asynchronous & Modular Display and color events
   (r, g, b, no polarity) have no event-camera equivalent: a clear
   :class:`tectum.FormatError`.
@@ -32,12 +34,28 @@ from typing import Any
 
 import numpy as np
 
-from tectum import Kind, Packet
+from tectum import Field, Kind, Packet, SamplePacket, register_kind
 
 from . import event_stream_codec as C
-from ._common import EventAssembler, FileSource
+from ._common import EventAssembler, FileSource, SampleTiler
 
-__all__ = ["EventStreamSource", "read_header"]
+__all__ = ["EventStreamSource", "ExposurePacket", "read_header"]
+
+
+@register_kind
+class ExposurePacket(SamplePacket):
+    """ATIS exposure measurements as recorded: one threshold crossing per
+    sample at ``t`` (µs) and pixel ``(x, y)`` (top-left origin), ``second``
+    False for the first crossing of a measurement and True for the second;
+    a pixel's grey level is inversely proportional to the time between
+    them."""
+
+    kind = Kind("exposures")
+    fields = {
+        "x": Field("u2", (), "px", doc="column"),
+        "y": Field("u2", (), "px", doc="row, from the top"),
+        "second": Field("bool", (), "", doc="the second crossing (exposure end), else the first"),
+    }
 
 
 def read_header(head: bytes, fail: Any) -> tuple[int, tuple[int, int], int]:
@@ -74,31 +92,20 @@ class EventStreamSource(FileSource):
     name = "es"
     format = "event_stream"
     extensions = (".es",)
-    produces = (Kind.EVENTS,)
+    produces = (Kind.EVENTS, ExposurePacket.kind)
 
     def __init__(self, path: str, **kw: Any) -> None:
         super().__init__(path, **kw)
         #: The type in the header: ``"dvs"`` or ``"atis"`` (after reading).
         self.stream_type = ""
-        #: ATIS threshold crossings (exposure measurement halves) skipped.
-        self.threshold_crossings = 0
 
     @classmethod
     def sniff(cls, head: bytes) -> bool:
         return head.startswith(C.MAGIC)
 
-    @property
-    def counts(self) -> dict[str, int]:
-        out = dict(FileSource.counts.fget(self))  # type: ignore[attr-defined]
-        if self.stream_type == "atis":
-            out["atis_threshold_crossings"] = self.threshold_crossings
-        return out
-
     def info(self) -> dict[str, Any]:
         out = super().info()
         out["stream_type"] = self.stream_type
-        if self.stream_type == "atis":
-            out["atis_threshold_crossings_skipped"] = self.threshold_crossings
         return out
 
     def _packets(self) -> Iterator[Packet]:
@@ -110,6 +117,7 @@ class EventStreamSource(FileSource):
         f.seek(pos)
         state = np.zeros(C.STATE, np.int64)
         asm = EventAssembler(self, sensor)
+        exposures = _Exposures(self, sensor)
         atis = kind == C.ATIS
         stopped = False
         while True:
@@ -120,9 +128,10 @@ class EventStreamSource(FileSource):
             m = len(buf) // 5 + 1
             t, x, y = np.empty(m, np.int64), np.empty(m, np.uint16), np.empty(m, np.uint16)
             p, where = np.empty(m, np.int8), np.empty(m, np.int64)
-            n = C.decode(np.frombuffer(buf, np.uint8), state, atis, sensor[1], t, x, y, p, where)
-            self.threshold_crossings = int(state[6])
+            tc = (np.empty(m, np.int64), np.empty(m, np.uint16), np.empty(m, np.uint16), np.empty(m, np.bool_))
+            n = C.decode(np.frombuffer(buf, np.uint8), state, atis, sensor[1], t, x, y, p, where, *tc)
             yield from asm.push(t[:n], x[:n], y[:n], p[:n], pos, where[:n])
+            yield from exposures.push(*(a[:state[6]] for a in tc), pos=pos)
             pos += len(buf)
             if self.t_end_us is not None and asm.last_t is not None and asm.last_t >= self.t_end_us:
                 stopped = True
@@ -133,3 +142,39 @@ class EventStreamSource(FileSource):
                 self._fail(f"file ends inside an event (truncated: {state[0]} of its 5 bytes)", start)
             self._note_skip(start, pos - 1, 1)
         yield from asm.finish()
+        yield from exposures.push(*(a[:0] for a in tc), pos=pos, final=True)
+
+
+class _Exposures:
+    """ATIS threshold crossings into :class:`ExposurePacket` packets: those
+    outside the sensor raised or (``skip_bad``) dropped and counted, those at
+    a chunk's last time held back for the next (a time stays in one packet)."""
+
+    def __init__(self, src: FileSource, sensor: tuple[int, int]) -> None:
+        self.src = src
+        self.sensor = sensor
+        self.tiler = SampleTiler(src)
+        self.held: tuple[np.ndarray, ...] | None = None
+
+    def push(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, second: np.ndarray, pos: int,
+             final: bool = False) -> list[ExposurePacket]:
+        out = (x >= self.sensor[0]) | (y >= self.sensor[1])
+        if out.any():
+            if not self.src.skip_bad:
+                i = int(np.flatnonzero(out)[0])
+                self.src._fail(f"threshold crossing ({int(x[i])}, {int(y[i])}) lies outside the "
+                               f"{self.sensor[0]}x{self.sensor[1]} sensor", pos)
+            self.src._note_skip(pos, pos, int(out.sum()))
+            t, x, y, second = t[~out], x[~out], y[~out], second[~out]
+        if self.held is not None:
+            t, x, y, second = (np.concatenate(a) for a in zip(self.held, (t, x, y, second)))
+            self.held = None
+        if t.shape[0] == 0:
+            return []
+        k = t.shape[0] if final else int(t.searchsorted(t[-1], "left"))
+        if k < t.shape[0]:
+            self.held = (t[k:].copy(), x[k:].copy(), y[k:].copy(), second[k:].copy())
+        if k == 0:
+            return []
+        pkt = self.tiler.push(ExposurePacket, "exposures", t[:k], pos, x=x[:k], y=y[:k], second=second[:k])
+        return [] if pkt is None else [pkt]

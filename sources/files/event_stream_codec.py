@@ -40,7 +40,7 @@ DVS, ATIS = 1, 2
 
 #: Decoder state slots: 0 phase (0 idle, 1-4 bytes of an event read), 1 time
 #: (µs), 2 x, 3 raw y, 4 byte 0's low bits, 5 offset of the event's byte 0,
-#: 6 ATIS threshold crossings seen, 7 file offset of the buffer's first byte.
+#: 6 ATIS threshold crossings in the buffer, 7 file offset of the buffer's first byte.
 STATE = 8
 
 
@@ -50,21 +50,22 @@ def header(kind: int, width: int, height: int) -> bytes:
 
 
 @njit(cache=True, nogil=True)
-def decode(buf, state, atis, h, t, x, y, p, where):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+def decode(buf, state, atis, h, t, x, y, p, where, tc_t, tc_x, tc_y, tc_second):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     """Decode DVS (``atis`` False) or ATIS bytes ``buf`` on from ``state``
     (see :data:`STATE`, updated for the next buffer). Writes the
     change-detection events completed in ``buf``: time (µs), x, y flipped
     to a top-left origin (a raw y outside ``[0, h)`` is kept as it is, for
     the caller to report), polarity ±1 and the file offset of each event's
-    byte 0. ATIS threshold crossings are counted in ``state[6]``. Returns
-    the number of events written (at most ``len(buf) // 5 + 1``)."""
+    byte 0; and the ATIS threshold crossings (time, x, y flipped, second
+    or first half of the exposure; their number in ``state[6]``). Returns
+    the number of events written (each output holds ``len(buf) // 5 + 1``)."""
     phase = state[0]
     tt = state[1]
     xx = state[2]
     yy = state[3]
     low = state[4]
     start = state[5]
-    crossings = state[6]
+    crossings = 0
     base = state[7]
     n = 0
     for i in range(buf.shape[0]):
@@ -99,6 +100,10 @@ def decode(buf, state, atis, h, t, x, y, p, where):  # type: ignore[no-untyped-d
             yy |= b << 8
             phase = 0
             if low & 1:
+                tc_t[crossings] = tt
+                tc_x[crossings] = xx
+                tc_y[crossings] = h - 1 - yy if yy < h else yy
+                tc_second[crossings] = (low & 2) != 0
                 crossings += 1
                 continue
             t[n] = tt
