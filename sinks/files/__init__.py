@@ -1,6 +1,7 @@
 """File sinks: ECD text/CSV, AEDAT 4.0, Prophesee EVT 2.0/3.0 and DAT, HDF5
-(DSEC layout), structured ``.npy``, Event Stream 2.0 ``.es`` (DVS) and N-MNIST ``.bin``. Each streams into a temporary file
-beside the target and renames it into place on close; abort removes it."""
+(DSEC layout), structured ``.npy``, Event Stream 2.0 ``.es`` (DVS) and N-MNIST
+``.bin``. Each streams into a temporary file beside the target and renames it
+into place on close; abort removes it."""
 
 from __future__ import annotations
 
