@@ -1,7 +1,10 @@
 """N-MNIST / N-Caltech101 ``.bin`` writer (layout in
 :mod:`tectum.sources.files.nmnist`): 5 bytes per event, x, y, polarity and
-23-bit time. Times past 2^23 µs are written as the dataset's readers read
-them: a time-overflow record (``y = 240``) adds 2^13 µs to every later time.
+23-bit time. The format stores no time origin: times are written as they
+are when the first event fits the 23-bit field, else from the first
+packet's start (kept in :attr:`NmnistSink.t0`). Later times past 2^23 µs are
+written as the dataset's readers read them: a time-overflow record
+(``y = 240``) adds 2^13 µs to every later time.
 The file stores no sensor size (the reader needs ``sensor=`` for anything
 but 34x34); x must be below 256 and y below 240.
 """
@@ -59,13 +62,16 @@ class NmnistSink(FileSink):
         w, h = self.sensor
         if w > 256 or h > OVERFLOW_Y:
             raise ValueError(f"N-MNIST stores 8-bit x and y < {OVERFLOW_Y}: sensor {w}x{h} is too large")
-        if len(packet) and int(packet.t[0]) < 0:
-            raise ValueError(f"N-MNIST times start at 0 µs: the first event is at {int(packet.t[0])} µs")
+        first = int(packet.t[0]) if len(packet) else packet.t_start
+        #: The time (µs) the file's 0 stands for.
+        self.t0 = packet.t_start if first > 0x7FFFFF else 0
+        if first < self.t0 or first < 0:
+            raise ValueError(f"time {first} µs is before the N-MNIST origin {self.t0} µs")
         self.state = np.zeros(1, np.int64)
 
     def _events(self, packet: EventPacket) -> None:
         assert self.f is not None
-        t = packet.t
+        t = packet.t - self.t0 if self.t0 else packet.t
         out = np.empty((len(t) + (int(t[-1]) - int(self.state[0])) // OVERFLOW_US + 1, RECORD), np.uint8)
         k = encode_nmnist(t, packet.x, packet.y, packet.p, self.state, out)
         self.f.write(out[:k].tobytes())

@@ -142,7 +142,7 @@ class EventStreamSource(FileSource):
                 self._fail(f"file ends inside an event (truncated: {state[0]} of its 5 bytes)", start)
             self._note_skip(start, pos - 1, 1)
         yield from asm.finish()
-        yield from exposures.push(*(a[:0] for a in tc), pos=pos, final=True)
+        yield from exposures.finish(pos)
 
 
 class _Exposures:
@@ -178,3 +178,8 @@ class _Exposures:
             return []
         pkt = self.tiler.push(ExposurePacket, "exposures", t[:k], pos, x=x[:k], y=y[:k], second=second[:k])
         return [] if pkt is None else [pkt]
+
+    def finish(self, pos: int) -> list[ExposurePacket]:
+        """End of file: the crossings held back."""
+        none = (np.empty(0, np.int64), np.empty(0, np.uint16), np.empty(0, np.uint16), np.empty(0, np.bool_))
+        return self.push(*none, pos=pos, final=True)

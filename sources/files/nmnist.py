@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from tectum import Kind, Packet
+from tectum import FormatError, Kind, Packet
 
 from ._common import EventAssembler, FileSource
 
@@ -109,7 +109,14 @@ class NmnistSource(FileSource):
             state[2] = pos
             n = decode_nmnist(rec, state, t, x, y, p, where)
             self.overflow_records = int(state[1])
-            yield from asm.push(t[:n], x[:n], y[:n], p[:n], pos, where[:n])
+            try:
+                yield from asm.push(t[:n], x[:n], y[:n], p[:n], pos, where[:n])
+            except FormatError as e:
+                if self.sensor_opt is None and "outside" in str(e):
+                    raise FormatError(f"{str(e).split(': ', 1)[-1]} (N-MNIST's, by default: give sensor=WxH "
+                                      "for N-Caltech101 and the other datasets)", path=self.path,
+                                      offset=e.offset) from None
+                raise
             pos += len(buf)
             if self.t_end_us is not None and asm.last_t is not None and asm.last_t >= self.t_end_us:
                 break
