@@ -1,0 +1,85 @@
+"""AEDAT 4.0 kernels against slow obvious references: the split of
+``Event`` structs into columns (16 at a time in vector code, the rest one
+by one) gives what NumPy's structured view of the same bytes gives, for any
+bytes; the threads' parts of a run hold about equal compressed bytes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tectum.sources.files import _aedat4_kernels as AK
+from tectum.sources.files.aedat4 import _cuts
+
+#: The ``Event`` struct of the AEDAT 4.0 EventPacket, as NumPy reads it
+EVENT = np.dtype([("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "u1"), ("pad", "V3")])
+
+
+def _reference(b: np.ndarray, last: int) -> tuple[tuple[int, int, int, int], list[np.ndarray]]:
+    ev = np.frombuffer(b.tobytes(), EVENT)
+    t = ev["t"].astype(np.int64)
+    p = np.where(ev["p"] != 0, 1, -1).astype(np.int8)
+    if not len(ev):
+        return (0, 0, 0, last), [t, ev["x"], ev["y"], p]
+    dec = int(t[0] < last) + int(np.sum(t[1:] < t[:-1]))
+    return (dec, int(ev["x"].max()), int(ev["y"].max()), int(t[-1])), [t, ev["x"], ev["y"], p]
+
+
+@pytest.mark.parametrize("shift", [0, 3], ids=["aligned", "unaligned"])
+def test_split_is_the_struct_layout(shift: int) -> None:
+    """Random bytes (times out of order, any polarity byte, garbage padding,
+    x and y over the whole uint16 range), every length around the 16-event
+    step, into columns from an offset: the same columns and checks as the
+    structured view; nothing written outside the events' stretch."""
+    rng = np.random.default_rng(7)
+    for n in [*range(0, 50), 255, 2219]:
+        raw = np.zeros(16 * n + 8, np.uint8)
+        b = raw[shift:shift + 16 * n]
+        b[:] = rng.integers(0, 256, 16 * n, dtype=np.uint8)
+        q = np.frombuffer(b.tobytes(), EVENT)
+        if n > 3:  # mostly rising times, as recordings have them, with a few falls
+            t = np.cumsum(rng.integers(-2, 50, n))
+            q = q.copy()
+            q["t"] = t
+            b[:] = np.frombuffer(q.tobytes(), np.uint8)
+        o = 5
+        cols = [np.full(n + 10, 77, d) for d in (np.int64, np.uint16, np.uint16, np.int8)]
+        got = AK._split(b, o, *cols, np.int64(10))
+        want, want_cols = _reference(b, 10)
+        assert tuple(int(v) for v in got) == want, n
+        for c, w in zip(cols, want_cols):
+            assert np.array_equal(c[o:o + n], w), n
+            assert (c[:o] == 77).all() and (c[o + n:] == 77).all(), n
+
+
+def test_plain_sixteen_is_the_struct_layout() -> None:
+    """The plain form of the 16-event step (``NUMBA_DISABLE_JIT``) too."""
+    rng = np.random.default_rng(1)
+    b = rng.integers(0, 256, 16 * 20, dtype=np.uint8)
+    cols = [np.zeros(16, d) for d in (np.int64, np.uint16, np.uint16, np.int8)]
+    AK._split16(b.view(np.int64), 3, *cols)
+    _, want = _reference(b[16 * 3:16 * 19], 0)
+    for c, w in zip(cols, want):
+        assert np.array_equal(c, w)
+
+
+def _rows(sizes: list[int]) -> np.ndarray:
+    rows = np.zeros((len(sizes), 9), np.int64)
+    ends = np.cumsum(sizes)
+    rows[:, 0], rows[:, 1] = ends - sizes, ends
+    return rows
+
+
+def test_parts_hold_equal_compressed_bytes() -> None:
+    """Packets of uneven size: each part's bytes within one packet of an
+    equal share (cutting in equal numbers of packets would give the first
+    part 3x the second's here), every part at least one packet."""
+    sizes = [3000] * 50 + [1000] * 50
+    for w in (1, 2, 3, 4):
+        cuts = _cuts(_rows(sizes), w)
+        assert cuts[0] == 0 and cuts[-1] == len(sizes) and all(a < b for a, b in zip(cuts, cuts[1:]))
+        share = sum(sizes) / w
+        for a, b in zip(cuts, cuts[1:]):
+            assert abs(sum(sizes[a:b]) - share) <= max(sizes), (w, cuts)
+    assert _cuts(_rows([10, 10**6, 10]), 3) == [0, 1, 2, 3]  # one packet each, whatever their sizes
+    assert _cuts(_rows([5, 5]), 2) == [0, 1, 2]
