@@ -577,6 +577,30 @@ DAT_STATE = 3
 
 
 @njit(cache=True, nogil=True)
+def dat_unroll(r, to, wraps, last, have, first):  # pragma: no cover - numba
+    """The times of the DAT records ``r`` (at least one) unrolled one by one
+    into ``to``: a fall of more than half the 32-bit range is a wrap, a rise
+    of more than half a step back across one (a corrupt record), each time
+    unrolled to the one nearest the previous, so one bad record cannot
+    shift every later time by 2^32 µs. ``wraps``, ``last`` (raw) and
+    ``have`` are the decoder's state before ``r``; ``first`` is ``r[0]``'s
+    raw time. Returns the new ``wraps`` and ``last`` and how many times
+    fell (the first compared with the time before it, if any)."""
+    half = np.int64(1) << 31
+    before = (wraps << 32) + (last if have == 1 else np.int64(first))  # the time before the first
+    fell = np.int64(0)
+    for k in range(r.shape[0]):
+        raw = np.int64(r[k] & np.uint64(0xFFFFFFFF))
+        wraps += _wrap_step(have, last, raw, half)
+        last = raw
+        have = 1
+        to[k] = (wraps << 32) + raw
+        fell += np.int64(to[k] < before)
+        before = to[k]
+    return wraps, last, fell
+
+
+@njit(cache=True, nogil=True)
 def decode_dat(records, state, t, x, y, p):  # pragma: no cover - numba
     """``records`` are little-endian uint64 (low word time, high word data);
     returns (n_events, times never decrease, largest x, largest y) (the
@@ -586,10 +610,7 @@ def decode_dat(records, state, t, x, y, p):  # pragma: no cover - numba
     A block whose raw times never fall and rise by at most half the 32-bit
     range in all holds no wrap: it is decoded in one vectorised pass on
     32-bit times. Any other block (a wrap, a time out of order, a corrupt
-    record) has its times unrolled again one by one: a fall of more than
-    half the range is a wrap, a rise of more than half a step back across
-    one (a corrupt record), each time unrolled to the one nearest the
-    previous, so one bad record cannot shift every later time by 2^32 µs."""
+    record) has its times unrolled again one by one (:func:`dat_unroll`)."""
     wraps = state[0]
     last = state[1]
     have = state[2]
@@ -625,16 +646,8 @@ def decode_dat(records, state, t, x, y, p):  # pragma: no cover - numba
             yo[k] = yk
             po[k] = np.int8((d >> np.uint32(28)) != 0) * np.int8(2) - np.int8(1)
         if fell or np.int64(prev) - np.int64(first) > half:  # perhaps a wrap: unrolled one by one
-            before = (wraps << 32) + (last if have == 1 else np.int64(first))  # the time before the block's first
-            fell = np.int64(0)
-            for k in range(j - i):
-                raw = np.int64(r[k] & np.uint64(0xFFFFFFFF))
-                wraps += _wrap_step(have, last, raw, half)
-                last = raw
-                have = 1
-                to[k] = (wraps << 32) + raw
-                fell += np.int64(to[k] < before)
-                before = to[k]
+            wraps, last, fell = dat_unroll(r, to, wraps, last, have, first)
+            have = 1
         else:
             last = np.int64(prev)
             have = 1
@@ -644,13 +657,6 @@ def decode_dat(records, state, t, x, y, p):  # pragma: no cover - numba
     state[1] = last
     state[2] = have
     return m, dec == 0, mx, my
-
-
-@njit(cache=True, nogil=True)
-def decode_dat_at(records, k, state, t, x, y, p, at):  # pragma: no cover - numba
-    """:func:`decode_dat` of ``records[:k]`` into the columns from index
-    ``at`` (the slices made here, not by the caller per call)."""
-    return decode_dat(records[:k], state, t[at:at + k], x[at:at + k], y[at:at + k], p[at:at + k])
 
 
 # --- jAER AEDAT 2.0 (big-endian int32 address, int32 timestamp) -----------------------

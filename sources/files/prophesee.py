@@ -50,6 +50,7 @@ from ._common import (
     sensor_from_header,
     t0_from_header,
 )
+from ._dat_kernels import decode_dat_within
 
 __all__ = ["Evt2Source", "Evt3Source", "DatSource", "raw_format_of"]
 
@@ -509,11 +510,12 @@ class DatSource(FileSource):
         step = max(8, self.chunk_bytes // 8 * 8)
         buf = byte_buffer(min(step, _DAT_READ))
         records, piece = buf.view("<u8"), buf.shape[0]  # step and _DAT_READ are whole records
+        w, h = sensor if asm.check_geometry else (1 << 16, 1 << 16)
         f.seek(pos)
         while pos < end:
             at, m = pos, min(step, end - pos) // 8
             t, x, y, p = asm.reserve(m)
-            n, ordered, mx, my = 0, True, 0, 0
+            n, ok = 0, True
             while n < m:
                 want = min(piece, 8 * (m - n))
                 got = f.readinto(buf if want == piece else buf[:want])
@@ -522,12 +524,11 @@ class DatSource(FileSource):
                 k = got // 8
                 if not k:
                     break
-                _, ok, a, b = K.decode_dat_at(records, k, state, t, x, y, p, n)
-                ordered, mx, my = ordered and ok, max(mx, a), max(my, b)
+                ok = decode_dat_within(records, k, state, t, x, y, p, n, w, h)[1] and ok
                 n += k
             pos += 8 * n
             del t, x, y, p  # views of the chunk's columns: once its packets are gone, the set is free again
-            yield from asm.commit(n, at, partial(record_offsets, at, 8, n), (ordered, mx, my))
+            yield from asm.commit(n, at, partial(record_offsets, at, 8, n), (ok, 0, 0))
             if asm.past_end() or n < m:  # the end, or the file shrank while read
                 break
         yield from asm.finish()
