@@ -20,7 +20,7 @@ from numba.extending import intrinsic, overload
 
 from . import _lz4 as LZ4
 
-__all__ = ["fill_events", "inflate_events", "inflate_packets", "lz4_frame", "pack_events", "scan_packets",
+__all__ = ["fill_events", "inflate_events", "inflate_packets", "lz4_frame", "pack_events", "plan_run", "scan_packets",
            "table_fields"]
 
 
@@ -284,6 +284,49 @@ def inflate_events(buf, rows, k, scratch, t, x, y, p, counts):  # pragma: no cov
                 o += m
         k += 1
     return o, k, dec == 0, mx, my
+
+
+@njit(cache=True, nogil=True)
+def plan_run(rows, threads, run_events, part_bytes):  # pragma: no cover - numba
+    """How to decode the event packets ``rows`` (of :func:`scan_packets`)
+    as one run of :func:`inflate_events` calls: returns (whether they are
+    all plain LZ4 frames whose events fit in ``run_events``, the cuts of
+    the run into parts, the columns' room before each cut, the largest
+    packet's room in bytes). Parts: up to ``threads``, at least one packet
+    and ``part_bytes`` of room each, of about equal compressed bytes
+    (decoding time follows them: cut in equal numbers of packets, the two
+    halves of a recording held 175 k and 149 k events and the thread with
+    the first waited 0.25 ms for nothing). One call in place of a dozen
+    NumPy calls on the rows (~20 us less a read)."""
+    n = rows.shape[0]
+    room = np.int64(0)
+    size = np.int64(0)
+    scratch = np.int64(0)
+    ok = n > 0
+    for k in range(n):
+        ok = ok and rows[k, 3] >= 0
+        room += rows[k, 5] // 16
+        size += rows[k, 1] - rows[k, 0]
+        scratch = max(scratch, rows[k, 5])
+    total = np.int64(0)
+    for k in range(n):
+        total += rows[k, 5]
+    w = max(1, min(threads, n, total // part_bytes))
+    cuts = np.zeros(w + 1, np.int64)
+    at = np.zeros(w + 1, np.int64)
+    cuts[w] = n
+    i = 1
+    done = np.int64(0)  # compressed bytes of the packets before k
+    held = np.int64(0)  # their room
+    for k in range(n):
+        if i < w and (done * w >= size * i or n - k <= w - i) and k > cuts[i - 1]:
+            cuts[i] = k
+            at[i] = held
+            i += 1
+        done += rows[k, 1] - rows[k, 0]
+        held += rows[k, 5] // 16
+    at[w] = room
+    return ok and room <= run_events, cuts, at, scratch
 
 
 @njit(cache=True, nogil=True)

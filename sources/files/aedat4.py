@@ -511,11 +511,13 @@ class _Batch:
         packets one by one."""
         events, self.events = self.events, []
         for buf, rows in events:
+            if _lz4.AVAILABLE:
+                plan = AK.plan_run(rows, self.src.threads, _RUN_EVENTS, _PART_BYTES)
+                if plan[0]:  # the common case: one run (no search for its end)
+                    yield from self._inflate_run(buf, rows, plan)
+                    continue
             fast = (rows[:, 3] >= 0) & _lz4.AVAILABLE
             room = np.cumsum(np.where(fast, rows[:, 5] // 16, 0))  # events each packet can hold, summed
-            if room[-1] <= _RUN_EVENTS and fast.all():  # the common case: one run (no search for its end)
-                yield from self._inflate_run(buf, rows)
-                continue
             k = 0
             while k < rows.shape[0]:
                 if not fast[k]:
@@ -529,20 +531,19 @@ class _Batch:
                 yield from self._inflate_run(buf, rows[k:j])
                 k = j
 
-    def _inflate_run(self, buf: np.ndarray, rows: np.ndarray) -> Iterator[Packet]:
+    def _inflate_run(self, buf: np.ndarray, rows: np.ndarray, plan: Any = None) -> Iterator[Packet]:
         """Plain LZ4 event packets: parts of the run go to ``threads``
         threads (the kernel releases the GIL), each into its own stretch of
         one reservation of columns, committed in turn where it lies (see
         :meth:`EventAssembler.resume_at`; moved only when the run of equal
-        times held back from the part before does not fit in the gap)."""
+        times held back from the part before does not fit in the gap).
+        ``plan``: :func:`plan_run` of the rows, when already made."""
         assert self.asm is not None
-        room = np.cumsum(rows[:, 5] // 16)
-        w = max(1, min(self.src.threads, rows.shape[0], int(rows[:, 5].sum()) // _PART_BYTES))
-        cuts = _cuts(rows, w)
-        at = [int(room[c - 1]) if c else 0 for c in cuts]
+        _, c, a, size = plan if plan is not None else AK.plan_run(rows, self.src.threads, _RUN_EVENTS, _PART_BYTES)
+        cuts, at, scratch = c.tolist(), a.tolist(), int(size)
+        w = len(cuts) - 1
         cols = self.asm.reserve(at[-1])
         counts = np.zeros(rows.shape[0], np.int64)
-        scratch = int(rows[:, 5].max())
 
         def part(i: int) -> tuple[int, bool, int, int]:
             n, _, rising, mx, my = AK.inflate_events(buf, rows[cuts[i]:cuts[i + 1]], 0, byte_buffer(scratch),
@@ -619,21 +620,6 @@ def _why(payload: memoryview, comp: int) -> str:
     """Why a packet does not decompress, in the words of the frame decoder."""
     e = _inflate(payload, comp)
     return str(e) if isinstance(e, ValueError) else "corrupt LZ4 block"
-
-
-def _cuts(rows: np.ndarray, w: int) -> list[int]:
-    """Where to cut the packets ``rows`` into ``w`` consecutive parts of
-    about equal compressed bytes (decoding time follows them: cut in equal
-    numbers of packets, the two halves of a recording held 175 k and 149 k
-    events and the thread with the first waited 0.25 ms for nothing), each
-    of at least one packet; ``w`` at most the number of packets."""
-    n = rows.shape[0]
-    size = np.cumsum(rows[:, 1] - rows[:, 0])
-    cuts = [0]
-    for i in range(1, w):
-        k = int(np.searchsorted(size, size[-1] * i / w, side="left")) + 1  # the packet that reaches the share
-        cuts.append(min(max(k, cuts[-1] + 1), n - (w - i)))
-    return cuts + [n]
 
 
 def _where(pos: np.ndarray, counts: np.ndarray) -> np.ndarray:

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from tectum.sources.files import _aedat4_kernels as AK
-from tectum.sources.files.aedat4 import _cuts
 
 #: The ``Event`` struct of the AEDAT 4.0 EventPacket, as NumPy reads it
 EVENT = np.dtype([("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "u1"), ("pad", "V3")])
@@ -63,23 +62,43 @@ def test_plain_sixteen_is_the_struct_layout() -> None:
         assert np.array_equal(c, w)
 
 
-def _rows(sizes: list[int]) -> np.ndarray:
+def _rows(sizes: list[int], room: int = 4096) -> np.ndarray:
     rows = np.zeros((len(sizes), 9), np.int64)
     ends = np.cumsum(sizes)
     rows[:, 0], rows[:, 1] = ends - sizes, ends
+    rows[:, 5] = 16 * room
     return rows
 
 
 def test_parts_hold_equal_compressed_bytes() -> None:
     """Packets of uneven size: each part's bytes within one packet of an
     equal share (cutting in equal numbers of packets would give the first
-    part 3x the second's here), every part at least one packet."""
+    part 3x the second's here), every part at least one packet, the room
+    before each cut that of the packets before it."""
     sizes = [3000] * 50 + [1000] * 50
     for w in (1, 2, 3, 4):
-        cuts = _cuts(_rows(sizes), w)
-        assert cuts[0] == 0 and cuts[-1] == len(sizes) and all(a < b for a, b in zip(cuts, cuts[1:]))
+        ok, cuts, at, scratch = AK.plan_run(_rows(sizes), w, 1 << 22, 1)
+        assert ok and scratch == 16 * 4096
+        assert cuts[0] == 0 and cuts[-1] == len(sizes) and (np.diff(cuts) > 0).all()
+        assert at.tolist() == [4096 * c for c in cuts.tolist()]
         share = sum(sizes) / w
         for a, b in zip(cuts, cuts[1:]):
             assert abs(sum(sizes[a:b]) - share) <= max(sizes), (w, cuts)
-    assert _cuts(_rows([10, 10**6, 10]), 3) == [0, 1, 2, 3]  # one packet each, whatever their sizes
-    assert _cuts(_rows([5, 5]), 2) == [0, 1, 2]
+    # one packet each, whatever their sizes
+    assert AK.plan_run(_rows([10, 10**6, 10]), 3, 1 << 22, 1)[1].tolist() == [0, 1, 2, 3]
+    assert AK.plan_run(_rows([10**6, 10, 10]), 3, 1 << 22, 1)[1].tolist() == [0, 1, 2, 3]
+    assert AK.plan_run(_rows([5, 5]), 2, 1 << 22, 1)[1].tolist() == [0, 1, 2]
+
+
+def test_plan_says_when_a_run_is_not_one() -> None:
+    """Not one run: a packet that is not a plain LZ4 frame, more room than
+    a run holds, no packets. Parts: at most one per ``part_bytes`` of room
+    and per packet."""
+    rows = _rows([100] * 8)
+    assert AK.plan_run(rows, 2, 8 * 4096, 1)[0]
+    assert not AK.plan_run(rows, 2, 8 * 4096 - 1, 1)[0]
+    rows[3, 3] = -1
+    assert not AK.plan_run(rows, 2, 1 << 22, 1)[0]
+    assert not AK.plan_run(rows[:0], 2, 1 << 22, 1)[0]
+    assert AK.plan_run(_rows([100] * 8), 4, 1 << 22, 3 * 16 * 4096)[1].tolist() == [0, 4, 8]  # 8 packets' room: 2
+    assert AK.plan_run(_rows([100] * 2), 4, 1 << 22, 1)[1].tolist() == [0, 1, 2]
