@@ -100,7 +100,7 @@ def _split16(q, j, t, x, y, p):  # pragma: no cover - numba
 
 
 @intrinsic
-def _split16_ir(typingctx, q, j, t, x, y, p):  # type: ignore[no-untyped-def]
+def _split16_ir(typingctx, q, j, t, x, y, p):
     """:func:`_split16` as LLVM vector code: a ``<32 x i64>`` load, the even
     words (times) and the odd ones (x | y << 16 | polarity << 32) taken
     apart by two shuffles and narrowed; 2.5 cycles an event less than the
@@ -108,15 +108,15 @@ def _split16_ir(typingctx, q, j, t, x, y, p):  # type: ignore[no-untyped-def]
     this CPU, AVX-512)."""
     sig = types.void(q, types.intp, t, x, y, p)
 
-    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+    def codegen(context, builder, signature, args):
         qa, ta, xa, ya, pa = (context.make_array(ty)(context, builder, v)
                               for ty, v in zip(signature.args, args) if isinstance(ty, types.Array))
         i64, i32, i16, i8 = (ir.IntType(b) for b in (64, 32, 16, 8))
 
-        def vec(elt):  # type: ignore[no-untyped-def]
+        def vec(elt):
             return ir.VectorType(elt, _LANES)
 
-        def lanes(first):  # type: ignore[no-untyped-def]
+        def lanes(first):
             return ir.Constant(vec(i32), [first + 2 * k for k in range(_LANES)])
 
         at = builder.gep(qa.data, [builder.mul(args[1], ir.Constant(args[1].type, 2))])
@@ -138,7 +138,7 @@ def _split16_ir(typingctx, q, j, t, x, y, p):  # type: ignore[no-untyped-def]
 
 
 @overload(_split16)
-def _split16_compiled(q, j, t, x, y, p):  # type: ignore[no-untyped-def]
+def _split16_compiled(q, j, t, x, y, p):
     if any(a.layout != "C" for a in (q, t, x, y, p)):  # the vector loads and stores need contiguous arrays
         return _split16
     return lambda q, j, t, x, y, p: _split16_ir(q, j, t, x, y, p)
