@@ -52,6 +52,14 @@ def test_writers_make_the_specified_bytes(tmp_path: Path, pkt: EventPacket, spli
         assert events(back) == events(pkt)
 
 
+def test_nmnist_overflow_record_at_the_23_bit_boundary(tmp_path: Path) -> None:
+    """2^23 - 1 µs still fits the field; 2^23 µs takes one overflow record."""
+    pkt = EventPacket.from_arrays([0x7FFFFF, 0x800000], [1, 2], [3, 4], [1, -1], sensor=(34, 34), t_start=0)
+    write_all(NmnistSink(str(tmp_path / "b.bin")), [pkt])
+    raw = (tmp_path / "b.bin").read_bytes()
+    assert raw == nmnist_encode(events(pkt)) and len(raw) == 15 and raw[5:10] == bytes([0, 240, 0, 0, 0])
+
+
 def test_late_first_event_counts_from_the_first_packet(tmp_path: Path) -> None:
     """Neither format stores a time origin: a stream starting late is written
     from its first packet's start (kept as ``t0``), not as megabytes of
