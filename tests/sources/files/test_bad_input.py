@@ -22,7 +22,7 @@ from tectum.sources.files import SOURCES, open_file
 from helpers import decodes_or_names, mutate
 
 EXT = {"text": ".txt", "aedat4": ".aedat4", "evt2": ".raw", "evt3": ".evt3.raw", "dat": ".dat", "hdf5": ".h5",
-       "npy": ".npy"}
+       "npy": ".npy", "es": ".es", "nmnist": ".bin"}
 CORPUS = Path(__file__).parent / "corpus"
 
 
@@ -131,11 +131,11 @@ def test_unrecognised_file(tmp_path: Path) -> None:
 
 
 def _check_fuzz(path: Path, cls: type) -> None:
-    decodes_or_names(cls(str(path), sensor="64x48") if cls.name in ("text", "npy", "aedat2") else cls(str(path)),
+    decodes_or_names(cls(str(path), sensor="64x48") if cls.name in ("text", "npy", "aedat2", "nmnist") else cls(str(path)),
                      path)
 
 
-@pytest.mark.parametrize("fmt", ["evt2", "evt3", "dat", "aedat4", "text", "npy"])
+@pytest.mark.parametrize("fmt", ["evt2", "evt3", "dat", "aedat4", "text", "npy", "es", "nmnist"])
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.data())
 def test_fuzz_mutations(fmt: str, data, small_files, tmp_path_factory) -> None:
@@ -152,7 +152,8 @@ def test_fuzz_random_bytes(cls: type, blob: bytes, tmp_path_factory) -> None:
     prefix = {"aedat4": b"#!AER-DAT4.0\r\n", "aedat2": b"#!AER-DAT2.0\r\n# AEChip: DVS128\r\n",
               "aedat31": b"#!AER-DAT3.1\r\n#!END-HEADER\r\n", "evt2": b"% evt 2.0\n% geometry 64x48\n",
               "evt3": b"% evt 3.0\n% geometry 64x48\n", "dat": b"% Version 2\n% Width 64\n% Height 48\n",
-              "npy": b"\x93NUMPY", "hdf5": b"\x89HDF\r\n\x1a\n", "text": b"", "rosbag": b"#ROSBAG V2.0\n"}[cls.name]
+              "npy": b"\x93NUMPY", "hdf5": b"\x89HDF\r\n\x1a\n", "text": b"", "rosbag": b"#ROSBAG V2.0\n",
+              "es": b"Event Stream\x02\x00\x00\x02\x40\x00\x30\x00", "nmnist": b""}[cls.name]
     f = tmp_path_factory.mktemp("rb") / ("f.bag" if cls.name == "rosbag" else "f.bin")
     f.write_bytes(prefix + blob)
     _check_fuzz(f, cls)
@@ -255,7 +256,7 @@ def _aedat31_bytes(ev: EventPacket, per: int = 100) -> tuple[bytes, int]:
 DAMAGED = {"evt2": ("evt2", ".raw", 0, 1 / 4), "evt3": ("evt3", ".raw", 0, 12 / 2), "dat": ("dat", ".dat", 8, 1 / 8),
            "npy": ("npy", ".npy", 0, 1), "aedat2": ("aedat2", ".aedat", 8, 1 / 8),
            "aedat31": ("aedat31", ".aedat", 8, 1 / 8), "aedat4": ("aedat4", ".aedat4", 0, 1),
-           "rosbag": ("rosbag", ".bag", 0, 1 / 13)}
+           "rosbag": ("rosbag", ".bag", 0, 1 / 13), "es": ("es", ".es", 0, 1 / 5), "nmnist": ("nmnist", ".bin", 0, 1 / 5)}
 
 
 @pytest.fixture(scope="module")
@@ -271,6 +272,8 @@ def damage_files(small_files, tmp_path_factory) -> dict[str, tuple[bytes, int]]:
     out["aedat2"] = (aedat2_dvs128(ev), len(AEDAT2_DVS128_HEADER))
     out["aedat31"] = _aedat31_bytes(ev)
     out["aedat4"] = (small_files["aedat4"], 0)
+    out["es"] = (small_files["es"], 20)
+    out["nmnist"] = (small_files["nmnist"], 0)
     for name, cls_name, kw in (("aedat2", "aedat2", {"sensor": "128x128"}), ("aedat31", "aedat31", {})):
         f = tmp_path_factory.mktemp("ok") / "ok.aedat"
         f.write_bytes(out[name][0])
@@ -312,7 +315,7 @@ def test_fuzz_damage_with_skip_bad(fmt: str, data, damage_files, tmp_path_factor
     f = tmp_path_factory.mktemp("dmg") / ("f" + ext)
     f.write_bytes(bytes(out))
     cls = next(c for c in SOURCES if c.name == name)
-    kw = {"npy": {"sensor": "64x48"}, "aedat2": {"sensor": "128x128"}}.get(fmt, {})
+    kw = {"npy": {"sensor": "64x48"}, "aedat2": {"sensor": "128x128"}, "nmnist": {"sensor": "64x48"}}.get(fmt, {})
     src = cls(str(f), skip_bad=True, chunk_bytes=data.draw(st.sampled_from([64, 1000, 1 << 22])), **kw)
     try:
         pkts = [q for q in src.packets() if isinstance(q, EventPacket)]
