@@ -47,6 +47,15 @@ Steps (IJCV 2018 Sec. 3-4; the kernels are in :mod:`._dsi`):
    neighbourhood (σ ``threshold_sigma`` px) by ``threshold_c`` times the
    largest confidence keep their depth (the paper's adaptive threshold);
    then a ``median_size`` median filter over the kept pixels.
+5. Surface (``surface``): ``"free"`` (the default) keeps each pixel's own
+   depth. ``"plane"`` fits a plane to the map's pixels (robustly, in inverse
+   depth, in the reference camera: :mod:`._plane_fit`) and gives the same
+   pixels the plane's depth instead; ``"auto"`` does so only when the plane
+   explains the map (at least ``plane_inliers`` of its pixels within
+   ``plane_tol`` DSI planes of it) and keeps the free depth otherwise. Those
+   maps say which they are: columns ``planar`` (1 or 0) and ``plane`` (the
+   plane's ``1 / Z = a x + b y + c`` over normalised coordinates, 1/m; NaN
+   when free).
 
 Output: a :class:`~tectum.MapPacket` per map, stamped at its last event
 (µs), with ``depth`` (m, float32 (H, W), NaN where unknown), ``confidence``
@@ -98,6 +107,7 @@ from tectum import EventPacket, Kind, MapPacket, Operator, Packet, PointPacket, 
 from tectum.camera import QUAT_TOL, Camera, camera_from, interpolate_poses, quat_to_rot, rot_to_quat
 
 from ._dsi import BLOCK, argmax_depth, masked_median, ray_traces, vote
+from ._plane_fit import explains, fit_plane, plane_depth
 
 __all__ = ["Emvs", "depth_planes", "depth_map"]
 
@@ -223,6 +233,16 @@ class Emvs(Operator):
     gap_us:
         Lost pose rows between good poses this far apart or more make a gap
         (not mapped, the map in progress ends), µs.
+    surface:
+        ``free`` (each pixel its own depth), ``plane`` (a map's pixels get
+        the depth of the plane fitted to them) or ``auto`` (the plane where
+        it explains the map); see the module, step 5.
+    plane_tol:
+        ``auto``: a pixel is on the plane within this many DSI planes (of
+        inverse depth).
+    plane_inliers:
+        ``auto``: the share of a map's pixels on the plane for the plane to
+        explain it (0..1].
     """
 
     name = "map.emvs"
@@ -238,7 +258,9 @@ class Emvs(Operator):
                  spacing: Literal["inverse", "depth"] = "inverse", segment_events: int = 1024,
                  segment_us: int = 10_000, keyframe_baseline: float = 0.15, min_baseline: float = 0.02,
                  overlap: int = 1, interim: int = 1, refine: bool = True, threshold_sigma: float = 2.0,
-                 threshold_c: float = 0.05, median_size: int = 5, points: bool = True, gap_us: int = 20_000) -> None:
+                 threshold_c: float = 0.05, median_size: int = 5, points: bool = True, gap_us: int = 20_000,
+                 surface: Literal["free", "plane", "auto"] = "free", plane_tol: float = 2.0,
+                 plane_inliers: float = 0.8) -> None:
         self.camera: Camera = camera_from(calib)
         self.depths = depth_planes(planes, min_depth, max_depth, spacing)
         self.rho = np.ascontiguousarray(1.0 / self.depths)
@@ -264,9 +286,19 @@ class Emvs(Operator):
         if gap_us < 1:
             raise ValueError(f"map.emvs: gap_us must be >= 1 µs, got {gap_us}")
         self.gap_us = int(gap_us)
+        if surface not in ("free", "plane", "auto"):
+            raise ValueError(f"map.emvs: surface must be 'free', 'plane' or 'auto', got {surface!r}")
+        if not plane_tol > 0 or not 0 < plane_inliers <= 1:
+            raise ValueError(f"map.emvs: need plane_tol > 0 (DSI planes) and 0 < plane_inliers <= 1, got "
+                             f"{plane_tol}, {plane_inliers}")
+        self.surface = surface
+        # the tolerance in inverse depth (1/m): plane_tol times the DSI's median plane spacing
+        self.plane_tol = float(plane_tol) * float(np.median(np.abs(np.diff(self.rho))))
+        self.plane_inliers = float(plane_inliers)
         self.K = np.array([[self.camera.fx, 0, self.camera.cx], [0, self.camera.fy, self.camera.cy], [0, 0, 1.0]])
         self.counts = {"maps": 0, "no_translation": 0, "skipped_before_poses": 0, "skipped_after_poses": 0,
-                       "outside_view": 0, "lost_poses": 0, "skipped_lost_poses": 0, "superseded": 0}
+                       "outside_view": 0, "lost_poses": 0, "skipped_lost_poses": 0, "superseded": 0,
+                       "planar_maps": 0}
         self.scene_depth = math.sqrt(min_depth * max_depth)  # m, until a map says better
         self._sensor: tuple[int, int] | None = None
         self._rays = np.empty((0, 0, 2))
@@ -562,6 +594,9 @@ class Emvs(Operator):
                         view.baseline, t_ref, self.min_baseline * self.scene_depth)
             return []
         depth, conf = depth_map(view.dsi, self.depths, **self.map_options)  # type: ignore[arg-type]
+        extra: dict[str, np.ndarray] = {}
+        if self.surface != "free":
+            depth, extra = self._surface(depth)
         known = np.isfinite(depth)
         if known.any() and not interim:
             self.scene_depth = float(np.median(depth[known]))
@@ -570,11 +605,26 @@ class Emvs(Operator):
         tt = np.array([t_map], np.int64)
         out: list[Packet] = [MapPacket(tt, depth=depth[None], confidence=conf[None], K=self.K[None],
                                        pose=pose[None], t_ref=np.array([t_ref], np.int64),
-                                       baseline=np.array([view.baseline]), t_start=t_map,
+                                       baseline=np.array([view.baseline]), **extra, t_start=t_map,
                                        t_end=t_map + 1)]
         if self.points:
             out.append(self._cloud(depth, conf, R_wr, t_wr, t_map))
         return out
+
+    def _surface(self, depth: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """``depth`` with the plane's depth at its known pixels when
+        ``surface`` is ``plane``, or ``auto`` and the plane explains it; and
+        the map's columns ``planar`` and ``plane``."""
+        fit = fit_plane(depth, self.K)
+        planar = fit is not None and (self.surface == "plane" or explains(fit, self.plane_tol, self.plane_inliers))
+        coef = np.full(3, np.nan)
+        if planar:
+            assert fit is not None
+            coef = fit.coef
+            flat = plane_depth(coef, self.K, depth.shape).astype(np.float32)
+            depth = np.where(np.isfinite(depth), flat, np.float32(np.nan))
+            self.counts["planar_maps"] += 1
+        return depth, {"planar": np.array([int(planar)], np.int8), "plane": coef[None]}
 
     def _cloud(self, depth: np.ndarray, conf: np.ndarray, R_wr: np.ndarray, t_wr: np.ndarray,
                t_map: int) -> PointPacket:

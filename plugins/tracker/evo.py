@@ -28,7 +28,7 @@ __all__ = ["Evo"]
 #: parameters handed to ``tracker.edge_align`` and to ``map.emvs``
 _TRACKER = ("bootstrap_us", "plane_depth", "window_events", "step_events")
 _MAPPER = ("planes", "min_depth", "max_depth", "keyframe_baseline", "min_baseline", "overlap", "interim",
-           "segment_us")
+           "segment_us", "surface")
 
 
 class Evo(Macro):
@@ -78,6 +78,10 @@ class Evo(Macro):
         ``keyframe_baseline / interim``).
     segment_us:
         Mapper: longest time a segment of events sharing one pose spans, µs.
+    surface:
+        Mapper: ``free`` (each pixel its own depth), ``plane`` (each map's
+        pixels at the depth of the plane fitted to them) or ``auto`` (the
+        plane where it explains the map).
     """
 
     name = "tracker.evo"
@@ -90,7 +94,8 @@ class Evo(Macro):
                  plane_depth: float | None = None, window_events: int | None = None, step_events: int | None = None,
                  planes: int | None = None, min_depth: float | None = None, max_depth: float | None = None,
                  keyframe_baseline: float | None = None, min_baseline: float | None = None,
-                 overlap: int | None = None, interim: int | None = None, segment_us: int | None = None) -> None:
+                 overlap: int | None = None, interim: int | None = None, segment_us: int | None = None,
+                 surface: str | None = None) -> None:
         if delay_us < 1:
             raise ValueError(f"tracker.evo: delay_us must be >= 1 µs, got {delay_us}")
         self.calib, self.delay_us = calib, int(delay_us)
