@@ -22,6 +22,7 @@ import functools
 import struct
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
+from concurrent.futures import Future, wait
 from dataclasses import dataclass
 from functools import partial
 from typing import Any
@@ -552,7 +553,11 @@ class _Batch:
             return n, rising, mx, my
 
         futures = [workers().submit(part, i) for i in range(1, w)]
-        parts = [part(0)] + [fu.result() for fu in futures]
+        try:
+            parts = [part(0)] + [fu.result() for fu in futures]
+        except BaseException:  # an error or a Ctrl-C: no worker left writing into the columns given up
+            _finish(futures)
+            raise
         pos = rows[:, 8]
         for i in np.flatnonzero(counts < 0).tolist():
             size = int(rows[i, 1] - rows[i, 0])
@@ -603,6 +608,22 @@ class _Batch:
     def finish(self) -> Iterator[Packet]:
         if self.asm is not None:
             yield from self.asm.finish()
+
+
+def _finish(futures: list[Future[Any]]) -> None:
+    """Wait until the ``futures`` (of :func:`workers`) have ended, those not
+    started cancelled; a Ctrl-C meanwhile is raised once they have."""
+    for fu in futures:
+        fu.cancel()
+    interrupted = None
+    while True:
+        try:
+            wait(futures)
+            break
+        except KeyboardInterrupt as e:  # the parts run for milliseconds: wait them out, then stop
+            interrupted = e
+    if interrupted is not None:
+        raise interrupted
 
 
 def _inflate(payload: memoryview, comp: int) -> Any:

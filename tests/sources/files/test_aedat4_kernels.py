@@ -1,9 +1,15 @@
 """AEDAT 4.0 kernels against slow obvious references: the split of
 ``Event`` structs into columns (16 at a time in vector code, the rest one
 by one) gives what NumPy's structured view of the same bytes gives, for any
-bytes; the threads' parts of a run hold about equal compressed bytes."""
+bytes; the threads' parts of a run hold about equal compressed bytes; no
+worker thread is left decoding after an error, a Ctrl-C or a consumer that
+stops early."""
 
 from __future__ import annotations
+
+import signal as signals
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -102,3 +108,91 @@ def test_plan_says_when_a_run_is_not_one() -> None:
     assert not AK.plan_run(rows[:0], 2, 1 << 22, 1)[0]
     assert AK.plan_run(_rows([100] * 8), 4, 1 << 22, 3 * 16 * 4096)[1].tolist() == [0, 4, 8]  # 8 packets' room: 2
     assert AK.plan_run(_rows([100] * 2), 4, 1 << 22, 1)[1].tolist() == [0, 1, 2]
+
+
+def _slow_worker(monkeypatch, fail_here: BaseException | None, signal: bool = False) -> dict[str, bool]:
+    """``inflate_events`` made slow on the worker threads (0.2 s) and, with
+    ``fail_here``, raising it on the reading thread: what a Ctrl-C or an
+    error there looks like to the run; with ``signal``, the worker sends
+    the reading thread a real SIGINT as it starts (it arrives while that
+    thread decodes its own part or waits for the worker's). The flag says
+    whether the workers' parts had ended."""
+    from tectum.sources.files import aedat4
+
+    state = {"ended": True}
+    started = threading.Event()
+    real = AK.inflate_events
+    main = threading.get_ident()
+
+    def inflate(*args):  # type: ignore[no-untyped-def]
+        if threading.get_ident() == main:
+            if fail_here is not None:
+                assert started.wait(5)  # the worker is decoding its part
+                raise fail_here
+            return real(*args)
+        state["ended"] = False
+        started.set()
+        if signal:
+            signals.pthread_kill(main, signals.SIGINT)
+        time.sleep(0.2)
+        out = real(*args)
+        state["ended"] = True
+        return out
+
+    monkeypatch.setattr(AK, "inflate_events", inflate)
+    monkeypatch.setattr(aedat4, "_PART_BYTES", 1 << 12)  # two parts even for a small file
+    return state
+
+
+def _file(tmp_path) -> str:  # type: ignore[no-untyped-def]
+    from tectum import EventPacket
+    from tectum.sinks.files import SINKS
+    from tectum.sinks.files._common import write_all
+
+    pytest.importorskip("lz4")
+    rng = np.random.default_rng(5)
+    n = 20_000
+    ev = EventPacket.from_arrays(np.cumsum(rng.integers(0, 5, n)), rng.integers(0, 64, n), rng.integers(0, 48, n),
+                                 rng.choice([-1, 1], n), sensor=(64, 48))
+    path = str(tmp_path / "w.aedat4")
+    write_all(next(c for c in SINKS if c.name == "aedat4")(path, packet_events=700), [ev])
+    return path
+
+
+@pytest.mark.parametrize("fail, signal", [(KeyboardInterrupt(), False), (ValueError("broken"), False),
+                                          (None, True)], ids=["ctrl-c", "error", "sigint"])
+def test_no_worker_writes_after_an_interrupt(tmp_path, monkeypatch, fail: BaseException | None, signal: bool) -> None:
+    """A Ctrl-C (or an error) on the reading thread while a worker decodes
+    its part, raised in its own part or while it waits for the worker's:
+    the worker's part has ended when the exception reaches the caller (no
+    thread still writing into columns the caller gave up)."""
+    from tectum.sources.files import _lz4
+    from tectum.sources.files.aedat4 import Aedat4Source
+
+    if not _lz4.AVAILABLE:
+        pytest.skip("no compiled LZ4 path")
+    if signal and not hasattr(signals, "pthread_kill"):
+        pytest.skip("no pthread_kill here")
+    path = _file(tmp_path)
+    state = _slow_worker(monkeypatch, fail, signal)
+    with pytest.raises(KeyboardInterrupt if fail is None else type(fail)):
+        list(Aedat4Source(path, threads=2).packets())
+    assert state["ended"]
+
+
+def test_no_worker_writes_after_the_consumer_stops(tmp_path, monkeypatch) -> None:
+    """A consumer that stops after the first packet (threads=2): no worker
+    is left decoding, and the next read gives every event."""
+    from tectum import EventPacket
+    from tectum.sources.files import _lz4
+    from tectum.sources.files.aedat4 import Aedat4Source
+
+    if not _lz4.AVAILABLE:
+        pytest.skip("no compiled LZ4 path")
+    path = _file(tmp_path)
+    state = _slow_worker(monkeypatch, None)
+    it = Aedat4Source(path, threads=2).packets()
+    next(it)
+    it.close()
+    assert state["ended"]
+    assert sum(len(q) for q in Aedat4Source(path, threads=2).packets() if isinstance(q, EventPacket)) == 20_000
