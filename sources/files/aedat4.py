@@ -17,7 +17,6 @@ but never added again).
 
 from __future__ import annotations
 
-import copy
 import functools
 import struct
 import xml.etree.ElementTree as ET
@@ -75,7 +74,7 @@ def parse_info_node(xml: str) -> dict[int, Stream]:
     """Streams declared by an IOHeader ``infoNode`` XML document (each call
     its own :class:`Stream` objects; the parse of a document is cached:
     ~0.1 ms, 3 % of decoding a 2.6 MB file, for a file opened again)."""
-    return {s.id: copy.copy(s) for s in _parse_info_node(xml)}
+    return {s.id: Stream(**vars(s)) for s in _parse_info_node(xml)}  # not copy.copy: 3x its speed
 
 
 @functools.lru_cache(maxsize=16)
