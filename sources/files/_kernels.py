@@ -431,16 +431,20 @@ def _evt3_packed(words, state, strict, t, x, y, p, trig):  # pragma: no cover - 
                                                                        nbad, bx, vp, strict, t, trig)
         bmx = np.uint16(0)
         bmy = np.uint16(0)
-        for k in range(n0, n):  # unpack, and the largest x and y
-            q = t[k]
+        tb = t[n0:n]  # indices from 0 on: no wraparound test per event, a vectorised loop
+        xb = x[n0:n]
+        yb = y[n0:n]
+        pb = p[n0:n]
+        for k in range(n - n0):  # unpack, and the largest x and y
+            q = tb[k]
             xk = np.uint16((q & 0x7FF) | ((q >> 12) & 0x800))
             yk = np.uint16((q >> 12) & 0x7FF)
             bmx = max(bmx, xk)
             bmy = max(bmy, yk)
-            x[k] = xk
-            y[k] = yk
-            p[k] = np.int8(((q >> 10) & 2) - 1)
-            t[k] = base + (q >> 24)
+            xb[k] = xk
+            yb[k] = yk
+            pb[k] = np.int8(((q >> 10) & 2) - 1)
+            tb[k] = base + (q >> 24)
         mx = max(mx, np.int64(bmx))
         my = max(my, np.int64(bmy))
         if n > n0:
