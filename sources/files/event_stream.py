@@ -131,7 +131,8 @@ class EventStreamSource(FileSource):
             tc = (np.empty(m, np.int64), np.empty(m, np.uint16), np.empty(m, np.uint16), np.empty(m, np.bool_))
             n = C.decode(np.frombuffer(buf, np.uint8), state, atis, sensor[1], t, x, y, p, where, *tc)
             yield from asm.push(t[:n], x[:n], y[:n], p[:n], pos, where[:n])
-            yield from exposures.push(*(a[:state[6]] for a in tc), pos=pos)
+            c = int(state[6])
+            yield from exposures.push(tc[0][:c], tc[1][:c], tc[2][:c], tc[3][:c], pos)
             pos += len(buf)
             if self.t_end_us is not None and asm.last_t is not None and asm.last_t >= self.t_end_us:
                 stopped = True

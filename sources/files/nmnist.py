@@ -78,9 +78,12 @@ class NmnistSource(FileSource):
 
     @property
     def counts(self) -> dict[str, int]:
-        out = dict(FileSource.counts.fget(self))  # type: ignore[attr-defined]
-        out["time_overflow_records"] = self.overflow_records
-        return out
+        """:attr:`FileSource.counts` and the time-overflow records read."""
+        return {**super().counts, "time_overflow_records": self.overflow_records}
+
+    @counts.setter
+    def counts(self, value: dict[str, int]) -> None:
+        raise AttributeError("NmnistSource.counts is read-only")
 
     def _packets(self) -> Iterator[Packet]:
         f = self._open()
