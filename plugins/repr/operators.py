@@ -81,7 +81,8 @@ class _Image(Windowed):
             self._end = end + n_win * w
             stamps = np.arange(end - 1, self._end - 1, w, dtype=np.int64)  # each window's last µs
             # the first event of each next window: after the last at or before the stamp (times are integers)
-            splits = t.searchsorted(stamps, "right")
+            splits = np.empty(n_win, np.int64)
+            K.window_splits(t, end - 1, w, splits)
         else:
             c, n = self._w, t.shape[0]
             splits = np.arange(c - self._n, n + 1, c, dtype=np.int64)
@@ -89,8 +90,8 @@ class _Image(Windowed):
             if rest < n and (splits.shape[0] or self._n == 0):
                 self._first = int(t[rest])
             stamps = t[splits - 1]
-        if t.shape[0]:
-            self._last = int(t[-1])
+            if n:  # count windows are stamped by events (time windows by their edges: t[-1] is a cache miss)
+                self._last = int(t[-1])
         return self._run(packet, splits, stamps)
 
     def _run(self, pk: EventPacket, splits: np.ndarray, stamps: np.ndarray) -> list[FramePacket]:
@@ -103,17 +104,18 @@ class _Image(Windowed):
         page fault and a zeroing each (a 720 kB frame: more than its 1000
         events at 0.1 Mev/s)."""
         n_win, n = splits.shape[0], pk.t.shape[0]
+        held = self._n  # events the state holds: the most any pixel of it counts
         self._n = n - int(splits[-1]) if n_win else self._n + n
         if self._n and not self._flat.shape[0]:  # events stay in the window in progress
             self._state()
         if not n_win:
             if n:
-                self._kernel(pk.x, pk.y, pk.p, splits, self._no_frames)
+                self._kernel(pk.x, pk.y, pk.p, splits, self._no_frames, held)
             return [self._emit([], pk.t_end)]
         g = self._pool.per_block
         if n_win <= g:  # one block (the usual case: a packet's frames fit in the cache)
             block, images = self._pool.take()  # images: ours until handed out
-            self._kernel(pk.x, pk.y, pk.p, splits, block)
+            self._kernel(pk.x, pk.y, pk.p, splits, block, held)
             return [self._block_packet(stamps, images if n_win == g else images[:n_win], pk.t_end)]
         out: list[FramePacket] = []
         for a in range(0, n_win, g):
@@ -121,21 +123,23 @@ class _Image(Windowed):
             block, images = self._pool.take(len(out))
             lo = int(splits[a - 1]) if a else 0
             hi = int(splits[b - 1]) if b < n_win else n
-            self._kernel(pk.x[lo:hi], pk.y[lo:hi], pk.p[lo:hi], splits[a:b] - lo, block)
+            self._kernel(pk.x[lo:hi], pk.y[lo:hi], pk.p[lo:hi], splits[a:b] - lo, block, held if a == 0 else 0)
             out.append(self._block_packet(stamps[a:b], images if b - a == g else images[:b - a],
                                           pk.t_end if b == n_win else None))
         return out
 
-    def _kernel(self, x: np.ndarray, y: np.ndarray, p: np.ndarray, splits: np.ndarray, frames: Block) -> None:
+    def _kernel(self, x: np.ndarray, y: np.ndarray, p: np.ndarray, splits: np.ndarray, frames: Block,
+                held: int) -> None:
         """:func:`~tectum.plugins.repr.kernels.windows_kernel` (its mode's
-        compiled function) into the first ``len(splits)`` frames of ``frames``."""
-        self._windows(self._width, self._vmin, self._vmax, x, y, p, splits, self._flat, self._touched,
+        compiled function) into the first ``len(splits)`` frames of
+        ``frames``; ``held``: the events in the state before these."""
+        self._windows(self._width, self._vmin, self._vmax, held, x, y, p, splits, self._flat, self._touched,
                       self._n_touched, frames.flat, frames.marks, frames.n_marks)
 
     def _frame(self, t0: int, t1: int) -> np.ndarray:
         """The window in progress as a new image (the state is zeroed)."""
         out = Block(np.zeros((1, *self._shape), self.dtype), 0)
-        self._kernel(_NO_XY, _NO_XY, _NO_P, _ONE_SPLIT, out)
+        self._kernel(_NO_XY, _NO_XY, _NO_P, _ONE_SPLIT, out, self._n)
         return out.images[0]
 
     def _px_bytes(self) -> int:

@@ -114,3 +114,18 @@ def test_decay_kernel_matches_one_exp_per_event_and_any_split():
             assert np.allclose(whole, ref, rtol=1e-13, atol=0)
         else:
             assert np.abs(whole.view(np.int32) - ref.view(np.int32)).max() <= 1
+
+
+def test_window_splits_is_searchsorted_right():
+    """Every window edge's count of events at or before it, as numpy's
+    search finds it: repeated times, edges before the first and after the
+    last event, one event, none."""
+    from tectum.plugins.repr.kernels import window_splits
+    rng = np.random.default_rng(5)
+    for n in (0, 1, 2, 3, 7, 64, 1000, 4097):
+        for _ in range(20):
+            t = np.sort(rng.integers(0, max(n, 2) * 3, n)).astype(np.int64)
+            first, step, m = int(rng.integers(-10, 40)), int(rng.integers(1, 50)), int(rng.integers(0, 70))
+            out = np.full(m, -7, np.int64)
+            window_splits(t, first, step, out)
+            assert np.array_equal(out, t.searchsorted(first + step * np.arange(m), "right")), (n, first, step)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import tectum
-from tectum import concat
+from tectum import EventPacket, concat
 from tectum.plugins import repr as R
 from tectum.testing import ListSink, ListSource, assert_batch_invariant, feed
 
@@ -114,6 +114,22 @@ def test_small_dtypes_saturate(make, dtype, n_hot):
     assert out.images.dtype == np.dtype(dtype) and len(out) == 1
     assert np.array_equal(out.images[0], ref)
     assert stops > 100
+
+
+@pytest.mark.parametrize("make, dtype, p, limit", [(R.CountImage, "uint8", 1, 255), (R.EventFrame, "uint8", 1, 255),
+                                                  (R.Accumulate, "int8", 1, 127), (R.Accumulate, "int8", -1, -128)])
+def test_limit_reached_across_packets(make, dtype, p, limit):
+    """A window whose last packet alone cannot reach the dtype's limit, on
+    top of what the earlier packets left in it, still stops at the limit
+    (the kernel skips the compares only where no pixel can reach it)."""
+    def hot(t0, n):
+        return EventPacket.from_arrays(np.arange(t0, t0 + n, dtype=np.int64), np.full(n, 3), np.full(n, 2),
+                                       np.full(n, p), sensor=(16, 10))
+    first, last = hot(0, 200), hot(5000, 100)  # 300 events on one pixel, the last 100 close the window
+    out = concat(feed(make(window_us=10_000, dtype=dtype), [first.with_interval(0, 5000),
+                                                            last.with_interval(5000, 10_000)]))
+    at = (0, 2, 3, int(p > 0)) if make is R.EventFrame else (0, 2, 3)
+    assert len(out) == 1 and out.images[at] == limit and np.count_nonzero(out.images) == 1
 
 
 def test_parameters_validated():
