@@ -14,7 +14,12 @@ import time
 import numpy as np
 import pytest
 
+from tectum import EventPacket
+from tectum.sinks.files import SINKS
+from tectum.sinks.files._common import write_all
 from tectum.sources.files import _aedat4_kernels as AK
+from tectum.sources.files import _lz4, aedat4
+from tectum.sources.files.aedat4 import Aedat4Source
 
 #: The ``Event`` struct of the AEDAT 4.0 EventPacket, as NumPy reads it
 EVENT = np.dtype([("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "u1"), ("pad", "V3")])
@@ -117,14 +122,12 @@ def _slow_worker(monkeypatch, fail_here: BaseException | None, signal: bool = Fa
     the reading thread a real SIGINT as it starts (it arrives while that
     thread decodes its own part or waits for the worker's). The flag says
     whether the workers' parts had ended."""
-    from tectum.sources.files import aedat4
-
     state = {"ended": True}
     started = threading.Event()
     real = AK.inflate_events
     main = threading.get_ident()
 
-    def inflate(*args):  # type: ignore[no-untyped-def]
+    def inflate(*args):
         if threading.get_ident() == main:
             if fail_here is not None:
                 assert started.wait(5)  # the worker is decoding its part
@@ -144,11 +147,7 @@ def _slow_worker(monkeypatch, fail_here: BaseException | None, signal: bool = Fa
     return state
 
 
-def _file(tmp_path) -> str:  # type: ignore[no-untyped-def]
-    from tectum import EventPacket
-    from tectum.sinks.files import SINKS
-    from tectum.sinks.files._common import write_all
-
+def _file(tmp_path) -> str:
     pytest.importorskip("lz4")
     rng = np.random.default_rng(5)
     n = 20_000
@@ -166,9 +165,6 @@ def test_no_worker_writes_after_an_interrupt(tmp_path, monkeypatch, fail: BaseEx
     its part, raised in its own part or while it waits for the worker's:
     the worker's part has ended when the exception reaches the caller (no
     thread still writing into columns the caller gave up)."""
-    from tectum.sources.files import _lz4
-    from tectum.sources.files.aedat4 import Aedat4Source
-
     if not _lz4.AVAILABLE:
         pytest.skip("no compiled LZ4 path")
     if signal and not hasattr(signals, "pthread_kill"):
@@ -183,10 +179,6 @@ def test_no_worker_writes_after_an_interrupt(tmp_path, monkeypatch, fail: BaseEx
 def test_no_worker_writes_after_the_consumer_stops(tmp_path, monkeypatch) -> None:
     """A consumer that stops after the first packet (threads=2): no worker
     is left decoding, and the next read gives every event."""
-    from tectum import EventPacket
-    from tectum.sources.files import _lz4
-    from tectum.sources.files.aedat4 import Aedat4Source
-
     if not _lz4.AVAILABLE:
         pytest.skip("no compiled LZ4 path")
     path = _file(tmp_path)
