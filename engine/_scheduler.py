@@ -24,9 +24,10 @@ import trio.testing
 
 from ._boundary import Guard, Repair
 from ._edge import Edge
+from ._fused import fused_push
 from ._graph import END, Delivery, Graph
 from ._operator import Sink, Source
-from ._packet import _NO_COLUMNS, EventPacket, Kind, Packet, join_consecutive
+from ._packet import _NO_COLUMNS, EventPacket, Kind, Packet, _built, join_consecutive
 from ._pipeline import BatchPolicy, EdgePolicy, Pipeline, Plan
 from ._registry import Registry
 from ._stats import LatencyRecorder, Stats, _add
@@ -404,7 +405,9 @@ class _InlineSink:
         under way, or start one, ending now."""
         arrival = self.out.arrival
         if arrival != self.run_arrival or not self.run:
-            self.flush()
+            if self.run:  # flush(), inlined (a frame per push of the fused path)
+                self.lat.add(self.run_done - self.run_arrival, self.run)
+                self.run = 0
             self.run_arrival = arrival
         self.run += n
         self.run_done = self.now()
@@ -614,7 +617,8 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
         held_until = 0
         clock = time.perf_counter
         trio_now = now or trio.lowlevel.current_clock().current_time  # trio.current_time() without its lookups
-        push, add = graph.push, out.add
+        # source -> operators -> sinks written inline: one call per operator (else the graph's push)
+        push, add = fused_push(graph, sid) or graph.push, out.add
         chain = graph.chain_of(sid)
         max_events = batch.max_events
         last_yield = clock()
@@ -782,19 +786,46 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                     t0 = clock_ns()
                     start, room, mark = held_end, held_end + max_events - held_n, guard.events_mark
                     own = held_own
-                    for q in packets:  # type: ignore[union-attr]
-                        if (type(q) is not EventPacket or q._at != held_end or q._own is not own
-                                or not q._checked or q.columns or q.sensor is not held_sensor
-                                or q.t_start < mark or (end := q._stop) > room
-                                or (mark_q := q.t_end) > held_until):
-                            ahead = q
+                    while True:
+                        for q in packets:  # type: ignore[union-attr]
+                            if (type(q) is not EventPacket or q._at != held_end or q._own is not own
+                                    or not q._checked or q.columns or q.sensor is not held_sensor
+                                    or q.t_start < mark or (end := q._stop) > room
+                                    or (mark_q := q.t_end) > held_until):
+                                ahead = q
+                                break
+                            mark = mark_q
+                            held_end = end
+                        guard.events_mark = held_t_end = mark
+                        ran = held_end - start
+                        held_n += ran
+                        st.events_out += ran
+                        # The slice that ended the run, when all it failed is the run's span
+                        # or room (the same test less those two: the next slice of the same
+                        # arrays, checked, in order) and no other task waits: what the loop
+                        # above does with it (the guard's trusted path, the run in, a run
+                        # started by the slice), here, without a pass of that loop and a
+                        # guard call per operator call. Its busy time stops for the push.
+                        q = ahead
+                        if (sliced or q is None or type(q) is not EventPacket or q._at != held_end
+                                or q._own is not own or not q._checked or q.columns or q.sensor is not held_sensor
+                                or q.t_start < mark or (n := q._stop - held_end) > max_events):
                             break
-                        mark = mark_q
-                        held_end = end
-                    guard.events_mark = held_t_end = mark
-                    ran = held_end - start
-                    held_n += ran
-                    st.events_out += ran
+                        st.busy_ns += clock_ns() - t0
+                        ahead = None
+                        st.packets_out += 1
+                        out.arrival = arrival
+                        if got := push(sid, _join_run(held, held_end, held_owners, held_checked, held_t_end,
+                                                      held_own)):
+                            add(got, arrival)
+                        t0 = clock_ns()
+                        guard.events_mark = held_t_end = mark = q.t_end
+                        st.events_out += n
+                        held, held_n, held_big, held_until = [q], n, n >= small, q.t_start + span
+                        arrival = trio_now()
+                        held_cols, held_checked = q.columns, True
+                        start = held_end = q._stop
+                        room = held_end + max_events - n
                     st.busy_ns += clock_ns() - t0
                 if sliced and clock() - last_yield > _SLICE_S:
                     if held:
@@ -845,12 +876,12 @@ def _join_run(held: list[EventPacket], end: int, owners: Any, checked: bool, t_e
     if end < 0:
         return join_consecutive(held)
     i = first._at
-    if end - i == first.t.shape[0]:  # the first alone
+    if end == first._stop:  # the first alone
         return first
     ot: Any = first.t.base
     ox, oy, op = owners
-    return EventPacket._trusted(ot[i:end], ox[i:end], oy[i:end], op[i:end], first.sensor, first.t_start,
-                                t_end, _NO_COLUMNS, checked, i, own)
+    return _built(ot[i:end], ox[i:end], oy[i:end], op[i:end], first.sensor, first.t_start, t_end, _NO_COLUMNS,
+                  checked, i, own)
 
 
 _EVENTS = Kind.EVENTS

@@ -461,10 +461,11 @@ class _SeenTwoSlices(_Seen):
 
 
 def test_the_slice_after_a_run_starts_is_taken_without_the_guard_again(monkeypatch: pytest.MonkeyPatch) -> None:
-    """A run that holds two slices (an operator's join span) is made of its
-    first slice, guarded, and the next one taken by the run's own test (the
-    same checks): one guard call per run, not per slice; the operator sees
-    each run whole and the stream comes out whole."""
+    """Runs of two slices (an operator's join span): the stream's first
+    slice is guarded, every later one taken by the run loop's own test (the
+    guard's trusted path: the same checks), the slice that starts a run
+    included: one guard call per stream, not per slice or per run; the
+    operator sees each run whole and the stream comes out whole."""
     from tectum._boundary import Guard
 
     calls = []
@@ -482,9 +483,54 @@ def test_the_slice_after_a_run_starts_is_taken_without_the_guard_again(monkeypat
     p.sink(sink, p.op(op, p.source(ListSource(cuts), id="src")), id="sink")
     stats = tectum.run(p)
     assert [(q.t_start, q.t_end) for q in op.seen] == [(a, a + 1000) for a in range(0, 50_000, 1000)]
-    assert calls == list(range(0, 50_000, 1000))
-    assert stats.nodes["src"].events_out == len(ev)
+    assert calls == [0]
+    assert stats.nodes["src"].events_out == len(ev) and stats.nodes["src"].packets_out == 50
     tectum.testing.assert_streams_equal([ev], sink.packets)
+
+
+def _even_stream(n: int = 4000) -> EventPacket:
+    """Events at even µs only (an odd time holds none: a slice may start there)."""
+    rng = np.random.default_rng(4)
+    t = np.sort(rng.integers(0, 25_000, n)) * 2
+    return EventPacket.from_arrays(t, rng.integers(0, 64, n), rng.integers(0, 48, n), rng.choice([-1, 1], n),
+                                   sensor=(64, 48), t_start=0, t_end=50_000).validate()
+
+
+def test_a_slice_that_starts_a_run_unchecked_or_back_in_time_goes_to_the_guard(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Where a run ends (the operator's span), the next slice is taken by
+    the run loop only on the guard's trusted path: one not checked goes to
+    the guard (validated there, the stream whole), one that starts before
+    the last one ended is refused by it, naming the source."""
+    from tectum._boundary import Guard
+
+    calls = []
+    plain = Guard.__call__
+
+    def counted(self: Guard, pkt: tectum.Packet) -> tectum.Packet:
+        calls.append(pkt.t_start)
+        return plain(self, pkt)
+
+    monkeypatch.setattr(Guard, "__call__", counted)
+    ev = _even_stream()
+    cuts = [ev.slice_time(a, a + 500) for a in range(0, 50_000, 500)]
+    c = cuts[6]  # a view of the same arrays, not checked
+    cuts[6] = EventPacket._trusted(c.t, c.x, c.y, c.p, c.sensor, c.t_start, c.t_end, {}, False, c._at, c._own)
+    op, sink = _SeenTwoSlices(), tectum.testing.ListSink()
+    p = tectum.Pipeline()
+    p.sink(sink, p.op(op, p.source(ListSource(cuts), id="src")), id="sink")
+    tectum.run(p)
+    assert calls == [0, 3000]
+    assert [(q.t_start, q.t_end) for q in op.seen] == [(a, a + 1000) for a in range(0, 50_000, 1000)]
+    tectum.testing.assert_streams_equal([ev], sink.packets)
+    cuts = [ev.slice_time(a, a + 500) for a in range(0, 50_000, 500)]
+    cuts[6] = ev.slice_time(2999, 3500)  # the same events, an interval from before the last slice's end
+    assert cuts[6]._at == cuts[5]._stop and cuts[6].checked
+    p = tectum.Pipeline()
+    p.sink(tectum.testing.ListSink(), p.op(_SeenTwoSlices(), p.source(ListSource(cuts), id="src")), id="sink")
+    with pytest.raises(tectum.NodeError, match="source 'src'.*starts before.*time went backwards") as e:
+        tectum.run(p)
+    assert isinstance(e.value.__cause__, tectum.PacketError) and e.value.node == "src"
 
 
 def test_a_sink_written_inline_records_one_latency_per_run_of_packets() -> None:
@@ -509,3 +555,28 @@ def test_a_sink_written_inline_records_one_latency_per_run_of_packets() -> None:
     assert (got._bins, got.count, got._max) == (want._bins, 5, pytest.approx(700_000.0))
     st = stats.nodes["sink"]
     assert (st.packets_in, st.samples_in, st.busy_ns > 0) == (5, {"frames": 5}, True)
+
+
+def test_runs_of_slices_end_where_the_span_says() -> None:
+    """Slices cut at every 500 µs and one µs after some of them: each run
+    starts at a slice and takes the slices after it while they end within
+    the operator's span (1000 µs) of its start, as a plain loop over the
+    slices says (a slice ending one µs past the span starts the next run)."""
+    ev = _even_stream()
+    rng = np.random.default_rng(9)
+    edges = sorted({0, 50_000, *range(500, 50_000, 500), *(a + 1 for a in range(500, 50_000, 500) if rng.random() < .5)})
+    cuts = [ev.slice_time(a, b) for a, b in zip(edges[:-1], edges[1:])]
+    expected, start, end = [], cuts[0].t_start, cuts[0].t_end
+    for q in cuts[1:]:
+        if q.t_end > start + 1000:
+            expected.append((start, end))
+            start = q.t_start
+        end = q.t_end
+    expected.append((start, end))
+    op, sink = _SeenTwoSlices(), tectum.testing.ListSink()
+    p = tectum.Pipeline()
+    p.sink(sink, p.op(op, p.source(ListSource(cuts), id="src")), id="sink")
+    stats = tectum.run(p)
+    assert [(q.t_start, q.t_end) for q in op.seen] == expected and len(expected) == 50
+    assert stats.nodes["src"].packets_out == len(expected) and stats.nodes["src"].events_out == len(ev)
+    tectum.testing.assert_streams_equal([ev], sink.packets)
