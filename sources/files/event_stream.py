@@ -29,6 +29,7 @@ until the next reset, which may land outside the sensor and be counted.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterator
 from typing import Any
 
@@ -126,11 +127,12 @@ class EventStreamSource(FileSource):
                 break
             state[7] = pos
             m = len(buf) // 5 + 1
-            t, x, y = np.empty(m, np.int64), np.empty(m, np.uint16), np.empty(m, np.uint16)
-            p, where = np.empty(m, np.int8), np.empty(m, np.int64)
-            tc = (np.empty(m, np.int64), np.empty(m, np.uint16), np.empty(m, np.uint16), np.empty(m, np.bool_))
+            t, x, y, p = asm.reserve(m)  # decoded straight into the packets' columns
+            where = np.empty(m, np.int64)
+            k = m if atis else 0  # DVS files have no threshold crossings
+            tc = (np.empty(k, np.int64), np.empty(k, np.uint16), np.empty(k, np.uint16), np.empty(k, np.bool_))
             n = C.decode(np.frombuffer(buf, np.uint8), state, atis, sensor[1], t, x, y, p, where, *tc)
-            yield from asm.push(t[:n], x[:n], y[:n], p[:n], pos, where[:n])
+            yield from asm.commit(n, pos, functools.partial(_head, where, n), (True, int(state[8]), int(state[9])))
             c = int(state[6])
             yield from exposures.push(tc[0][:c], tc[1][:c], tc[2][:c], tc[3][:c], pos)
             pos += len(buf)
@@ -144,6 +146,10 @@ class EventStreamSource(FileSource):
             self._note_skip(start, pos - 1, 1)
         yield from asm.finish()
         yield from exposures.finish(pos)
+
+
+def _head(a: np.ndarray, n: int) -> np.ndarray:
+    return a[:n]
 
 
 class _Exposures:

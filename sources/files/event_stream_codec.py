@@ -40,8 +40,9 @@ DVS, ATIS = 1, 2
 
 #: Decoder state slots: 0 phase (0 idle, 1-4 bytes of an event read), 1 time
 #: (µs), 2 x, 3 raw y, 4 byte 0's low bits, 5 offset of the event's byte 0,
-#: 6 ATIS threshold crossings in the buffer, 7 file offset of the buffer's first byte.
-STATE = 8
+#: 6 ATIS threshold crossings in the buffer, 7 file offset of the buffer's first byte,
+#: 8 and 9 the largest x and y of the buffer's events (-1: none).
+STATE = 10
 
 
 def header(kind: int, width: int, height: int) -> bytes:
@@ -67,6 +68,8 @@ def decode(buf, state, atis, h, t, x, y, p, where, tc_t, tc_x, tc_y, tc_second):
     start = state[5]
     crossings = 0
     base = state[7]
+    top_x = -1
+    top_y = -1
     n = 0
     for i in range(buf.shape[0]):
         b = np.int64(buf[i])
@@ -109,6 +112,8 @@ def decode(buf, state, atis, h, t, x, y, p, where, tc_t, tc_x, tc_y, tc_second):
             t[n] = tt
             x[n] = xx
             y[n] = h - 1 - yy if yy < h else yy
+            top_x = max(top_x, xx)
+            top_y = max(top_y, y[n])
             p[n] = 1 if low & 2 else -1
             where[n] = start
             n += 1
@@ -119,6 +124,8 @@ def decode(buf, state, atis, h, t, x, y, p, where, tc_t, tc_x, tc_y, tc_second):
     state[4] = low
     state[5] = start
     state[6] = crossings
+    state[8] = top_x
+    state[9] = top_y
     return n
 
 
