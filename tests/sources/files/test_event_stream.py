@@ -141,6 +141,9 @@ def test_coordinates_outside_the_sensor(tmp_path: Path) -> None:
     assert e.value.offset == 25
     events, _, src = read(path, skip_bad=True)
     assert events == [(1, 1, 1, 1), (3, 3, 3, -1)] and src.skipped_events == 1
+    path.write_bytes(raw[:25] + bytes([1 << 1, 2, 0, 9, 0]) + raw[25:])  # raw y = 9
+    with pytest.raises(FormatError, match=r"\(2, 9\) lies outside the 8x8 sensor"):
+        read(path)
     raw = es_encode(2, 8, 8, [(1, 1, 1, 1, True)])
     path.write_bytes(raw[:-2] + b"\x09\x00")  # raw y = 9: a crossing outside the sensor
     with pytest.raises(FormatError, match="threshold crossing"):
