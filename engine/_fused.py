@@ -73,42 +73,14 @@ def _step(graph: Graph, rec: _Node, nxt: Step | None) -> Step:
     st, nid, plain = rec.st, rec.id, graph._run
     process = rec.op.process  # type: ignore[union-attr]
     out_samples, keys, clock = st.samples_out, _KEYS, perf_counter_ns
-    if nxt is not None:
-        def step(_sid: str, pkt: Packet) -> list[Delivery]:
-            out: list[Delivery] = []
-            if pkt.kind is not _EVENTS:  # another kind: consumed, passing by or replaced
-                plain(rec, pkt, out)
-                return out
-            st.packets_in += 1
-            st.events_in += pkt.t.shape[0]
-            t0 = clock()
-            try:
-                res = process(pkt)
-            except NodeError:
-                raise
-            except Exception as e:
-                raise NodeError(nid, e) from e
-            st.busy_ns += clock() - t0
-            if type(res) is not list:
-                res = as_packets(res)
-            st.packets_out += len(res)
-            for q in res:
-                if (kind := q.kind) is _EVENTS:
-                    st.events_out += q.t.shape[0]
-                else:
-                    _add(out_samples, kind, q.t.shape[0])
-                if got := nxt(nid, q):
-                    out += got
-            return out
-        return step
+    writer: Any = rec.writer if nxt is None else None
+    if writer is not None:
+        sid, sink, write, wrote = writer.sid, writer.st, writer.write, writer.wrote
+        in_samples = sink.samples_in
 
-    writer: Any = rec.writer
-    sid, sink, write, wrote = writer.sid, writer.st, writer.write, writer.wrote
-    in_samples = sink.samples_in
-
-    def last(_sid: str, pkt: Packet) -> list[Delivery]:
-        if pkt.kind is not _EVENTS:
-            out: list[Delivery] = []
+    def step(_sid: str, pkt: Packet) -> list[Delivery]:
+        out: list[Delivery] = []
+        if pkt.kind is not _EVENTS:  # another kind: consumed, passing by or replaced
             plain(rec, pkt, out)
             return out
         st.packets_in += 1
@@ -125,6 +97,15 @@ def _step(graph: Graph, rec: _Node, nxt: Step | None) -> Step:
         if type(res) is not list:
             res = as_packets(res)
         st.packets_out += len(res)
+        if nxt is not None:
+            for q in res:
+                if (kind := q.kind) is _EVENTS:
+                    st.events_out += q.t.shape[0]
+                else:
+                    _add(out_samples, kind, q.t.shape[0])
+                if got := nxt(nid, q):
+                    out += got
+            return out
         # Each output counted out of the operator and into the sink, then
         # written; the run's latency recorded once (wrote: the same record
         # as a call per packet, all sharing the push's arrival).
@@ -152,5 +133,5 @@ def _step(graph: Graph, rec: _Node, nxt: Step | None) -> Step:
         if k:
             sink.busy_ns += clock() - t1
             wrote(k)
-        return []
-    return last
+        return out
+    return step

@@ -460,15 +460,11 @@ class _SeenTwoSlices(_Seen):
         return 1000
 
 
-def test_the_slice_after_a_run_starts_is_taken_without_the_guard_again(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Runs of two slices (an operator's join span): the stream's first
-    slice is guarded, every later one taken by the run loop's own test (the
-    guard's trusted path: the same checks), the slice that starts a run
-    included: one guard call per stream, not per slice or per run; the
-    operator sees each run whole and the stream comes out whole."""
+def _guard_calls(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """The ``t_start`` of each packet the source's guard is called with (filled as the run goes)."""
     from tectum._boundary import Guard
 
-    calls = []
+    calls: list[int] = []
     plain = Guard.__call__
 
     def counted(self: Guard, pkt: tectum.Packet) -> tectum.Packet:
@@ -476,6 +472,16 @@ def test_the_slice_after_a_run_starts_is_taken_without_the_guard_again(monkeypat
         return plain(self, pkt)
 
     monkeypatch.setattr(Guard, "__call__", counted)
+    return calls
+
+
+def test_the_slice_after_a_run_starts_is_taken_without_the_guard_again(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Runs of two slices (an operator's join span): the stream's first
+    slice is guarded, every later one taken by the run loop's own test (the
+    guard's trusted path: the same checks), the slice that starts a run
+    included: one guard call per stream, not per slice or per run; the
+    operator sees each run whole and the stream comes out whole."""
+    calls = _guard_calls(monkeypatch)
     ev = _stream(4000)
     cuts = [ev.slice_time(a, a + 500) for a in range(0, 50_000, 500)]
     op, sink = _SeenTwoSlices(), tectum.testing.ListSink()
@@ -502,16 +508,7 @@ def test_a_slice_that_starts_a_run_unchecked_or_back_in_time_goes_to_the_guard(
     the run loop only on the guard's trusted path: one not checked goes to
     the guard (validated there, the stream whole), one that starts before
     the last one ended is refused by it, naming the source."""
-    from tectum._boundary import Guard
-
-    calls = []
-    plain = Guard.__call__
-
-    def counted(self: Guard, pkt: tectum.Packet) -> tectum.Packet:
-        calls.append(pkt.t_start)
-        return plain(self, pkt)
-
-    monkeypatch.setattr(Guard, "__call__", counted)
+    calls = _guard_calls(monkeypatch)
     ev = _even_stream()
     cuts = [ev.slice_time(a, a + 500) for a in range(0, 50_000, 500)]
     c = cuts[6]  # a view of the same arrays, not checked
