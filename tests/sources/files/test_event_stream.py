@@ -69,6 +69,7 @@ def test_event_stream_equals_the_reference(tmp_path: Path, case: tuple, chunk: i
     if events:
         start = data.draw(st.integers(0, events[-1][0] + 1))
         assert read(path, chunk_bytes=chunk, t_start_us=start)[0] == [e for e in events if e[0] >= start]
+        assert read(path, chunk_bytes=chunk, t_end_us=start)[0] == [e for e in events if e[0] < start]
 
 
 def test_header_only_file_is_empty_with_the_sensor(tmp_path: Path) -> None:

@@ -49,6 +49,7 @@ def test_nmnist_equals_the_reference(tmp_path: Path, case: tuple, chunk: int, da
     if events:
         start = data.draw(st.integers(0, events[-1][0] + 1))
         assert read(path, chunk_bytes=chunk, sensor=sensor, t_start_us=start) == [e for e in events if e[0] >= start]
+        assert read(path, chunk_bytes=chunk, sensor=sensor, t_end_us=start) == [e for e in events if e[0] < start]
 
 
 def test_overflow_records_are_counted(tmp_path: Path) -> None:
