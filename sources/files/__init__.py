@@ -65,3 +65,10 @@ def open_file(path: str, **kw: Any) -> Any:
 def tectum_register_sources(registry) -> None:  # type: ignore[no-untyped-def]
     for cls in (*SAMPLE_SOURCES, *SOURCES):
         registry.add_source(cls)
+
+
+@hookimpl
+def tectum_register_kinds(registry) -> None:  # type: ignore[no-untyped-def]
+    from .event_stream import ExposurePacket
+
+    registry.add_kind(ExposurePacket)

@@ -23,8 +23,9 @@ and ATIS types:
 Times never decrease (they are sums of deltas), so the only bad input is a
 coordinate outside the header's sensor (raised, or with ``skip_bad`` dropped
 and counted) and a file ending inside an event (the same). The format
-re-synchronises by itself (*reset* bytes), so a bit error costs the events
-until the next reset, which may land outside the sensor and be counted.
+re-synchronises by itself (*reset* bytes): a bit error garbles the events up
+to the next run of resets, and those of them that land outside the sensor
+are caught.
 """
 
 from __future__ import annotations
