@@ -86,8 +86,8 @@ def test_sizes_the_formats_cannot_hold(tmp_path: Path) -> None:
 
 def test_cli_convert_info_run(shared: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """convert gives back the shared files byte for byte (ATIS to DVS: its
-    events, the exposures said not written); info and run read what convert
-    wrote; the ECD text round-trips through .es."""
+    events, the exposures said not written; to .npz: both streams); info and
+    run read what convert wrote; the ECD text round-trips through .es."""
     other = shared / "other"
     for src, out in ((other / "dvs.es", "a.es"), (other / "nmnist_sample.bin", "n.bin")):
         assert main(["convert", str(src), str(tmp_path / out)]) == 0
@@ -95,6 +95,10 @@ def test_cli_convert_info_run(shared: Path, tmp_path: Path, capsys: pytest.Captu
     assert main(["convert", str(other / "atis.es"), str(tmp_path / "b.es")]) == 0
     assert "not written: 852,792 exposures" in capsys.readouterr().err
     assert filecmp.cmp(other / "dvs.es", tmp_path / "b.es", shallow=False)
+    assert main(["convert", str(other / "atis.es"), str(tmp_path / "b.npz")]) == 0  # npz keeps the exposures
+    capsys.readouterr()
+    assert main(["info", str(tmp_path / "b.npz")]) == 0
+    assert "streams: events 473,225, exposures 852,792" in capsys.readouterr().out
     assert main(["info", str(tmp_path / "a.es")]) == 0
     assert "events: 473,225" in capsys.readouterr().out
     assert main(["run", str(tmp_path / "n.bin")]) == 0
