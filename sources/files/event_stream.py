@@ -131,11 +131,12 @@ class EventStreamSource(FileSource):
             t, x, y, p = asm.reserve(m)  # decoded straight into the packets' columns
             where = np.empty(m, np.int64)
             k = m if atis else 0  # DVS files have no threshold crossings
-            tc = (np.empty(k, np.int64), np.empty(k, np.uint16), np.empty(k, np.uint16), np.empty(k, np.bool_))
+            tc = (np.empty(k, np.int64), np.empty(k, np.uint16), np.empty(k, np.uint16), np.empty(k, np.bool_),
+                  np.empty(k, np.int64))
             n = C.decode(np.frombuffer(buf, np.uint8), state, atis, sensor[1], t, x, y, p, where, *tc)
             yield from asm.commit(n, pos, functools.partial(_head, where, n), (True, int(state[8]), int(state[9])))
             c = int(state[6])
-            yield from exposures.push(tc[0][:c], tc[1][:c], tc[2][:c], tc[3][:c], pos)
+            yield from exposures.push(tc[0][:c], tc[1][:c], tc[2][:c], tc[3][:c], tc[4][:c], pos)
             pos += len(buf)
             if self.t_end_us is not None and asm.last_t is not None and asm.last_t >= self.t_end_us:
                 stopped = True
@@ -164,15 +165,18 @@ class _Exposures:
         self.tiler = SampleTiler(src)
         self.held: tuple[np.ndarray, ...] | None = None
 
-    def push(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, second: np.ndarray, pos: int,
+    def push(self, t: np.ndarray, x: np.ndarray, y: np.ndarray, second: np.ndarray, where: np.ndarray, pos: int,
              final: bool = False) -> list[ExposurePacket]:
+        """Crossings ``t, x, y, second`` found at byte offsets ``where`` of
+        the chunk read from ``pos``: the packet they complete, if any."""
         out = (x >= self.sensor[0]) | (y >= self.sensor[1])
         if out.any():
+            bad = np.flatnonzero(out)
             if not self.src.skip_bad:
-                i = int(np.flatnonzero(out)[0])
+                i = int(bad[0])
                 self.src._fail(f"threshold crossing ({int(x[i])}, {int(y[i])}) lies outside the "
-                               f"{self.sensor[0]}x{self.sensor[1]} sensor", pos)
-            self.src._note_skip(pos, pos, int(out.sum()))
+                               f"{self.sensor[0]}x{self.sensor[1]} sensor", int(where[i]))
+            self.src._note_skip(int(where[bad[0]]), int(where[bad[-1]]) + 4, int(bad.shape[0]))
             t, x, y, second = t[~out], x[~out], y[~out], second[~out]
         if self.held is not None:
             t, x, y, second = (np.concatenate(a) for a in zip(self.held, (t, x, y, second)))
@@ -189,5 +193,6 @@ class _Exposures:
 
     def finish(self, pos: int) -> list[ExposurePacket]:
         """End of file: the crossings held back."""
-        none = (np.empty(0, np.int64), np.empty(0, np.uint16), np.empty(0, np.uint16), np.empty(0, np.bool_))
+        none = (np.empty(0, np.int64), np.empty(0, np.uint16), np.empty(0, np.uint16), np.empty(0, np.bool_),
+                np.empty(0, np.int64))
         return self.push(*none, pos=pos, final=True)

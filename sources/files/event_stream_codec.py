@@ -51,14 +51,14 @@ def header(kind: int, width: int, height: int) -> bytes:
 
 
 @njit(cache=True, nogil=True)
-def decode(buf, state, atis, h, t, x, y, p, where, tc_t, tc_x, tc_y, tc_second):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+def decode(buf, state, atis, h, t, x, y, p, where, tc_t, tc_x, tc_y, tc_second, tc_where):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
     """Decode DVS (``atis`` False) or ATIS bytes ``buf`` on from ``state``
     (see :data:`STATE`, updated for the next buffer). Writes the
     change-detection events completed in ``buf``: time (µs), x, y flipped
     to a top-left origin (a raw y outside ``[0, h)`` is kept as it is, for
     the caller to report), polarity ±1 and the file offset of each event's
     byte 0; and the ATIS threshold crossings (time, x, y flipped, second
-    or first half of the exposure; their number in ``state[6]``). Returns
+    or first half of the exposure, offset; their number in ``state[6]``). Returns
     the number of events written (each output holds ``len(buf) // 5 + 1``)."""
     phase = state[0]
     tt = state[1]
@@ -107,6 +107,7 @@ def decode(buf, state, atis, h, t, x, y, p, where, tc_t, tc_x, tc_y, tc_second):
                 tc_x[crossings] = xx
                 tc_y[crossings] = h - 1 - yy if yy < h else yy
                 tc_second[crossings] = (low & 2) != 0
+                tc_where[crossings] = start
                 crossings += 1
                 continue
             t[n] = tt

@@ -147,9 +147,11 @@ def test_coordinates_outside_the_sensor(tmp_path: Path) -> None:
         read(path)
     raw = es_encode(2, 8, 8, [(1, 1, 1, 1, True)])
     path.write_bytes(raw[:-2] + b"\x09\x00")  # raw y = 9: a crossing outside the sensor
-    with pytest.raises(FormatError, match="threshold crossing"):
+    with pytest.raises(FormatError, match=r"threshold crossing \(1, 9\) lies outside") as e:
         read(path)
-    assert read(path, skip_bad=True)[1] == []
+    assert e.value.offset == 20
+    _, cross, src = read(path, skip_bad=True)
+    assert cross == [] and src.skipped_events == 1 and src.skipped_ranges == [(20, 24)]
 
 
 def test_shared_dvs_equals_its_csv_and_atis_has_the_same_events(shared: Path) -> None:
