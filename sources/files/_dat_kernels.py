@@ -14,11 +14,10 @@ from numba import njit, types
 from numba.extending import intrinsic, overload
 
 from ._kernels import dat_unroll
+from ._lanes import LANES, splat
 
-__all__ = ["LANES", "dat_lanes", "decode_dat_within"]
+__all__ = ["dat_lanes", "decode_dat_within"]
 
-#: Records :func:`dat_lanes` decodes at once.
-LANES = 16
 #: Records per block of :func:`decode_dat_within` (a block holding a wrap
 #: has its times unrolled again).
 _BLOCK = 4096
@@ -47,13 +46,6 @@ def dat_lanes(records, i, t, x, y, p, hi, prev, w, h):  # type: ignore[no-untype
     return out
 
 
-def _vec(builder, kind, n, value):  # type: ignore[no-untyped-def]
-    """``value`` (an LLVM scalar) in all ``n`` lanes of a vector of ``kind``."""
-    one = builder.insert_element(ir.Constant(ir.VectorType(kind, n), None), value, ir.Constant(ir.IntType(32), 0))
-    return builder.shuffle_vector(one, ir.Constant(ir.VectorType(kind, n), None),
-                                  ir.Constant(ir.VectorType(ir.IntType(32), n), [0] * n))
-
-
 def _lanes(builder, vector, every, at):  # type: ignore[no-untyped-def]
     """Elements ``at``, ``at + every``, ``at + 2 every``... of ``vector``
     (:data:`LANES` of them)."""
@@ -78,23 +70,23 @@ def _dat_lanes_ir(typingctx, records, i, t, x, y, p, hi, prev, w, h):  # type: i
         times = _lanes(builder, builder.bitcast(v, ir.VectorType(i32, 2 * LANES)), 2, 0)
         words = builder.bitcast(v, ir.VectorType(i16, 4 * LANES))
         low, high = _lanes(builder, words, 4, 2), _lanes(builder, words, 4, 3)  # the data word's halves
-        store(builder.or_(builder.zext(times, ir.VectorType(i64, LANES)), _vec(builder, i64, LANES, args[6])), to)
-        bits14 = _vec(builder, i16, LANES, ir.Constant(i16, 0x3FFF))
+        store(builder.or_(builder.zext(times, ir.VectorType(i64, LANES)), splat(builder, i64, args[6])), to)
+        bits14 = splat(builder, i16, ir.Constant(i16, 0x3FFF))
         xs = builder.and_(low, bits14)
-        ys = builder.and_(builder.or_(builder.lshr(low, _vec(builder, i16, LANES, ir.Constant(i16, 14))),
-                                      builder.shl(high, _vec(builder, i16, LANES, ir.Constant(i16, 2)))), bits14)
+        ys = builder.and_(builder.or_(builder.lshr(low, splat(builder, i16, ir.Constant(i16, 14))),
+                                      builder.shl(high, splat(builder, i16, ir.Constant(i16, 2)))), bits14)
         store(xs, xo)
         store(ys, yo)
-        on = builder.icmp_unsigned(">=", high, _vec(builder, i16, LANES, ir.Constant(i16, 0x1000)))
-        store(builder.select(on, _vec(builder, i8, LANES, ir.Constant(i8, 1)),
-                             _vec(builder, i8, LANES, ir.Constant(i8, -1))), po)
+        on = builder.icmp_unsigned(">=", high, splat(builder, i16, ir.Constant(i16, 0x1000)))
+        store(builder.select(on, splat(builder, i8, ir.Constant(i8, 1)),
+                             splat(builder, i8, ir.Constant(i8, -1))), po)
         first = builder.insert_element(ir.Constant(ir.VectorType(i32, LANES), None), builder.trunc(args[7], i32),
                                        ir.Constant(i32, 0))
         before = builder.shuffle_vector(first, times, ir.Constant(ir.VectorType(i32, LANES),
                                                                   [0] + [LANES + k for k in range(LANES - 1)]))
         fell = builder.icmp_unsigned("<", times, before)
-        out = builder.or_(builder.icmp_unsigned(">=", xs, _vec(builder, i16, LANES, builder.trunc(args[8], i16))),
-                          builder.icmp_unsigned(">=", ys, _vec(builder, i16, LANES, builder.trunc(args[9], i16))))
+        out = builder.or_(builder.icmp_unsigned(">=", xs, splat(builder, i16, builder.trunc(args[8], i16))),
+                          builder.icmp_unsigned(">=", ys, splat(builder, i16, builder.trunc(args[9], i16))))
         mask = ir.IntType(LANES)
         fell, out = (builder.zext(builder.bitcast(b, mask), i64) for b in (fell, out))
         return builder.or_(fell, builder.shl(out, ir.Constant(i64, LANES)))
