@@ -78,12 +78,12 @@ def test_sensor_default_and_option(tmp_path: Path) -> None:
     largest x and y are not the sensor), and the error says so."""
     path = tmp_path / "c.bin"
     path.write_bytes(nmnist_encode([(5, 1, 2, 1), (9, 200, 150, -1)]))
-    with pytest.raises(FormatError, match=r"outside the 34x34 sensor.*sensor=") as e:
+    with pytest.raises(FormatError, match=r"\(200, 150\) lies outside N-MNIST's 34x34 sensor: give sensor=") as e:
         read(path)
     assert e.value.offset == 5
     assert [q.sensor for q in NmnistSource(str(path), sensor="240x180").packets()][0] == (240, 180)
     with pytest.raises(ValueError, match="8-bit x and y < 240"):
-        read(path, sensor="304x240")
+        NmnistSource(str(path), sensor="304x240")
     path.write_bytes(b"")
     assert read(path) == []
 
