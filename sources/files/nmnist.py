@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from tectum import FormatError, Kind, Packet
+from tectum import Kind, Packet
 
 from ._common import EventAssembler, FileSource
 
@@ -75,6 +75,11 @@ class NmnistSource(FileSource):
     def __init__(self, path: str, **kw: Any) -> None:
         super().__init__(path, **kw)
         self.overflow_records = 0
+        #: The sensor (the option, else N-MNIST's 34x34).
+        self.sensor = self.sensor_opt or DEFAULT_SENSOR
+        w, h = self.sensor
+        if w > 256 or h > OVERFLOW_Y:
+            raise ValueError(f"sensor {w}x{h}: N-MNIST stores 8-bit x and y < {OVERFLOW_Y}")
 
     @property
     def counts(self) -> dict[str, int]:
@@ -95,9 +100,7 @@ class NmnistSource(FileSource):
                            "left over): truncated, or not an N-MNIST file (the format has no magic number; "
                            "a .bin file is taken for N-MNIST by its extension)", end)
             self._note_skip(end, size - 1, 1)
-        sensor = self.sensor_opt or DEFAULT_SENSOR
-        if sensor[0] > 256 or sensor[1] > OVERFLOW_Y:
-            raise ValueError(f"sensor {sensor[0]}x{sensor[1]}: N-MNIST stores 8-bit x and y < {OVERFLOW_Y}")
+        sensor = self.sensor
         f.seek(0)
         state = np.zeros(3, np.int64)
         asm = EventAssembler(self, sensor)
@@ -112,15 +115,19 @@ class NmnistSource(FileSource):
             state[2] = pos
             n = decode_nmnist(rec, state, t, x, y, p, where)
             self.overflow_records = int(state[1])
-            try:
-                yield from asm.push(t[:n], x[:n], y[:n], p[:n], pos, where[:n])
-            except FormatError as e:
-                if self.sensor_opt is None and "outside" in str(e):
-                    raise FormatError(f"{str(e).split(': ', 1)[-1]} (N-MNIST's, by default: give sensor=WxH "
-                                      "for N-Caltech101 and the other datasets)", path=self.path,
-                                      offset=e.offset) from None
-                raise
+            if self.sensor_opt is None and not self.skip_bad:
+                self._within_default_sensor(x[:n], y[:n], where[:n])
+            yield from asm.push(t[:n], x[:n], y[:n], p[:n], pos, where[:n])
             pos += len(buf)
             if self.t_end_us is not None and asm.last_t is not None and asm.last_t >= self.t_end_us:
                 break
         yield from asm.finish()
+
+    def _within_default_sensor(self, x: np.ndarray, y: np.ndarray, where: np.ndarray) -> None:
+        """An event past 34x34 with no ``sensor=`` given: most likely a file
+        of another dataset, so the error says what to give."""
+        out = (x >= DEFAULT_SENSOR[0]) | (y >= DEFAULT_SENSOR[1])
+        if out.any():
+            i = int(np.flatnonzero(out)[0])
+            self._fail(f"event ({int(x[i])}, {int(y[i])}) lies outside N-MNIST's 34x34 sensor: give sensor=WxH "
+                       "for N-Caltech101 and the other datasets", int(where[i]))
