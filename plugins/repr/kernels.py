@@ -226,21 +226,16 @@ def _at(mode, w, x, y, pe):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _step(mode, old, pe, vmin, vmax):  # type: ignore[no-untyped-def]
+def _step(mode, old, pe, vmin, vmax, free):  # type: ignore[no-untyped-def]
     """A pixel's new value: ``+p`` (:data:`SIGNED`) or ``+1``, within
-    ``[vmin, vmax]`` (a count stops at ``vmax``: a compare, not a clip; as
-    fast as no limit in int32, where it is not reached)."""
+    ``[vmin, vmax]`` (a count stops at ``vmax``: a compare, not a clip)
+    unless ``free`` (no limit can be reached: :func:`_unbounded`; loops
+    test it once, not per event: LLVM makes a loop of each case)."""
+    if free:
+        return old + pe if mode == SIGNED else old + 1
     if mode == SIGNED:
         return min(max(old + pe, vmin), vmax)
     return old + np.int64(old < vmax)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _free_step(mode, old, pe):  # type: ignore[no-untyped-def]
-    """:func:`_step` where no limit can be reached."""
-    if mode == SIGNED:
-        return old + pe
-    return old + 1
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -258,16 +253,10 @@ def _fill(mode, width, vmin, vmax, x, y, p, img, free):  # type: ignore[no-untyp
     ``free``: no limit can be reached (:func:`_unbounded`)."""
     literally(mode)
     w = np.uint64(width)
-    if free:
-        for e in range(x.shape[0]):
-            pe = np.int64(p[e])
-            i = _at(mode, w, x[e], y[e], pe)
-            img[i] = _free_step(mode, np.int64(img[i]), pe)
-        return
     for e in range(x.shape[0]):
         pe = np.int64(p[e])
         i = _at(mode, w, x[e], y[e], pe)
-        img[i] = _step(mode, np.int64(img[i]), pe, vmin, vmax)
+        img[i] = _step(mode, np.int64(img[i]), pe, vmin, vmax, free)
 
 
 @njit(cache=True, nogil=True)
@@ -276,18 +265,11 @@ def _fill_marked(mode, width, vmin, vmax, x, y, p, img, marks, free):  # type: i
     (as long as ``x``; one store per event, no test)."""
     literally(mode)
     w = np.uint64(width)
-    if free:
-        for e in range(x.shape[0]):
-            pe = np.int64(p[e])
-            i = _at(mode, w, x[e], y[e], pe)
-            marks[e] = i
-            img[i] = _free_step(mode, np.int64(img[i]), pe)
-        return
     for e in range(x.shape[0]):
         pe = np.int64(p[e])
         i = _at(mode, w, x[e], y[e], pe)
         marks[e] = i
-        img[i] = _step(mode, np.int64(img[i]), pe, vmin, vmax)
+        img[i] = _step(mode, np.int64(img[i]), pe, vmin, vmax, free)
 
 
 @njit(cache=True, nogil=True)
@@ -313,7 +295,7 @@ def _add_events(mode, width, vmin, vmax, x, y, p, img, touched, n):  # type: ign
                 return -1
             touched[n] = i
             n += 1
-        img[i] = _step(mode, old, pe, vmin, vmax)
+        img[i] = _step(mode, old, pe, vmin, vmax, False)
     return n
 
 
