@@ -40,7 +40,9 @@ FILES = {"rosbag": "bags/evt3_eventpacket_ros2_sqlite",
          "aedat4": "aedat/dvxplorer_2.aedat4", "aedat2": "aedat/davis240_imu_rotdisk.aedat",
          "text": "ecd/slider_depth/events.txt"}
 EXT = {"text": ".txt", "aedat4": ".aedat4", "evt2": ".raw", "evt3": ".evt3.raw", "dat": ".dat", "hdf5": ".h5",
-       "npy": ".npy"}
+       "npy": ".npy", "es": ".es", "nmnist": ".bin"}
+#: The generated stream's sensor where a format holds less than 640x480 (N-MNIST: 8-bit coordinates, 34x34).
+_SENSOR = {"nmnist": (34, 34)}
 
 
 #: Like-for-like options: peers read only the events (loadtxt no companion
@@ -278,14 +280,19 @@ def _encode(quick: bool) -> list[dict[str, Any]]:
     from tectum.sinks.files import SINKS
 
     n = 1_000_000 if quick else 4_000_000
-    rng = np.random.default_rng(0)
-    pkt = EventPacket(np.sort(rng.integers(0, 10_000_000, n)).astype(np.int64),
-                      rng.integers(0, 640, n).astype(np.uint16), rng.integers(0, 480, n).astype(np.uint16),
-                      rng.choice(np.array([-1, 1], np.int8), n), sensor=(640, 480))
+
+    def generated(sensor: tuple[int, int]) -> EventPacket:
+        rng = np.random.default_rng(0)
+        return EventPacket(np.sort(rng.integers(0, 10_000_000, n)).astype(np.int64),
+                           rng.integers(0, sensor[0], n).astype(np.uint16),
+                           rng.integers(0, sensor[1], n).astype(np.uint16),
+                           rng.choice(np.array([-1, 1], np.int8), n), sensor=sensor)
+
     rows = []
     with tempfile.TemporaryDirectory() as d:
         for cls in SINKS:
             f = os.path.join(d, "o" + EXT[cls.name])
+            pkt = generated(_SENSOR.get(cls.name, (640, 480)))
             parts: list[Packet] = list(pkt.batches(1 << 18))
             r = throughput(partial(_encode_file, cls, f, parts), n, repeat=2 if quick else 3)
             rows.append({"format": cls.name, "op": "encode", "reader": "tectum", "events": n, "mev_s": r["mev_s"],
