@@ -101,6 +101,26 @@ def _dat_lanes_compiled(records, i, t, x, y, p, hi, prev, w, h):  # type: ignore
     return lambda records, i, t, x, y, p, hi, prev, w, h: _dat_lanes_ir(records, i, t, x, y, p, hi, prev, w, h)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _dat_few(r, a, b, to, xo, yo, po, hi, prev, wl, hl):  # type: ignore[no-untyped-def]
+    """Records ``a .. b - 1`` of ``r`` one by one, as :func:`dat_lanes`
+    decodes 16: returns its mask (the falls in bit 0, any outside in bit
+    16) and the last raw time."""
+    flags = np.int64(0)
+    for e in range(a, b):
+        raw = np.int64(r[e] & np.uint64(0xFFFFFFFF))
+        d = np.uint32(r[e] >> np.uint64(32))
+        xq = np.uint16(d & np.uint32(0x3FFF))
+        yq = np.uint16((d >> np.uint32(14)) & np.uint32(0x3FFF))
+        to[e] = hi + raw
+        xo[e] = xq
+        yo[e] = yq
+        po[e] = np.int8((d >> np.uint32(28)) != 0) * np.int8(2) - np.int8(1)
+        flags |= np.int64(raw < prev) | (np.int64(xq >= wl or yq >= hl) << LANES)
+        prev = raw
+    return flags, prev
+
+
 @njit(cache=True, nogil=True)
 def decode_dat_within(records, k, state, t, x, y, p, at, w, h):  # type: ignore[no-untyped-def]
     """:func:`._kernels.decode_dat` of ``records[:k]`` into the columns
@@ -132,23 +152,15 @@ def decode_dat_within(records, k, state, t, x, y, p, at, w, h):  # type: ignore[
         first = last if have == 1 else np.int64(r[0] & np.uint64(0xFFFFFFFF))
         prev = first
         hi = wraps << 32
-        flags = np.int64(0)
-        q = 0
+        # one by one until the times' column is aligned to 128 bytes (whole cache lines for the lanes' stores)
+        q = min(j - i, -np.int64(to.ctypes.data >> 3) & (LANES - 1))
+        flags, prev = _dat_few(r, 0, q, to, xo, yo, po, hi, prev, wl, hl)
         while q + LANES <= j - i:
             flags |= dat_lanes(r, q, to, xo, yo, po, hi, prev, wl, hl)
             prev = np.int64(r[q + LANES - 1] & np.uint64(0xFFFFFFFF))
             q += LANES
-        for e in range(q, j - i):  # the last few one by one
-            raw = np.int64(r[e] & np.uint64(0xFFFFFFFF))
-            d = np.uint32(r[e] >> np.uint64(32))
-            xq = np.uint16(d & np.uint32(0x3FFF))
-            yq = np.uint16((d >> np.uint32(14)) & np.uint32(0x3FFF))
-            to[e] = hi + raw
-            xo[e] = xq
-            yo[e] = yq
-            po[e] = np.int8((d >> np.uint32(28)) != 0) * np.int8(2) - np.int8(1)
-            flags |= np.int64(raw < prev) | (np.int64(xq >= wl or yq >= hl) << LANES)
-            prev = raw
+        few, prev = _dat_few(r, q, j - i, to, xo, yo, po, hi, prev, wl, hl)  # the last few
+        flags |= few
         ok = ok and flags >> LANES == 0
         if flags & ((1 << LANES) - 1) or prev - first > half:  # perhaps a wrap: unrolled one by one
             wraps, last, fell = dat_unroll(r, to, wraps, last, have, first)
