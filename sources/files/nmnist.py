@@ -12,9 +12,10 @@ counts the markers (``time_overflow_records`` in :attr:`NmnistSource.counts`).
 The format has no header and no magic number: a file is taken for N-MNIST
 by its ``.bin`` extension, and one whose size is not a multiple of 5 bytes
 is refused (or, with ``skip_bad``, its last partial record skipped). The
-sensor is not stored: 34x34 (N-MNIST) by default, ``sensor=`` for the
-others (N-Caltech101: ``sensor=240x180``, each file's own largest x and y
-being smaller than the sensor).
+sensor is not stored: 34x34 (N-MNIST) by default, ``sensor=WxH`` for the
+others: for N-Caltech101 a size covering all its samples (the dataset states
+none and tonic leaves it unset; each file's own largest x and y are not the
+sensor, and would give every sample a different size).
 """
 
 from __future__ import annotations
