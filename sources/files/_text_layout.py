@@ -16,6 +16,10 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
+import numpy as np
+
+from ._text_head import PLAIN_LINES, plain_head
+
 __all__ = ["TextLayout", "text_layout", "first_lines", "LETTERS", "UNITS"]
 
 #: Units of the time column and their names in headers.
@@ -86,8 +90,12 @@ def _field(name: str) -> tuple[str | None, str | None]:
 
 def text_layout(head: bytes, columns: str | None = None, time_unit: str | None = None) -> TextLayout:
     """The layout of a text file starting with ``head`` (a few kB), the
-    options (None: decide from the file) taking precedence."""
-    names, data = _header(head)
+    options (None: decide from the file) taking precedence. A head of plain
+    event lines (:func:`plain_head`: no header) is judged in one pass, any
+    other from its lines split."""
+    k = (columns or "txyp").find("t")  # the time's field when there is no header
+    plain, dot, width = plain_head(np.frombuffer(head, np.uint8), PLAIN_LINES, k) if k >= 0 else (False, False, 0)
+    names, data = ([], []) if plain else _header(head)
     fields = [_field(n) for n in names]
     order = "".join(f for f, _ in fields if f)
     if columns:
@@ -101,16 +109,19 @@ def text_layout(head: bytes, columns: str | None = None, time_unit: str | None =
         return TextLayout(cols, cols_from, time_unit, "the time_unit option")
     if named:
         return TextLayout(cols, cols_from, named[0][1], f"the header names the time column {named[0][0]!r}")
-    k = cols.index("t")
-    if k == 0 and data:  # the first field of every line, in one call
-        times = _FIRST_FIELD.findall(b"\n".join(data))
-    else:
-        times = [f[k] for f in (_FIELD_SEP.split(ln, k + 1) for ln in data) if len(f) > k]  # split no further than t
-    if not times:
-        return TextLayout(cols, cols_from, "s", "no times to judge by: seconds, as in the RPG events.txt")
-    if any(b"." in v for v in times):
+    if not plain:  # whether a time has a '.', and the most digits of one, from the lines split
+        k = cols.index("t")
+        if k == 0 and data:  # the first field of every line, in one call
+            times = _FIRST_FIELD.findall(b"\n".join(data))
+        else:
+            times = [f[k] for f in (_FIELD_SEP.split(ln, k + 1) for ln in data) if len(f) > k]  # no further than t
+        if not times:
+            return TextLayout(cols, cols_from, "s", "no times to judge by: seconds, as in the RPG events.txt")
+        dot = any(b"." in v for v in times)
+        width = max(len(v.lstrip(b"+-")) for v in times)
+    if dot:
         return TextLayout(cols, cols_from, "s", "the times are decimals: seconds, as in the RPG events.txt")
-    if max(len(v.lstrip(b"+-")) for v in times) >= _EPOCH_NS_DIGITS:
+    if width >= _EPOCH_NS_DIGITS:
         return TextLayout(cols, cols_from, "ns", f"the times are integers of {_EPOCH_NS_DIGITS}+ digits: "
                                                  "ns since the epoch")
     return TextLayout(cols, cols_from, "us", "the times are integers: µs")

@@ -31,6 +31,7 @@ from tectum import FramePacket, ImuPacket, Kind, Packet, PosePacket, interleave
 
 from ._common import POOL as _POOL
 from ._common import EventAssembler, FileSource, byte_buffer, read_full
+from ._text_head import PLAIN_LINES, plain_head
 from ._text_layout import LETTERS, TextLayout, first_lines, text_layout
 from ._text_swar import REACH, fast_lines
 
@@ -390,14 +391,26 @@ def parse_lines(buf, order, digits, state, skip, t, x, y, p, where, bad, fast=Tr
     return n, last + 1, runs, why
 
 
-_NUM = rb"[+-]?(?:\d+\.?\d*|\.\d+)"
+#: A number, matched one way only (``\d+\.?\d*`` splits a run of digits between its two parts in as many
+#: ways as it has digits, and a line failing after k matched ones then retries all their splits: hours)
+_NUM = rb"[+-]?(?:\d+(?:\.\d*)?|\.\d+)"
 _LINE = re.compile(rb"^\s*" + _NUM + rb"(?:[ \t,]+" + _NUM + rb"){2}[ \t,]+" + _NUM + rb"\s*$")
 #: Lines each ending with a newline, of 4 numbers, the 4th a polarity (blanks: whitespace but the newline)
 _EVENT_LINES = re.compile(rb"(?:[^\S\n]*" + _NUM + rb"(?:[ \t,]+" + _NUM + rb"){2}[ \t,]+(?:0|[+-]?1)[^\S\n]*\n)+")
 
 
 def looks_like_events_text(head: bytes) -> bool:
-    """First data lines are 4 numeric columns, the 4th a polarity (0/1/-1)."""
+    """First data lines are 4 numeric columns, the 4th a polarity (0/1/-1):
+    at once when the head starts with plain event lines (:func:`plain_head`,
+    the common file), else by :func:`_events_text_lines`."""
+    if plain_head(np.frombuffer(head, np.uint8), PLAIN_LINES, 0)[0]:
+        return True  # 20 plain lines: no sample stream's kind line, no header, each of _EVENT_LINES's form
+    return _events_text_lines(head)
+
+
+def _events_text_lines(head: bytes) -> bool:
+    """:func:`looks_like_events_text` from the head's first lines, split and
+    matched against the form of an event line."""
     if head.startswith(b"# tectum ") and not head.startswith(b"# tectum events"):
         return False  # a sample stream (tectum.sources.files.samples_csv)
     lines = first_lines(head, 21, strip=False)
