@@ -139,3 +139,13 @@ def test_any_packet_split_gives_the_same_planar_maps():
     split = feed_ports(Emvs(**OPTS, keyframe_baseline=0.08, surface="plane"), pieces)
     tectum.testing.assert_streams_equal(whole, split, "split")
     assert sum(q.kind == "maps" for q in whole) >= 2
+
+
+def test_tracker_evo_passes_surface_to_its_mapper():
+    p = tectum.Pipeline()
+    cam = p.source("pattern:", id="cam")
+    p.op("tracker.evo", events=cam, id="evo", calib="40;40;20;15", surface="plane")
+    plan = p.validate()
+    assert dict(plan.nodes["evo.mapper"].params) == {"calib": "40;40;20;15", "surface": "plane"}
+    assert "surface" not in plan.nodes["evo.tracker"].params
+    assert plan.nodes["evo.mapper"].instantiate().surface == "plane"
