@@ -55,7 +55,9 @@ Steps (IJCV 2018 Sec. 3-4; the kernels are in :mod:`._dsi`):
    ``plane_tol`` DSI planes of it) and keeps the free depth otherwise. Those
    maps say which they are: columns ``planar`` (1 or 0) and ``plane`` (the
    plane's ``1 / Z = a x + b y + c`` over normalised coordinates, 1/m; NaN
-   when free).
+   when free). EMVS's depth of a real plane is seldom close enough for
+   ``auto`` (none of its maps of the EVO bench's plane passes: ``docs/evo.md``);
+   ``plane`` is a prior for a scene known to be planar.
 
 Output: a :class:`~tectum.MapPacket` per map, stamped at its last event
 (µs), with ``depth`` (m, float32 (H, W), NaN where unknown), ``confidence``
