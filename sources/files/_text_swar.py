@@ -231,7 +231,8 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n):  # type: ignore[
     (the first line's: space, tab or comma), coordinates of 1 to 4 digits (any sensor's below 10000),
     a polarity ``0``, ``1`` or ``-1`` in the convention of ``state[0]`` (as
     in :func:`tectum.sources.files.text.parse_lines`, which sets it on the
-    first 0 or -1; ``state[1:3]`` get the largest coordinates), ``\\n`` or
+    first 0 or -1; ``state[1:3]`` get the largest coordinates, ``state[3]``
+    1 if a time is below the one before it, from index ``max(n, 1)``), ``\\n`` or
     ``\\r\\n``, the whole line shorter than 64 bytes.
     Returns (the start of the first line not parsed, n).
 
@@ -329,5 +330,9 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n):  # type: ignore[
     for k in range(first, n):  # apart: the loop above has registers enough for its own work
         xmax = max(xmax, np.int64(x[k]))
         ymax = max(ymax, np.int64(y[k]))
+    down = np.int64(0)
+    for k in range(max(first, 1), n):
+        down |= np.int64(t[k] < t[k - 1])
     state[0], state[1], state[2] = conv, xmax, ymax
+    state[3] |= down
     return i, n

@@ -48,8 +48,9 @@ _NO_WHERE = np.empty(0, np.int64)  # parse_lines without the line offsets
 #: ``parse_lines`` reasons for a bad line
 _REASONS = {1: "line is not 4 numbers", 2: "negative coordinate", 3: "coordinate above 65535",
             4: "polarity is not 0/1 or -1/+1 (or mixes the two)", 5: "time out of the int64 µs range"}
-#: ``parse_lines`` state: polarity convention (0 not seen yet, 1 is 0/1, 2 is -1/+1), largest x, largest y
-_STATE = 3
+#: ``parse_lines`` state: polarity convention (0 not seen yet, 1 is 0/1, 2 is -1/+1), largest x, largest y,
+#: 1 once a time was below the one before it in a call (0 while they never decrease)
+_STATE = 4
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -159,7 +160,9 @@ def parse_lines(buf, order, digits, state, skip, t, x, y, p, where, bad, fast=Tr
     Time is built from its decimal digits in integer arithmetic: digits below
     1 µs round half up (on the first dropped digit; away from zero for
     negative times). ``state`` (see ``_STATE``) carries the polarity
-    convention, set by the first 0 or -1, and the largest coordinates.
+    convention, set by the first 0 or -1, the largest coordinates and
+    whether a time decreased (from the call's second event on: what
+    :meth:`EventAssembler.commit` need not check again).
 
     Bad lines go to ``bad`` (int64, at least one row of three): runs of
     them, each (offset of the first, offset of the last one's line end,
@@ -234,6 +237,8 @@ def parse_lines(buf, order, digits, state, skip, t, x, y, p, where, bad, fast=Tr
                     state[0] = 1 if pv == 0 else 2
                 joined = False
                 k = np.uint64(n)  # unsigned: no negative-index checks
+                if n > 0 and tv < t[k - np.uint64(1)]:
+                    state[3] = 1
                 t[k] = tv
                 x[k] = xv
                 y[k] = yv
@@ -376,6 +381,8 @@ def parse_lines(buf, order, digits, state, skip, t, x, y, p, where, bad, fast=Tr
         if col == 0:  # blank line
             continue
         joined = False
+        if n > 0 and tv < t[n - 1]:
+            state[3] = 1
         t[n] = tv
         x[n] = xv
         y[n] = yv
@@ -436,14 +443,16 @@ def _header_end(text: bytes) -> int | None:
 
 class _Chunk(NamedTuple):
     """Lines parsed by :meth:`TextSource._parse`: ``n`` events in ``cols``
-    from byte ``pos``, a function giving each event's byte offset, and the
-    bytes consumed."""
+    from byte ``pos``, a function giving each event's byte offset, the
+    bytes consumed, and what the parser saw of them for
+    :meth:`EventAssembler.commit` (times never decrease, largest x, largest y)."""
 
     pos: int
     n: int
     cols: tuple[np.ndarray, ...]
     where: Callable[[], np.ndarray]
     size: int
+    bounds: tuple[bool, int, int]
 
 
 class TextSource(FileSource):
@@ -559,7 +568,8 @@ class TextSource(FileSource):
                 self._fail(f"{_REASONS[reason]}: {bytes(view[a:b])[:80]!r}", pos + at + a)
             for a, b, c in runs[:nruns].tolist():
                 self._note_skip(pos + at + a, pos + at + b, c)
-            yield _Chunk(pos + at, k, cols, functools.partial(self._where, view[:used], before, pos + at), used)
+            yield _Chunk(pos + at, k, cols, functools.partial(self._where, view[:used], before, pos + at), used,
+                         (not state[3], int(state[1]), int(state[2])))  # the state's so far: bounds of these
             at += used
             if nruns < _RUNS:
                 return at
@@ -646,7 +656,7 @@ class TextSource(FileSource):
             state[:] = 0
             if len(held) == 1:  # a file of one chunk: committed from the reservation it was parsed into, no copy
                 asm.sensor = sensor
-                yield from asm.commit(held[0].n, held[0].pos, held[0].where)
+                yield from asm.commit(held[0].n, held[0].pos, held[0].where, held[0].bounds)
                 yield from asm.finish()
                 return
         asm = EventAssembler(self, sensor)
@@ -654,10 +664,10 @@ class TextSource(FileSource):
             for c in held:
                 for a, b in zip(asm.reserve(c.n), c.cols):
                     a[:] = b[:c.n]
-                yield from asm.commit(c.n, c.pos, c.where)
+                yield from asm.commit(c.n, c.pos, c.where, c.bounds)
         else:
             for c in self._parse(asm.reserve, state):
-                yield from asm.commit(c.n, c.pos, c.where)
+                yield from asm.commit(c.n, c.pos, c.where, c.bounds)
                 if asm.past_end():
                     break
         yield from asm.finish()
