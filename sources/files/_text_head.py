@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["plain_head", "PLAIN_LINES"]
+__all__ = ["plain_head", "plain_events_head", "PLAIN_LINES"]
 
 #: Lines :func:`plain_head` checks: the lines the sniffer and the layout judge by
 PLAIN_LINES = 20
@@ -81,3 +81,10 @@ def plain_head(buf, lines, k):  # type: ignore[no-untyped-def]  # pragma: no cov
             return False, False, 0
         i += 1
     return True, dot, width
+
+
+def plain_events_head(head: bytes) -> bool:
+    """Whether a file's ``head`` starts with :data:`PLAIN_LINES` plain event
+    lines (:func:`plain_head`): the sniffers' common question (the event text
+    source says yes at once, the pose and sample text sources no)."""
+    return bool(plain_head(np.frombuffer(head, np.uint8), PLAIN_LINES, 0)[0])

@@ -39,6 +39,7 @@ from tectum import FormatError, Kind, Packet, SamplePacket, packet_class
 from tectum.tables import Group, flat_kinds, header_layout, kinds_for_header, parse_kind_line, pose_problem
 
 from ._rows import Line, RowCheck, RowParser, RowStream, SampleFileSource, text_lines, whole_us
+from ._text_head import plain_events_head
 from ._text_layout import first_lines
 
 __all__ = ["CsvSource"]
@@ -83,6 +84,8 @@ class CsvSource(SampleFileSource):
 
     @classmethod
     def sniff(cls, head: bytes) -> bool:
+        if plain_events_head(head):
+            return False  # event lines: no kind line, no header row
         kind_line, names = _header(head)
         if kind_line is not None:
             try:

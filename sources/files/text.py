@@ -31,7 +31,7 @@ from tectum import FramePacket, ImuPacket, Kind, Packet, PosePacket, interleave
 
 from ._common import POOL as _POOL
 from ._common import EventAssembler, FileSource, byte_buffer, read_full
-from ._text_head import PLAIN_LINES, plain_head
+from ._text_head import plain_events_head
 from ._text_layout import LETTERS, TextLayout, first_lines, text_layout
 from ._text_swar import REACH, fast_lines
 
@@ -408,9 +408,9 @@ _EVENT_LINES = re.compile(rb"(?:[^\S\n]*" + _NUM + rb"(?:[ \t,]+" + _NUM + rb"){
 
 def looks_like_events_text(head: bytes) -> bool:
     """First data lines are 4 numeric columns, the 4th a polarity (0/1/-1):
-    at once when the head starts with plain event lines (:func:`plain_head`,
+    at once when the head starts with plain event lines (:func:`plain_events_head`,
     the common file), else by :func:`_events_text_lines`."""
-    if plain_head(np.frombuffer(head, np.uint8), PLAIN_LINES, 0)[0]:
+    if plain_events_head(head):
         return True  # 20 plain lines: no sample stream's kind line, no header, each of _EVENT_LINES's form
     return _events_text_lines(head)
 

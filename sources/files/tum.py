@@ -26,6 +26,7 @@ from tectum import Kind, Packet, PosePacket
 from tectum.tables import header_layout, parse_us, pose_problem
 
 from ._rows import RowParser, RowStream, SampleFileSource, text_lines
+from ._text_head import plain_events_head
 from ._text_layout import first_lines
 
 __all__ = ["TumSource", "TUM_COLUMNS"]
@@ -51,6 +52,8 @@ class TumSource(SampleFileSource):
     def sniff(cls, head: bytes) -> bool:
         """The first lines that are not comments are 8 numbers each, the last
         four a unit quaternion."""
+        if plain_events_head(head):
+            return False  # lines of 4 numbers: events
         lines = first_lines(head, 1, comments=(b"#",))  # the first alone rules out most files
         if not lines or len(lines[0].split()) != 8:
             return False

@@ -14,9 +14,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tectum.sources.files import _text_layout, text
+from tectum.sources.files import _text_layout, samples_csv, text, tum
 from tectum.sources.files._text_head import PLAIN_LINES, plain_head
 from tectum.sources.files._text_layout import text_layout
+from tectum.sources.files.samples_csv import CsvSource
+from tectum.sources.files.tum import TumSource
 
 _DIGITS = st.one_of(st.integers(0, 9999), st.integers(10 ** 15, 10 ** 20 - 1)).map(lambda v: str(v).encode())
 _PLACES = st.sampled_from([b"", b".", b".5", b".003811000"])
@@ -58,17 +60,21 @@ def _head(draw: st.DrawFn) -> bytes:
 
 
 def _careful(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The layout decided without the one-pass check."""
+    """The layout and the other sniffers deciding without the one-pass check."""
     monkeypatch.setattr(_text_layout, "plain_head", lambda buf, lines, k: (False, False, 0))
+    for module in (tum, samples_csv):  # the pose and sample sniffers, which say no to plain event lines
+        monkeypatch.setattr(module, "plain_events_head", lambda head: False)
 
 
 def _same_answers(head: bytes, columns: str | None) -> None:
     sniffed = text.looks_like_events_text(head)
     layout = text_layout(head, columns)
+    others = (TumSource.sniff(head), CsvSource.sniff(head))
     assert sniffed == text._events_text_lines(head), head
     with pytest.MonkeyPatch.context() as m:
         _careful(m)
         assert layout == text_layout(head, columns), head
+        assert others == (TumSource.sniff(head), CsvSource.sniff(head)), head
 
 
 @settings(max_examples=150)
