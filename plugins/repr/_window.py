@@ -76,17 +76,23 @@ class Windowed(Operator):
     def join_us(self) -> int | None:
         """Time windows of a subclass that states its frames' bytes per
         pixel (:meth:`_px_bytes`): the span of about :data:`JOIN_BYTES` of
-        frames on a sensor of :data:`JOIN_PIXELS` (at least one window), so
-        the frames of one call are still in cache when the next call reuses
-        their memory; else None (no limit)."""
+        frames and state (:meth:`_state_px_bytes`) on a sensor of
+        :data:`JOIN_PIXELS` (at least one window), so what one call sweeps
+        is still in cache when the next call reuses its memory; else None
+        (no limit)."""
         px = self._px_bytes()
         if self.count is not None or not self.window_us or px is None:
             return None
-        return self.window_us * max(1, JOIN_BYTES // (px * JOIN_PIXELS))
+        return self.window_us * max(1, JOIN_BYTES // ((px + self._state_px_bytes()) * JOIN_PIXELS))
 
     def _px_bytes(self) -> int | None:
         """Bytes a frame takes per sensor pixel (None: not stated)."""
         return None
+
+    def _state_px_bytes(self) -> int:
+        """Bytes per sensor pixel of state a call sweeps besides its frames
+        (a time surface's decayed values: every frame reads all of them)."""
+        return 0
 
     # -- subclass hooks ---------------------------------------------------------
     def _start(self, sensor: tuple[int, int]) -> None:

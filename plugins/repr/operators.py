@@ -277,6 +277,9 @@ class TimeSurface(Windowed):
     def _px_bytes(self) -> int:
         return 8  # float32 x 2
 
+    def _state_px_bytes(self) -> int:
+        return 8  # self.v, float32 x 2: one window a call (two: 0.84 against 0.90 of the plain loop, loaded)
+
     def _add(self, t, x, y, p) -> None:  # type: ignore[no-untyped-def]
         if not self._based:
             self.base[0] = t[0]

@@ -178,17 +178,19 @@ def test_frames_in_several_blocks(ev, make, monkeypatch):
 
 def test_joined_runs_span_about_a_cache_of_frames():
     """The engine joins small packets before an image operator into runs of
-    about JOIN_BYTES of frames on a JOIN_PIXELS sensor (2 windows of
-    8-byte pixels, 16 of 1-byte ones), so a call's frames are still in
-    cache when the next reuses them; count windows and the operators
-    without a frame size state no limit."""
+    about JOIN_BYTES of frames and state on a JOIN_PIXELS sensor (2 windows
+    of 8-byte pixels, 16 of 1-byte ones, 1 of a time surface's 8-byte
+    frames and 8-byte state), so what a call sweeps is still in cache when
+    the next reuses it; count windows and the operators without a frame
+    size state no limit."""
     from tectum.plugins.repr import _window
 
     per_px = {R.EventFrame(window_us=7000): 8, R.CountImage(window_us=7000, dtype="uint8"): 1,
-              R.Accumulate(window_us=7000, dtype="int16"): 2, R.TimeSurface(window_us=7000): 8}
+              R.Accumulate(window_us=7000, dtype="int16"): 2, R.TimeSurface(window_us=7000): 16}
     for op, px in per_px.items():
         assert op.join_us() == 7000 * max(1, _window.JOIN_BYTES // (px * _window.JOIN_PIXELS))
     assert R.EventFrame(window_us=7000).join_us() == 14_000 and R.CountImage(dtype="uint8").join_us() == 160_000
+    assert R.TimeSurface(window_us=7000).join_us() == 7000
     for op in (R.EventFrame(count=100), R.Sae(window_us=7000), R.Color(window_us=7000)):
         assert op.join_us() is None
 
