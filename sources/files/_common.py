@@ -650,9 +650,12 @@ class FileSource(Source):
         self._files: list[Any] = []
 
     # -- helpers for subclasses ------------------------------------------------
-    def _open(self) -> Any:
+    def _open(self, buffering: int = -1) -> Any:
+        """The file, for reading bytes; ``buffering=0``: unbuffered, for a
+        reader that reads big chunks into buffers of its own (a buffered one
+        adds system calls: a terminal test, a seek, a read past the end)."""
         try:
-            f = open(self.path, "rb")
+            f = open(self.path, "rb", buffering=buffering)
         except OSError as e:
             raise FormatError(f"cannot open: {e.strerror}", path=self.path) from None
         self._files.append(f)

@@ -510,7 +510,7 @@ class TextSource(FileSource):
         whatever the input. Chunks are read into pooled buffers (a fresh
         one costs a page fault per 4 KiB); a read coming short is the last,
         and a last line without its newline is parsed after it, with one."""
-        f = self._open()
+        f = self._open(buffering=0)  # chunks read straight into the pooled buffers
         size = self.chunk_bytes
         buf = byte_buffer(size + 1)  # room for a newline after a last line without one
         n = read_full(f, buf[:size])  # the first chunk, which holds the head
