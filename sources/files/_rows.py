@@ -45,10 +45,10 @@ class SampleFileSource(FileSource):
         #: Counters for the run's stats: rows dropped with ``skip_bad``.
         self.counts = {"skipped_rows": 0}
 
-    def _open(self) -> Any:
+    def _open(self, buffering: int = -1) -> Any:
         """The file, which must not be empty: no bytes is no file of the
         format, never a stream of no samples."""
-        f = super()._open()
+        f = super()._open(buffering)
         if os.fstat(f.fileno()).st_size == 0:
             self._fail("empty file: no header and no rows", 0)
         return f
