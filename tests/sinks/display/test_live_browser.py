@@ -124,15 +124,23 @@ def test_one_page_load_updates_picture_and_stats(live_view: str, browser: Any, r
     assert not errors, errors
 
 
+def _open_view(browser: Any, url: str, title: str) -> str:
+    """One page load of a map or frame stream's view: wait for its first
+    picture and its title; its caption."""
+    from selenium.webdriver.common.by import By
+
+    browser.get(url + "/")
+    img = browser.find_element(By.ID, "f")
+    _wait(browser, "the first picture is shown", lambda: browser.execute_script("return arguments[0].naturalWidth", img))
+    _wait(browser, f"the title says {title}", lambda: browser.find_element(By.ID, "title").text == title)
+    return str(browser.find_element(By.ID, "caption").text)
+
+
 @pytest.mark.parametrize("live_view", [{"maps": True}], indirect=True, ids=["maps"])
 def test_a_map_stream_shows_maps_with_their_caption_and_legend(live_view: str, browser: Any) -> None:
     from selenium.webdriver.common.by import By
 
-    browser.get(live_view + "/")
-    img = browser.find_element(By.ID, "f")
-    _wait(browser, "the first map is shown", lambda: browser.execute_script("return arguments[0].naturalWidth", img))
-    _wait(browser, "the title says Map", lambda: browser.find_element(By.ID, "title").text == "Map")
-    caption = browser.find_element(By.ID, "caption").text
+    caption = _open_view(browser, live_view, "Map")
     assert "Log-intensity map (80x40 px)" in caption, caption
     assert browser.find_element(By.ID, "maplegend").is_displayed()
     assert not browser.find_element(By.ID, "evlegend").is_displayed()  # no events in this stream
@@ -149,11 +157,7 @@ def test_a_map_stream_shows_maps_with_their_caption_and_legend(live_view: str, b
 def test_a_representation_shows_its_frames_with_their_caption(live_view: str, browser: Any) -> None:
     from selenium.webdriver.common.by import By
 
-    browser.get(live_view + "/")
-    img = browser.find_element(By.ID, "f")
-    _wait(browser, "the first frame is shown", lambda: browser.execute_script("return arguments[0].naturalWidth", img))
-    _wait(browser, "the title says Frames", lambda: browser.find_element(By.ID, "title").text == "Frames")
-    caption = browser.find_element(By.ID, "caption").text
+    caption = _open_view(browser, live_view, "Frames")
     assert "Frame (96x64 px)" in caption and "from 0 to 1" in caption, caption
     assert not browser.find_element(By.ID, "maplegend").is_displayed()  # a depth legend would mislead here
     assert browser.find_element(By.ID, "evlegend").is_displayed()  # ON and OFF colours
