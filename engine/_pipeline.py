@@ -474,7 +474,10 @@ def _validate(p: Pipeline, reg: Registry) -> Plan:
             if s.role == "operator":  # its own stream of a kind it makes replaces upstream's (results add up)
                 replaces = (upstream & frozenset(decl.produces)) - consumes - {Kind.RESULTS, Kind.ANY}
             if s.role == "sink" and s.component is None and hasattr(cls, "planned_params"):
-                params = cls.planned_params(params, upstream)  # e.g. which stream a file holds
+                try:
+                    params = cls.planned_params(params, upstream)  # e.g. which stream a file holds
+                except ValueError as e:
+                    raise PipelineError(f"node {nid!r} ({s.name}): {e}") from None
         offload = s.role == "operator" and (bool(getattr(decl, "heavy", False)) if s.offload is None else s.offload)
         provides_of[nid] = provides
         fb = frozenset(q for q, up in wired.items() if (nid, up) in feedback)

@@ -133,7 +133,9 @@ def header_layout(cls: type[SamplePacket], header: Sequence[str],
 
 
 def flat_kinds() -> list[Kind]:
-    """Registered sample kinds whose required fields all fit in a table."""
+    """Registered sample kinds whose fields, optional ones too, all fit in
+    a table (scalars and vectors): not frames, nor maps (whose fields are
+    all optional images)."""
     out = []
     for k in Kind:
         cls = packet_class(k)
@@ -141,8 +143,7 @@ def flat_kinds() -> list[Kind]:
             continue
         try:
             for name, spec in cls.fields.items():
-                if not spec.optional:
-                    spec.columns(name)
+                spec.columns(name)
         except ValueError:
             continue
         out.append(k)

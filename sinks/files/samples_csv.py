@@ -101,6 +101,9 @@ class CsvSink(Sink):
         flat = [k for k in upstream if k in flat_kinds()]
         if params.get("kind") is None and len(flat) == 1:
             return {**params, "kind": str(flat[0])}
+        if params.get("kind") is None and not flat and Kind.EVENTS not in upstream and Kind.ANY not in upstream:
+            raise ValueError(f"csv: its input provides only {', '.join(sorted(map(str, upstream)))}: a CSV holds "
+                             f"events or one of {', '.join(flat_kinds())} (frames and maps go to .npz)")
         return params
 
     def open(self) -> None:

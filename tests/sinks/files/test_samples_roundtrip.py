@@ -14,7 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from sample_streams import FLAT_KINDS, sample_packet, splits
 
-from tectum import EventPacket, ImuPacket, Kind, PointPacket, PosePacket, TrackPacket
+from tectum import EventPacket, ImuPacket, Kind, MapPacket, PointPacket, PosePacket, TrackPacket
 from tectum.sinks.files import SAMPLE_SINKS
 from tectum.sinks.files._common import write_all
 from tectum.sinks.files.ply import PlySink
@@ -117,8 +117,32 @@ def test_csv_writes_the_first_sample_kind_or_the_one_named(tmp_path: Path) -> No
     assert events.read_text().splitlines()[0] == "t,x,y,p"
     assert_streams_equal([ev], [q for q in _read(events, sensor="4x4") if q.kind == Kind.EVENTS])
     assert sorted(os.listdir(tmp_path)) == ["events.csv", "first.csv", "named.csv"]  # no temporary file left
-    with pytest.raises(ValueError, match="frames and maps go to .npz"):
-        CsvSink(str(tmp_path / "f.csv"), kind="frames")
+    for kind in ("frames", "maps"):
+        with pytest.raises(ValueError, match="frames and maps go to .npz"):
+            CsvSink(str(tmp_path / "f.csv"), kind=kind)
+
+
+def test_a_csv_after_a_mapper_holds_the_flat_stream_and_counts_the_maps(tmp_path: Path) -> None:
+    """Maps (all-optional image fields) are not a table's stream: a CSV sink
+    fed maps and poses holds the poses, chosen when the pipeline is
+    validated, and counts the maps as not written (it failed after the run)."""
+    import tectum
+    from tectum.testing import ListSource
+
+    img = np.zeros((1, 6, 8), np.float32)
+    maps = [MapPacket([t], image=img, depth=img + 1.0, t_start=t, t_end=t + 10) for t in (0, 10)]
+    poses = PosePacket([3, 13], position=np.zeros((2, 3)), orientation=[[0, 0, 0, 1.0]] * 2, t_start=0, t_end=20)
+    p = tectum.Pipeline()
+    out = tmp_path / "out.csv"
+    p.sink(str(out), p.source(ListSource([maps[0], poses, maps[1]])), id="csv")
+    stats = tectum.run(p)
+    assert_streams_equal([poses], _read(out))
+    assert stats.nodes["csv"].not_written == {"maps": 2}
+    p = tectum.Pipeline()  # maps alone: refused before the run, naming the node
+    p.sink(str(tmp_path / "maps.csv"), p.source(ListSource(maps)), id="csv")
+    with pytest.raises(tectum.PipelineError, match=r"node 'csv' .*its input provides only maps: a CSV holds events"):
+        p.validate()
+    assert not (tmp_path / "maps.csv").exists()
 
 
 @pytest.mark.parametrize("cls", SAMPLE_SINKS, ids=lambda c: c.name)
