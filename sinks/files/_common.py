@@ -61,6 +61,18 @@ class FileSink(Sink):
     def _end(self) -> None:
         """Finish the file (footer, patched header) before it is committed."""
 
+    @staticmethod
+    def _origin(packet: EventPacket, limit: int, name: str) -> int:
+        """The time (µs) a format that stores no time origin counts from:
+        0, or the first packet's start when its first event comes at
+        ``limit`` µs or later (else the file would open with that long a run
+        of overflow bytes or records). A time before it is a ValueError."""
+        first = int(packet.t[0]) if len(packet) else packet.t_start
+        t0 = packet.t_start if first >= limit else 0
+        if first < t0 or first < 0:
+            raise ValueError(f"time {first} µs is before the {name} origin {t0} µs")
+        return t0
+
     def close(self) -> None:
         if self.f is None:
             self.open()

@@ -42,11 +42,8 @@ class EventStreamSink(FileSink):
         w, h = self.sensor
         if w > 0xFFFF or h > 0xFFFF:
             raise ValueError(f"Event Stream stores 16-bit sizes: sensor {w}x{h} is too large")
-        first = int(packet.t[0]) if len(packet) else packet.t_start
         #: The time (µs) the file's 0 stands for.
-        self.t0 = packet.t_start if first >= self.LIMIT else 0
-        if first < self.t0 or first < 0:
-            raise ValueError(f"time {first} µs is before the Event Stream origin {self.t0} µs")
+        self.t0 = self._origin(packet, self.LIMIT, "Event Stream")
         self.f.write(C.header(C.DVS, w, h))
         self.state = np.zeros(1, np.int64)  # the previous event's time, from the file's origin
 

@@ -62,11 +62,8 @@ class NmnistSink(FileSink):
         w, h = self.sensor
         if w > 256 or h > OVERFLOW_Y:
             raise ValueError(f"N-MNIST stores 8-bit x and y < {OVERFLOW_Y}: sensor {w}x{h} is too large")
-        first = int(packet.t[0]) if len(packet) else packet.t_start
         #: The time (µs) the file's 0 stands for.
-        self.t0 = packet.t_start if first > 0x7FFFFF else 0
-        if first < self.t0 or first < 0:
-            raise ValueError(f"time {first} µs is before the N-MNIST origin {self.t0} µs")
+        self.t0 = self._origin(packet, 1 << 23, "N-MNIST")
         self.state = np.zeros(1, np.int64)
 
     def _events(self, packet: EventPacket) -> None:
