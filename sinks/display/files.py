@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from tectum import ClusterPacket, EventPacket, FramePacket, Kind, MapPacket, Packet, ResultPacket, Sink, TrackPacket
-from tectum.sinks.files._common import temp_beside
+from tectum.sinks.files._common import count_unwritten, temp_beside
 
 from .clusters import ClusterOverlay, as_tracks
 from .frames import frame_picture
@@ -59,8 +59,7 @@ class _Rendering(Sink):
         return params
 
     def _skip(self, packet: Packet) -> list[tuple[int, np.ndarray]]:
-        if len(packet):
-            self.not_written[str(packet.kind)] = self.not_written.get(str(packet.kind), 0) + len(packet)
+        count_unwritten(self.not_written, packet)
         return []
 
     def _frames(self, packet: Packet) -> list[tuple[int, np.ndarray]]:

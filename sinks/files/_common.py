@@ -9,7 +9,7 @@ from typing import IO, Any, ClassVar
 
 from tectum import EventPacket, Kind, Packet, Sink
 
-__all__ = ["FileSink", "temp_beside", "discard", "write_all"]
+__all__ = ["FileSink", "temp_beside", "discard", "write_all", "count_unwritten"]
 
 
 class FileSink(Sink):
@@ -106,6 +106,14 @@ class FileSink(Sink):
             self.f = None
         discard(self._tmp)
         self._tmp = None
+
+
+def count_unwritten(counts: dict[str, int], packet: Packet) -> None:
+    """Count ``packet``'s events or samples in ``counts`` by kind: a sink's
+    ``not_written`` (what reached it and was not stored), which ``tectum
+    run`` reports."""
+    if len(packet):
+        counts[str(packet.kind)] = counts.get(str(packet.kind), 0) + len(packet)
 
 
 def temp_beside(path: str, suffix: str = ".part") -> tuple[int, str]:

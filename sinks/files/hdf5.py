@@ -41,7 +41,7 @@ import numpy as np
 
 from tectum import EventPacket, Kind, Packet, ResultPacket, SamplePacket, Sink
 
-from ._common import discard, temp_beside
+from ._common import count_unwritten, discard, temp_beside
 
 __all__ = ["Hdf5Sink"]
 
@@ -108,8 +108,8 @@ class Hdf5Sink(Sink):
                 s = self._streams[packet.kind] = _Stream(self.h.create_group(str(packet.kind)), type(packet),
                                                          packet.t_start, self._opts())
             s.write(packet)
-        elif len(packet):
-            self.not_written[str(packet.kind)] = self.not_written.get(str(packet.kind), 0) + len(packet)
+        else:
+            count_unwritten(self.not_written, packet)
 
     def _events(self, packet: EventPacket) -> None:
         if self.sensor is None:

@@ -32,6 +32,7 @@ import numpy as np
 from tectum import EventPacket, Kind, Packet, SamplePacket, Sink
 from tectum.tables import flat_kinds, kind_line
 
+from ._common import count_unwritten
 from ._rows import SampleFileSink, text_rows
 from .text import TextSink
 
@@ -136,8 +137,7 @@ class CsvSink(Sink):
         self.samples.write(packet)
 
     def _skip(self, packet: Packet) -> None:
-        if len(packet):
-            self.not_written[str(packet.kind)] = self.not_written.get(str(packet.kind), 0) + len(packet)
+        count_unwritten(self.not_written, packet)
 
     def close(self) -> None:
         for s in (self.samples, self.events):
