@@ -279,3 +279,60 @@ def test_select_kernel_on_strided_columns():
     assert np.array_equal(keep, exp) and n == exp.sum()
     for got, col in zip(out, (ev.t, ev.x, ev.y, ev.p)):
         assert np.array_equal(got[:n], col[exp])
+
+
+# -- dt_us="auto": the window learned from the stream --------------------------------
+def _signal_noise(ev, out):
+    noise = ev.columns["noise"] == 1
+    kept = out.columns["noise"]
+    return (kept == 0).sum() / (~noise).sum(), (kept == 1).sum() / noise.sum()
+
+
+def test_auto_keeps_a_slow_scene_that_the_fixed_default_loses(make_pattern):
+    """Bars at 100 px/s (10 ms a pixel, past the fixed 6 ms): the learned
+    window keeps 90 % of the signal, and still drops most of the noise."""
+    ev = make_pattern(sensor="64x48", duration_us=600_000, noise_hz=1.0, speed=100.0, seed=2)
+    fixed = _signal_noise(ev, BackgroundActivity().process(ev)[0])
+    op = BackgroundActivity(dt_us="auto")
+    auto = _signal_noise(ev, op.process(ev)[0])
+    assert fixed[0] < 0.8 and auto[0] > 0.9, (fixed, auto)
+    assert auto[1] < 0.5 and 10_000 < op.dt_us < 25_000, (auto, op.dt_us)
+
+
+def test_auto_window_follows_a_fast_scene(make_pattern):
+    """Bars at 400 px/s (2.5 ms a pixel): a window near 3-4 ms, shorter than
+    the fixed default's, so less noise passes at the same signal kept."""
+    ev = make_pattern(sensor="128x96", duration_us=300_000, noise_hz=2.0, speed=400.0, seed=3)
+    fixed = _signal_noise(ev, BackgroundActivity().process(ev)[0])
+    op = BackgroundActivity(dt_us="auto")
+    auto = _signal_noise(ev, op.process(ev)[0])
+    assert auto[0] > 0.95 and auto[1] < fixed[1] - 0.05, (fixed, auto)
+    assert 2_500 < op.dt_us < 6_000, op.dt_us
+
+
+def test_auto_on_noise_alone_falls_to_the_shortest_window(make_noise):
+    """Poisson noise and no motion: the noise's exponential share is taken
+    out of the histogram, nothing is left, the window is 0.3 ms."""
+    ev = make_noise((128, 96), 10.0, 1_000_000, seed=4)
+    op = BackgroundActivity(dt_us="auto")
+    out = op.process(ev)[0]
+    assert op.dt_us == 300
+    late = ev.t >= 500_000
+    assert (np.isin(out.t, ev.t[late])).sum() / late.sum() < 0.05
+
+
+def test_auto_batch_invariant(make_pattern):
+    stream = make_pattern(sensor="32x24", duration_us=120_000, noise_hz=20.0, speed=200.0)
+    assert len(stream) > 4 * 256  # the window is recomputed a few times
+    assert_batch_invariant(lambda: BackgroundActivity(dt_us="auto"), stream, max_examples=10)
+
+
+def test_auto_parameter_and_memory():
+    from tectum._operator import coerce_param
+
+    assert coerce_param(BackgroundActivity, "dt_us", "auto") == "auto"
+    assert coerce_param(BackgroundActivity, "dt_us", "3000") == 3000
+    assert BackgroundActivity(dt_us="auto").memory_us() is None  # learned from the whole stream
+    assert BackgroundActivity(dt_us=3000).memory_us() == 3000
+    with pytest.raises(ValueError, match="auto"):
+        BackgroundActivity(dt_us="fast")  # type: ignore[arg-type]
