@@ -6,17 +6,25 @@ its 8 neighbours fired. A moving edge's events have short ones (about the
 time the edge takes to cross a pixel, 1 / speed); Poisson noise of ``r``
 Hz/px far from the signal has exponential ones of rate ``8 r`` (mean
 ``1 / (8 r)``). The kernel keeps an exponentially forgotten histogram of
-these intervals (log-spaced bins) and, every :data:`UPDATE_EVENTS` events,
-sets the window to :data:`FACTOR` times the :data:`QUANTILE` quantile of the
-signal's part of it: the intervals past :data:`TAIL_US` (no edge of the
-scenes it was tuned on is that slow) fit the noise's exponential (its rate
-from their mean excess, memoryless), whose expected count, times
-:data:`NOISE_MARGIN`, is taken out of every shorter bin before the
-quantile. With too little left (a scene without motion: under
-:data:`MIN_SIGNAL` of the events) the window falls to :data:`DT_MIN_US`.
-The margin covers what one exponential misses (border pixels have fewer
-neighbours, so slower noise; bins' chance excesses): without it a 346x260
-sensor's 10 Hz/px noise alone set a 30 ms window that passed 90 % of it.
+the intervals of pixels off the sensor's border (those have 3 or 5
+neighbours: slower noise) in log-spaced bins and, every
+:data:`UPDATE_EVENTS` events, sets the window to :data:`FACTOR` times the
+:data:`QUANTILE` quantile of the signal's part of it. The intervals from
+:data:`TAIL_US` on (no edge of the scenes it was tuned on is that slow)
+fit the noise's exponential: its rate is their number over their summed
+excess past :data:`TAIL_US` (memoryless; both kept exactly, not binned:
+the count extrapolated back grows as exp(rate x 50 ms), 40x at 10 Hz/px,
+so a rate 1.5 % off from bin centres put it 6 % short). Its expected count
+in every shorter bin, times a margin, is taken out before the quantile;
+with under :data:`MIN_SIGNAL` of the histogram left (a scene without
+motion) the window falls to :data:`DT_MIN_US`. The margin is
+:data:`MARGIN_SIGMAS` standard errors of that count: the fit rests on the
+``n`` intervals in the tail (their effective number under the forgetting),
+so the rate is off by about 1 / sqrt(n) and the count by (1 + rate x
+:data:`TAIL_US`) / sqrt(n). With a fixed margin of 1.2 instead, 10 Hz/px
+noise alone set windows of 15-30 ms at random moments on 64x48 and
+128x96 sensors and passed up to 35-80 % of it; with this one the window
+stays at 0.3 ms (2 % passed) from 64x48 on.
 Everything is a function of the events in order, one at a time: the same
 output however the stream is split into packets.
 """
@@ -48,9 +56,12 @@ TAIL_US = 50_000
 #: The quantile of the signal's intervals the window is set from ...
 QUANTILE = 0.9
 #: ... times this factor.
-FACTOR = 1.4
-#: The noise's expected count per bin is taken out times this.
-NOISE_MARGIN = 1.5
+FACTOR = 1.5
+#: Standard errors of the noise's extrapolated count added to it before it is taken out.
+MARGIN_SIGMAS = 3.0
+#: The effective number of entries of the forgotten histogram: sum(w)^2 / sum(w^2) for weights halving every
+#: :data:`HALF_LIFE_EVENTS` entries.
+EFFECTIVE_ENTRIES = 2.0 * HALF_LIFE_EVENTS / math.log(2.0)
 #: Below this fraction of signal in the histogram, the window is :data:`DT_MIN_US`.
 MIN_SIGNAL = 0.05
 #: The window (µs) before the first estimate (the fixed default's).
@@ -61,10 +72,12 @@ DT_MAX_US = 50_000
 
 
 def adaptive_state() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A fresh estimator: the histogram (float64, :data:`BINS`), the weight
-    of the next entry (float64, 1), and (events since the last update, the
-    window in µs) (int64, 2)."""
-    return np.zeros(BINS, np.float64), np.ones(1, np.float64), np.array([0, DT_START_US], np.int64)
+    """A fresh estimator: the histogram (float64, :data:`BINS`); (the weight
+    of the next entry, the weighted number of intervals from
+    :data:`TAIL_US` on, their weighted sum of µs past it) (float64, 3); and
+    (events since the last update, the window in µs, entries so far) (int64,
+    3)."""
+    return np.zeros(BINS, np.float64), np.array([1.0, 0.0, 0.0]), np.array([0, DT_START_US, 0], np.int64)
 
 
 @njit(cache=True, nogil=True)
@@ -82,31 +95,32 @@ def _edge(b):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, nogil=True)
-def window_from_histogram(hist):  # type: ignore[no-untyped-def]
-    """The window (µs) from a histogram of neighbour intervals (see the
-    module's docstring): noise fitted on the bins from :data:`TAIL_US` on
-    and taken out of the shorter ones, then :data:`FACTOR` times the upper
-    edge of the bin holding the :data:`QUANTILE` quantile of what is left,
-    within [:data:`DT_MIN_US`, :data:`DT_MAX_US`]."""
+def window_from_histogram(hist, count, excess, entries):  # type: ignore[no-untyped-def]
+    """The window (µs) from a histogram of neighbour intervals (``entries``
+    of them so far) and, of those from :data:`TAIL_US` on, their (weighted)
+    ``count`` and summed ``excess`` (µs) past it (see the module's
+    docstring): the noise's
+    exponential fitted on these and taken out of the shorter bins, then
+    :data:`FACTOR` times the upper edge of the bin holding the
+    :data:`QUANTILE` quantile of what is left, within [:data:`DT_MIN_US`,
+    :data:`DT_MAX_US`]."""
     tail = interval_bin(TAIL_US)
-    start = _edge(tail)
-    total, count, excess = 0.0, 0.0, 0.0
+    total = 0.0
     for b in range(BINS):
         total += hist[b]
-        if b >= tail:
-            count += hist[b]
-            excess += hist[b] * (math.sqrt(_edge(b) * _edge(b + 1)) - start)
     if total <= 0.0:
         return DT_START_US
     rate, noise = 0.0, 0.0  # noise: events/µs, and its expected number in the histogram
     if count > 0.0 and excess > 0.0:
         rate = count / excess
-        noise = min(NOISE_MARGIN * count * math.exp(min(rate * start, 50.0)), total)
+        n = max(count / total * min(entries, EFFECTIVE_ENTRIES), 1.0)  # effective intervals in the tail
+        margin = 1.0 + MARGIN_SIGMAS * (1.0 + rate * TAIL_US) / math.sqrt(n)
+        noise = min(margin * count * math.exp(min(rate * TAIL_US, 50.0)), total)
     signal = np.empty(tail)
     left = 0.0
     for b in range(tail):
         lo = 0.0 if b == 0 else _edge(b)
-        expected = noise * (math.exp(-rate * lo) - math.exp(-rate * _edge(b + 1)))
+        expected = noise * (math.exp(-rate * lo) - math.exp(-rate * min(_edge(b + 1), TAIL_US)))
         signal[b] = max(hist[b] - expected, 0.0)
         left += signal[b]
     if left < MIN_SIGNAL * total:
@@ -126,16 +140,19 @@ def adaptive_kernel(t, x, y, last, hist, weight, state, keep):  # type: ignore[n
     its neighbour interval (µs since the latest of its 8 neighbours fired)
     is at most the window ``state[1]`` µs; every event refreshes its pixel
     in ``last`` (a ``(1, H + 2, W + 2)`` int64 padded map of each pixel's
-    latest time, :data:`NEVER` if none) and, unless no neighbour ever fired,
-    adds its interval to ``hist`` with weight ``weight[0]`` (growing by
-    2^(1 / :data:`HALF_LIFE_EVENTS`) an entry: older entries count for
-    less; all rescaled when it passes 1e100). Every :data:`UPDATE_EVENTS`
-    events (``state[0]`` counts them) the window is recomputed
-    (:func:`window_from_histogram`). Writes ``keep``; returns how many kept."""
+    latest time, :data:`NEVER` if none) and, off the sensor's border and
+    unless no neighbour ever fired, adds its interval to ``hist`` (and, from
+    :data:`TAIL_US` on, to ``weight[1]`` and its excess to ``weight[2]``)
+    with weight ``weight[0]`` (growing by 2^(1 / :data:`HALF_LIFE_EVENTS`)
+    an entry: older entries count for less; all rescaled when it passes
+    1e100). Every :data:`UPDATE_EVENTS` events (``state[0]`` counts them)
+    the window is recomputed (:func:`window_from_histogram`). Writes
+    ``keep``; returns how many kept."""
     m = last[0]
+    x_end, y_end = last.shape[2] - 2, last.shape[1] - 2  # padded columns / rows of the sensor's far border
     grow = 2.0 ** (1.0 / HALF_LIFE_EVENTS)
-    w = weight[0]
-    count, dt = state[0], state[1]
+    w, tail_count, tail_excess = weight[0], weight[1], weight[2]
+    count, dt, entries = state[0], state[1], state[2]
     n = 0
     for i in range(t.shape[0]):
         ti = t[i]
@@ -148,17 +165,26 @@ def adaptive_kernel(t, x, y, last, hist, weight, state, keep):  # type: ignore[n
         keep[i] = ok
         n += ok
         m[yy, xx] = ti
-        if latest > NEVER:
+        if latest > NEVER and 1 < xx < x_end and 1 < yy < y_end:
             hist[interval_bin(d)] += w
+            entries += 1
+            if d >= TAIL_US:
+                tail_count += w
+                tail_excess += w * (d - TAIL_US)
             w *= grow
             if w > 1e100:
                 hist /= w
+                tail_count /= w
+                tail_excess /= w
                 w = 1.0
         count += 1
         if count == UPDATE_EVENTS:
             count = 0
-            dt = window_from_histogram(hist)
+            dt = window_from_histogram(hist, tail_count, tail_excess, entries)
     weight[0] = w
+    weight[1] = tail_count
+    weight[2] = tail_excess
     state[0] = count
     state[1] = dt
+    state[2] = entries
     return n
