@@ -468,11 +468,13 @@ def roc_sweep(ev: EventPacket, t_from: int | None = None) -> dict[str, list[dict
 def at_defaults(ev: EventPacket, t_from: int | None = None) -> dict[str, dict[str, Any]]:
     """Signal kept / noise passed of the BA and STCF operators as built with
     their default parameters (run through ``process``, whatever the
-    defaults are today)."""
+    defaults are today), and of BA with ``dt_us="auto"`` (``dt_us``: the
+    window it ended with)."""
     idx = ev.with_columns(index=np.arange(len(ev), dtype=np.int64))
     out: dict[str, dict[str, Any]] = {}
     ops: tuple[tuple[str, BackgroundActivity | SpatioTemporalCorrelation], ...] = (
-        ("background_activity", BackgroundActivity()), ("stcf", SpatioTemporalCorrelation()))
+        ("background_activity", BackgroundActivity()), ("stcf", SpatioTemporalCorrelation()),
+        ("background_activity_auto", BackgroundActivity(dt_us="auto")))
     for name, op in ops:
         keep = np.zeros(len(ev), np.bool_)
         for q in [*op.process(idx), *op.finish()]:
@@ -624,6 +626,9 @@ def default_rows(acc: dict[str, Any], keys: tuple[str, ...]) -> tuple[list[dict[
         targets.append(target(f"BA defaults keep signal ({cond})", ba["signal_kept"], 0.9, "fraction"))
         r = {**{k: c[k] for k in keys}, "BA_sig": ba["signal_kept"], "BA_noise": ba["noise_passed"],
              "BA_90": target_row(targets[-1])["met"], "STCF_sig": st["signal_kept"], "STCF_noise": st["noise_passed"]}
+        if "background_activity_auto" in c["defaults"]:  # BA dt_us="auto": not a default, no target
+            au = c["defaults"]["background_activity_auto"]
+            r.update({"BAauto_sig": au["signal_kept"], "BAauto_noise": au["noise_passed"], "BAauto_dt": au["dt_us"]})
         if "ba_dt_for_90pct_signal" in c:
             b, s2 = c["ba_dt_for_90pct_signal"], c["stcf_k2_dt_for_90pct_signal"]
             r.update({"BA_dt90": b["dt_us"], "BA_noise@dt90": b["noise_passed"],
@@ -830,7 +835,8 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
     d = acc["conditions"][0]["defaults"]
     print(f"at the defaults (BA dt {d['background_activity']['dt_us']} µs; STCF dt {d['stcf']['dt_us']} µs, "
           f"k {d['stcf']['k']}): signal kept / noise passed, BA_90 the target of keeping 90 % of the signal; "
-          f"dt90 = shortest dt keeping 90 % of signal:")
+          f"dt90 = shortest dt keeping 90 % of signal; BAauto = BA with dt_us='auto' (not a default; dt: its "
+          f"last window, µs):")
     print(table(sim_def, list(sim_def[0])))
 
     pat = pattern_accuracy(quick)

@@ -88,23 +88,22 @@ def interval_bin(d):  # type: ignore[no-untyped-def]
     return min(int(math.log2(d) * PER_OCTAVE) - LOW_OCTAVE * PER_OCTAVE, BINS - 1)
 
 
-@njit(cache=True, nogil=True)
-def _edge(b):  # type: ignore[no-untyped-def]
-    """The lower edge (µs) of bin ``b``."""
-    return 2.0 ** ((b + LOW_OCTAVE * PER_OCTAVE) / PER_OCTAVE)
+#: The lower edges (µs) of the bins, and the upper edge of the last.
+_EDGES = 2.0 ** ((np.arange(BINS + 1) + LOW_OCTAVE * PER_OCTAVE) / PER_OCTAVE)
+#: The bin of :data:`TAIL_US`: the bins before it are the signal's candidates.
+_TAIL_BIN = int(math.log2(TAIL_US) * PER_OCTAVE) - LOW_OCTAVE * PER_OCTAVE
 
 
 @njit(cache=True, nogil=True)
-def window_from_histogram(hist, count, excess, entries):  # type: ignore[no-untyped-def]
+def window_from_histogram(hist, count, excess, entries, signal):  # type: ignore[no-untyped-def]
     """The window (µs) from a histogram of neighbour intervals (``entries``
     of them so far) and, of those from :data:`TAIL_US` on, their (weighted)
     ``count`` and summed ``excess`` (µs) past it (see the module's
-    docstring): the noise's
-    exponential fitted on these and taken out of the shorter bins, then
-    :data:`FACTOR` times the upper edge of the bin holding the
-    :data:`QUANTILE` quantile of what is left, within [:data:`DT_MIN_US`,
-    :data:`DT_MAX_US`]."""
-    tail = interval_bin(TAIL_US)
+    docstring): the noise's exponential fitted on these and taken out of
+    the shorter bins (what is left goes to ``signal``, float64, one per bin
+    before :data:`TAIL_US`'s), then :data:`FACTOR` times the upper edge of
+    the bin holding the :data:`QUANTILE` quantile of what is left, within
+    [:data:`DT_MIN_US`, :data:`DT_MAX_US`]."""
     total = 0.0
     for b in range(BINS):
         total += hist[b]
@@ -116,22 +115,22 @@ def window_from_histogram(hist, count, excess, entries):  # type: ignore[no-unty
         n = max(count / total * min(entries, EFFECTIVE_ENTRIES), 1.0)  # effective intervals in the tail
         margin = 1.0 + MARGIN_SIGMAS * (1.0 + rate * TAIL_US) / math.sqrt(n)
         noise = min(margin * count * math.exp(min(rate * TAIL_US, 50.0)), total)
-    signal = np.empty(tail)
     left = 0.0
-    for b in range(tail):
-        lo = 0.0 if b == 0 else _edge(b)
-        expected = noise * (math.exp(-rate * lo) - math.exp(-rate * min(_edge(b + 1), TAIL_US)))
-        signal[b] = max(hist[b] - expected, 0.0)
+    below = 1.0  # the noise's share up to the bin's lower edge: exp(-rate x 0) for the first
+    for b in range(_TAIL_BIN):
+        upto = math.exp(-rate * min(_EDGES[b + 1], TAIL_US))
+        signal[b] = max(hist[b] - noise * (below - upto), 0.0)
+        below = upto
         left += signal[b]
     if left < MIN_SIGNAL * total:
         return DT_MIN_US
     acc = 0.0
     b = 0
-    for b in range(tail):
+    for b in range(_TAIL_BIN):
         acc += signal[b]
         if acc >= QUANTILE * left:
             break
-    return min(max(int(FACTOR * _edge(b + 1)), DT_MIN_US), DT_MAX_US)
+    return min(max(int(FACTOR * _EDGES[b + 1]), DT_MIN_US), DT_MAX_US)
 
 
 @njit(cache=True, nogil=True)
@@ -153,6 +152,7 @@ def adaptive_kernel(t, x, y, last, hist, weight, state, keep):  # type: ignore[n
     grow = 2.0 ** (1.0 / HALF_LIFE_EVENTS)
     w, tail_count, tail_excess = weight[0], weight[1], weight[2]
     count, dt, entries = state[0], state[1], state[2]
+    signal = np.empty(_TAIL_BIN)  # window_from_histogram's scratch
     n = 0
     for i in range(t.shape[0]):
         ti = t[i]
@@ -180,7 +180,7 @@ def adaptive_kernel(t, x, y, last, hist, weight, state, keep):  # type: ignore[n
         count += 1
         if count == UPDATE_EVENTS:
             count = 0
-            dt = window_from_histogram(hist, tail_count, tail_excess, entries)
+            dt = window_from_histogram(hist, tail_count, tail_excess, entries, signal)
     weight[0] = w
     weight[1] = tail_count
     weight[2] = tail_excess
