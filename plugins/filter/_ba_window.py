@@ -16,15 +16,23 @@ excess past :data:`TAIL_US` (memoryless; both kept exactly, not binned:
 the count extrapolated back grows as exp(rate x 50 ms), 40x at 10 Hz/px,
 so a rate 1.5 % off from bin centres put it 6 % short). Its expected count
 in every shorter bin, times a margin, is taken out before the quantile;
-with under :data:`MIN_SIGNAL` of the histogram left (a scene without
-motion) the window falls to :data:`DT_MIN_US`. The margin is
+with under :data:`MIN_SIGNAL` of the histogram left (no motion, or a
+signal too sparse to tell from the noise) the window is the fixed
+default's, :data:`DT_FALLBACK_US`. The margin is
 :data:`MARGIN_SIGMAS` standard errors of that count: the fit rests on the
 ``n`` intervals in the tail (their effective number under the forgetting),
 so the rate is off by about 1 / sqrt(n) and the count by (1 + rate x
 :data:`TAIL_US`) / sqrt(n). With a fixed margin of 1.2 instead, 10 Hz/px
 noise alone set windows of 15-30 ms at random moments on 64x48 and
-128x96 sensors and passed up to 35-80 % of it; with this one the window
-stays at 0.3 ms (2 % passed) from 64x48 on.
+128x96 sensors and passed up to 35-80 % of it; with this one it finds
+no signal there (64x48 to 346x260, 2 and 10 Hz/px, 5 seeds each: every
+window after the first 0.5 s is 6 ms). The first 0.1-0.2 s of a stream
+are not judged as well: intervals are cut short by the stream's age and
+none reaches the tail yet, so windows up to 50 ms pass 60-90 % of
+10 Hz/px noise alone there (6 ms: 38 %). Falling to the shortest window instead of
+6 ms would pass 2 % of such noise instead of 38 %, but the sparse
+``low_texture`` scene of ``tectum bench filters`` in 10 Hz/px noise
+(2 % of its events signal) would keep 6 % of its signal instead of 70 %.
 Everything is a function of the events in order, one at a time: the same
 output however the stream is split into packets.
 """
@@ -38,8 +46,8 @@ from numba import njit
 
 from ._state import NEVER
 
-__all__ = ["BINS", "DT_START_US", "DT_MIN_US", "DT_MAX_US", "adaptive_state", "adaptive_kernel", "interval_bin",
-           "window_from_histogram"]
+__all__ = ["BINS", "DT_START_US", "DT_FALLBACK_US", "DT_MIN_US", "DT_MAX_US", "adaptive_state", "adaptive_kernel",
+           "interval_bin", "window_from_histogram"]
 
 #: Histogram bins per octave of neighbour interval.
 PER_OCTAVE = 8
@@ -62,10 +70,12 @@ MARGIN_SIGMAS = 3.0
 #: The effective number of entries of the forgotten histogram: sum(w)^2 / sum(w^2) for weights halving every
 #: :data:`HALF_LIFE_EVENTS` entries.
 EFFECTIVE_ENTRIES = 2.0 * HALF_LIFE_EVENTS / math.log(2.0)
-#: Below this fraction of signal in the histogram, the window is :data:`DT_MIN_US`.
+#: Below this fraction of signal in the histogram, the window is :data:`DT_FALLBACK_US`.
 MIN_SIGNAL = 0.05
 #: The window (µs) before the first estimate (the fixed default's).
 DT_START_US = 6000
+#: The window (µs) when no signal is found (the fixed default's).
+DT_FALLBACK_US = 6000
 #: Bounds of the window (µs).
 DT_MIN_US = 300
 DT_MAX_US = 50_000
@@ -123,7 +133,7 @@ def window_from_histogram(hist, count, excess, entries, signal):  # type: ignore
         below = upto
         left += signal[b]
     if left < MIN_SIGNAL * total:
-        return DT_MIN_US
+        return DT_FALLBACK_US
     acc = 0.0
     b = 0
     for b in range(_TAIL_BIN):

@@ -278,19 +278,21 @@ class BackgroundActivity(Operator):
     :mod:`tectum.plugins.filter._ba_window`): about 1.5 times the 90th
     percentile of the signal's neighbour intervals (µs since a neighbour
     fired), the noise's exponential share of them fitted on the intervals
-    of 50 ms or more and taken out first; 0.3 ms when under 5 % of the
-    intervals are left (no motion); 0.3-50 ms, 6 ms until the first
-    estimate, recomputed every 256 events; ``dt_us`` then reads the window
-    in use. On the bench's 28 labelled conditions (``tectum bench
-    filters``: 5 simulator scenes and the ``pattern:`` bars at 2 speeds,
-    0.1-10 Hz/px noise) it keeps 90 % of the signal in 25 where 6 ms does
-    in 16, passing about as much noise on average (0.39 against 0.385):
-    more where the scene is slow (which needs a longer window), less where
-    it is fast. It misses where the signal is a few % of the events (the
-    sparse ``low_texture`` scene in 0.5-10 Hz/px noise: 0.85, 0.63 and
-    0.06 of it kept, against 0.52, 0.55 and 0.70 at 6 ms): there it cannot
-    tell the signal from the noise. So it is not the default. About 30 ns
-    an event (loaded), against 3-9 for a fixed window. Its state: the
+    of 50 ms or more and taken out first; 6 ms (the fixed default) until
+    the first estimate and whenever under 5 % of the intervals are left
+    (no motion, or a signal too sparse to tell from the noise); 0.3-50 ms,
+    recomputed every 256 events; ``dt_us`` then reads the window in use.
+    On the bench's 28 labelled conditions (``tectum bench filters``: 5
+    simulator scenes and the ``pattern:`` bars at 2 speeds, 0.1-10 Hz/px
+    noise) it keeps 90 % of the signal in 25 where 6 ms does in 16, and
+    in the other 3 more than 6 ms does; it passes a little more noise on
+    average (0.405 against 0.385): more where the scene is slow (which
+    needs a longer window), less where it is fast. Not the default: about
+    25 ns an event (loaded) against 3-4 for a fixed window, and it learns
+    from the whole stream, so it does not shard (:meth:`memory_us` is
+    None). Its state: an int64 map (8 x (W + 2) x (H + 2) bytes), 168
+    histogram bins and six numbers.
+
     State: one int32 per pixel (the latest time it fired, relative to an
     origin that moves on every 2^30 µs) plus a border of one pixel and a
     second row below, 4 x (W + 2) x (H + 3) bytes (about 366 kB for
