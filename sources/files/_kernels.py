@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._lanes import LANES, evt2_lanes
+from ._lanes import CD_END, LANES, evt2_group, evt2_lanes
 
 
 @njit(cache=True, nogil=True)
@@ -55,8 +55,106 @@ def decode_evt2(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
 def decode_evt2_bounded(words, state, strict, t, x, y, p, trig):  # pragma: no cover - numba
     """:func:`decode_evt2` without ``where``, returning also the bounds of
     the events written (:meth:`EventAssembler.commit`'s): (..., times never
-    fell from one event to the next, largest x, largest y)."""
-    return _evt2(words, state, strict, t, x, y, p, np.empty(0, np.int64), trig)
+    fell from one event to the next, largest x, largest y).
+
+    The words go 16 at a time through :func:`._lanes.evt2_group`, which
+    decodes them all as CD words and says how many lead before another
+    type: the column index moves on by that many, the other word is
+    decoded on its own, and the next 16 start just after it. No scan for
+    the end of a run of CD words, no slice per run, no last few one by one
+    but at the chunk's end (:func:`_evt2`, with ``where``, does those)."""
+    n = 0
+    nt = 0
+    bad = -1
+    nbad = 0
+    th = state[0]
+    have = state[1]
+    last_raw = state[2]
+    wraps = state[3]
+    dropped = state[4]
+    m = min(words.shape[0], t.shape[0])  # one event per word at most
+    fell = np.int64(0)  # events whose time is below the one before
+    mx = np.int64(0)
+    my = np.int64(0)
+    # the 6-bit time the next event's is compared with: the last event's in this call under the same
+    # time base, 0 when there is none or the base rose past its time, 64 when the base fell below it
+    low = np.int64(0)
+    i = 0
+    while i < m:
+        if have == 1:
+            base = th << 6
+            while i + LANES <= m:
+                got = evt2_group(words, i, t, x, y, p, n, base, low)
+                fell += (got >> 8) & 0xFF
+                mx = max(mx, (got >> 16) & 0xFFFF)
+                my = max(my, (got >> 32) & 0xFFFF)
+                j = got & 0xFF
+                if j == LANES:  # the usual case, by constants: the next load's address waits for no result
+                    low = np.int64((words[np.uint64(i + LANES - 1)] >> np.uint32(22)) & np.uint32(0x3F))
+                    n += LANES
+                    i += LANES
+                    continue
+                if j:
+                    low = np.int64((words[np.uint64(i + j - 1)] >> np.uint32(22)) & np.uint32(0x3F))
+                n += j
+                i += j
+                break
+            if i >= m:
+                break
+        w = np.int64(words[np.uint64(i)])
+        i += 1
+        if w < CD_END:  # one by one: the last few words, or before the first time base
+            if have == 0:
+                dropped += 1
+                continue
+            lq = (w >> 22) & 0x3F
+            xq = (w >> 11) & 0x7FF
+            yq = w & 0x7FF
+            k = np.uint64(n)
+            t[k] = (th << 6) | lq
+            x[k] = xq
+            y[k] = yq
+            p[k] = np.int8((w >> 27) & 2) - np.int8(1)
+            fell += np.int64(lq < low)
+            low = lq
+            mx = max(mx, xq)
+            my = max(my, yq)
+            n += 1
+            continue
+        typ = w >> 28
+        if typ == 8:
+            raw = w & 0x0FFFFFFF
+            if have == 1 and raw < last_raw and last_raw - raw > (1 << 27):
+                wraps += 1
+            elif have == 1 and raw > last_raw and raw - last_raw > (1 << 27):
+                wraps -= 1  # a step back across a wrap (a corrupt word): unrolled to the nearest time
+            last_raw = raw
+            th = (wraps << 28) + raw
+            have = 1
+            if n:  # the next event against the last one, by 6-bit times under the new base
+                lb = t[np.uint64(n - 1)] >> 6
+                low = np.int64(0) if th > lb else (t[np.uint64(n - 1)] & 0x3F if th == lb else np.int64(64))
+        elif typ == 0xA:
+            if have == 1:
+                trig[nt, 0] = (th << 6) | ((w >> 22) & 0x3F)
+                trig[nt, 1] = (w >> 8) & 0x1F
+                trig[nt, 2] = w & 1
+                nt += 1
+        elif typ == 0xE or typ == 0xF:
+            pass
+        else:
+            if bad < 0:
+                bad = i - 1
+            nbad += 1
+            if strict:
+                i -= 1
+                break
+    state[0] = th
+    state[1] = have
+    state[2] = last_raw
+    state[3] = wraps
+    state[4] = dropped
+    return n, nt, bad, nbad, i, fell == 0, mx, my
 
 
 @njit(cache=True, nogil=True)

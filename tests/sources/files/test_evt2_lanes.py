@@ -14,7 +14,7 @@ from numba import njit
 
 from tectum import EventPacket, FormatError
 from tectum.sources.files import _kernels as K
-from tectum.sources.files._lanes import LANES, evt2_lanes
+from tectum.sources.files._lanes import LANES, evt2_group, evt2_lanes
 from tectum.sources.files.prophesee import Evt2Source
 
 
@@ -84,6 +84,34 @@ def test_plain_lanes_equal_the_compiled_ones(seed):
         assert got == evt2_lanes(words, i, *b, seed << 6, prev)
         assert all(np.array_equal(u, v) for u, v in zip(a, b))
         assert got & 0xFFFF  # random times fall somewhere in 16
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_plain_group_equals_the_compiled_one(seed):
+    """evt2_group's plain form gives the compiled vector code's columns
+    (every lane, the garbage past the leading CD words too) and packed
+    count, falls and largest x and y, with another word at each lane or
+    none, a first comparison that falls (64) or never does (0)."""
+    rng = np.random.default_rng(seed)
+    words = ((rng.integers(0, 2, 40) << 28) | (rng.integers(0, 64, 40) << 22) | (rng.integers(0, 2048, 40) << 11)
+             | rng.integers(0, 2048, 40)).astype(np.uint32)
+    compiled = njit(lambda w, i, t, x, y, p, n, base, prev: evt2_group(w, i, t, x, y, p, n, base, prev))
+    for other in range(-1, LANES):
+        ws = words.copy()
+        if other >= 0:
+            ws[3 + other] = int(rng.choice([0x8, 0xA, 0xE, 0x5])) << 28 | int(rng.integers(0, 1 << 28))
+        for prev in (0, 64, 17):
+            a = (np.zeros(40, np.int64), np.zeros(40, np.uint16), np.zeros(40, np.uint16), np.zeros(40, np.int8))
+            b = tuple(c.copy() for c in a)
+            got = compiled(ws, 3, *a, 5, seed << 6, prev)
+            assert got == evt2_group(ws, 3, *b, 5, seed << 6, prev)
+            assert all(np.array_equal(u, v) for u, v in zip(a, b))
+            assert got & 0xFF == (LANES if other < 0 else other)
+            lead = ws[3:3 + (got & 0xFF)].astype(np.int64)
+            low = np.concatenate([[prev], lead >> 22 & 63])
+            assert got >> 8 & 0xFF == int((low[1:] < low[:-1]).sum())
+            assert (got >> 16 & 0xFFFF, got >> 32) == ((int((lead >> 11 & 0x7FF).max()), int((lead & 0x7FF).max()))
+                                                       if lead.size else (0, 0))
 
 
 HEAD = b"% evt 2.0\n% geometry 640x480\n% end\n"
