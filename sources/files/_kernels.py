@@ -77,8 +77,11 @@ def decode_evt2_bounded(words, state, strict, t, x, y, p, trig):  # pragma: no c
     mx = np.int64(0)
     my = np.int64(0)
     # the 6-bit time the next event's is compared with: the last event's in this call under the same
-    # time base, 0 when there is none or the base rose past its time, 64 when the base fell below it
+    # time base, 0 when there is none or the base rose past its time, 64 when the base fell below it;
+    # lth: the time base of that last event (none yet: below any)
+    none = np.int64(-1) << 62
     low = np.int64(0)
+    lth = none
     i = 0
     while i < m:
         if have == 1:
@@ -91,11 +94,13 @@ def decode_evt2_bounded(words, state, strict, t, x, y, p, trig):  # pragma: no c
                 j = got & 0xFF
                 if j == LANES:  # the usual case, by constants: the next load's address waits for no result
                     low = np.int64((words[np.uint64(i + LANES - 1)] >> np.uint32(22)) & np.uint32(0x3F))
+                    lth = th
                     n += LANES
                     i += LANES
                     continue
                 if j:
                     low = np.int64((words[np.uint64(i + j - 1)] >> np.uint32(22)) & np.uint32(0x3F))
+                    lth = th
                 n += j
                 i += j
                 break
@@ -117,6 +122,7 @@ def decode_evt2_bounded(words, state, strict, t, x, y, p, trig):  # pragma: no c
             p[k] = np.int8((w >> 27) & 2) - np.int8(1)
             fell += np.int64(lq < low)
             low = lq
+            lth = th
             mx = max(mx, xq)
             my = max(my, yq)
             n += 1
@@ -131,9 +137,8 @@ def decode_evt2_bounded(words, state, strict, t, x, y, p, trig):  # pragma: no c
             last_raw = raw
             th = (wraps << 28) + raw
             have = 1
-            if n:  # the next event against the last one, by 6-bit times under the new base
-                lb = t[np.uint64(n - 1)] >> 6
-                low = np.int64(0) if th > lb else (t[np.uint64(n - 1)] & 0x3F if th == lb else np.int64(64))
+            if lth != none and th != lth:  # the next event against the last one, by 6-bit times under the new base
+                low = np.int64(0) if th > lth else np.int64(64)
         elif typ == 0xA:
             if have == 1:
                 trig[nt, 0] = (th << 6) | ((w >> 22) & 0x3F)

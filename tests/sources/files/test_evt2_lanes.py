@@ -152,3 +152,26 @@ def test_a_fall_at_each_place_of_a_run():
                                                         trig)
         assert n == 45 and not ordered and (mx, my) == (9, 4), j
         assert t[:n].tolist() == [(3 << 6) | int(v) for v in low]
+
+
+@pytest.mark.parametrize("before", [5, 16, 21, 405])
+@pytest.mark.parametrize("after", [0, 3, 10, 40])
+@pytest.mark.parametrize("step", [-1, 0, 1])
+def test_order_across_a_time_base_after_a_partial_group(before, after, step):
+    """A run of CD words ending inside a group of 16, a TIME_HIGH (the same
+    time base again, one lower or one higher), more CD words: times in order
+    are reported in order, and a lower base is a fall (as gen31_evt2.raw's
+    first 417 words, a repeated time base after 405 events, where the
+    compiled decoder once read the last time back stale and said 'fell')."""
+    low = np.minimum(np.arange(before) * 16 // max(before, 1), 15).astype(np.uint32)
+    cd = (low << 22) | (np.arange(before, dtype=np.uint32) % 640 << 11) | 7
+    tail = (np.full(after, 16, np.uint32) << 22) | (3 << 11) | 2
+    words = np.concatenate([[(8 << 28) | 1000], cd, [(8 << 28) | (1000 + step)], tail]).astype(np.uint32)
+    m = words.shape[0] + 64
+    t, x, y = np.zeros(m, np.int64), np.zeros(m, np.uint16), np.zeros(m, np.uint16)
+    p, trig = np.zeros(m, np.int8), np.empty((m, 3), np.int64)
+    n, *_, ordered, mx, my = K.decode_evt2_bounded(words, np.zeros(K.EVT2_STATE, np.int64), True, t, x, y, p, trig)
+    assert n == before + after
+    times = t[:n].tolist()
+    assert bool(ordered) == all(a <= b for a, b in zip(times, times[1:]))
+    assert bool(ordered) == (step >= 0 or after == 0)
