@@ -268,43 +268,81 @@ class RawSource(FileSource):
         return w, h
 
     def _events(self, f: Any, start: int, sensor: tuple[int, int]) -> Iterator[Packet]:
+        """One packet per ``chunk_bytes`` of words (or sooner, when a
+        chunk's events fill its columns), read :data:`_RAW_READ` bytes at a
+        time into one small buffer and decoded into the chunk's columns:
+        the buffer stays in the core's cache between the copy from the OS
+        and the kernel's pass (a whole chunk read at once went to memory
+        and back, as DAT's did). Triggers follow the events they came with."""
         state = np.zeros(self.state_size, np.int64)
         off = self.t0_offset if self.apply_t0 else 0
         asm = EventAssembler(self, sensor, offset=off)
         size = np.dtype(self.word).itemsize
+        dtype = np.dtype(self.word).newbyteorder("<")
         self.triggers = 0
         tiler = SampleTiler(self)
         kernel = self._bounded_kernel()
         strict = not self.skip_bad
-        trig = np.empty((0, 3), np.int64)
-        held = trig  # triggers at the latest time, waiting for the next chunk
-        pos = start
-        cap = max(1 << 12, self.chunk_bytes // size)  # events decoded per call
-        for pos, words in self._words(f, start):
-            if trig.shape[0] < words.shape[0]:
-                trig = np.empty((words.shape[0], 3), np.int64)  # untouched rows cost nothing
-            i = 0
-            while i < words.shape[0] and not asm.past_end():
-                before = state.copy()
-                t, x, y, p = asm.reserve(cap)
-                ne, nt, bad, nbad, used, ordered, mx, my = kernel(words[i:], state, strict, t, x, y, p, trig)
-                self.triggers += nt
-                if bad >= 0:
-                    at = pos + (i + bad) * size
+        step = max(size, self.chunk_bytes - self.chunk_bytes % size)  # bytes a chunk's words take
+        piece = min(step, _RAW_READ - _RAW_READ % size)
+        buf = byte_buffer(piece)
+        trig = np.empty((piece // size, 3), np.int64)  # untouched rows cost nothing
+        held = trig[:0]  # triggers at the latest time, waiting for the next chunk
+        cap = max(1 << 12, self.chunk_bytes // size)  # events a chunk's columns hold
+        pos = start  # the file offset of the next byte read
+        eof = False
+        while not eof and not asm.past_end():
+            at, before, n = pos, state.copy(), 0  # where this packet's words start, the state there
+            t, x, y, p = asm.reserve(cap)
+            ordered, mx, my, full = True, 0, 0, False
+            end = pos + step
+            while pos < end and not full:
+                want = min(piece, end - pos)
+                got = f.readinto(buf if want == piece else buf[:want])
+                if got and got < want:  # a short read: the rest, unless the file ends
+                    got += read_full(f, buf[got:want])
+                if not got:
+                    eof = True
+                    break
+                k = got - got % size
+                if k < got:
                     if strict:
-                        self._fail(f"invalid {self.evt_format.upper()} word 0x{int(words[i + bad]):0{2 * size}x}", at)
-                    self._note_skip(at, at + size - 1, nbad)
-                yield from asm.commit(ne, pos, self._where_of(words[i:i + used], before, pos + i * size),
-                                      (ordered, mx, my))
-                if nt:
-                    held = np.concatenate([held, trig[:nt]])
-                    held[-nt:, 0] += off
-                    k = self._last_run(held)
-                    yield from self._triggers(tiler, held[:k], pos)
-                    held = held[k:]
-                i += used
-            if asm.past_end():
-                break
+                        self._fail(f"file ends inside a {size}-byte word (truncated)", pos + k)
+                    self._note_skip(pos + k, pos + got - 1, 1)
+                words = np.frombuffer(buf, dtype=dtype, count=k // size)
+                i = 0
+                while i < words.shape[0]:
+                    ne, nt, bad, nbad, used, ok, bx, by = kernel(words[i:], state, strict, t[n:], x[n:], y[n:],
+                                                                 p[n:], trig)
+                    self.triggers += nt
+                    if bad >= 0:
+                        where = pos + (i + bad) * size
+                        if strict:
+                            self._fail(f"invalid {self.evt_format.upper()} word "
+                                       f"0x{int(words[i + bad]):0{2 * size}x}", where)
+                        self._note_skip(where, where + size - 1, nbad)
+                    if ne:
+                        ordered = ordered and bool(ok) and (n == 0 or bool(t[n] >= t[n - 1]))
+                        mx, my = max(mx, int(bx)), max(my, int(by))
+                        n += ne
+                    if nt:
+                        held = np.concatenate([held, trig[:nt]])
+                        held[-nt:, 0] += off
+                    i += used
+                    if i < words.shape[0]:  # the columns are full: the rest of the piece goes to the next packet
+                        full = True
+                        break
+                if full:  # the words not decoded are read again
+                    f.seek(pos + i * size)
+                    pos += i * size
+                else:
+                    pos += got
+            del t, x, y, p  # views of the chunk's columns: once its packets are gone, the set is free again
+            yield from asm.commit(n, at, self._where_of(f, at, pos, before), (ordered, mx, my))
+            if held.shape[0]:
+                k = self._last_run(held)
+                yield from self._triggers(tiler, held[:k], at)
+                held = held[k:]
         self.untimed_events = int(state[4] if self.evt_format == "evt2" else state[7])
         yield from asm.finish()
         yield from self._triggers(tiler, held, pos)
@@ -326,11 +364,27 @@ class RawSource(FileSource):
             if tp is not None:
                 yield tp
 
-    def _where_of(self, words: np.ndarray, state: np.ndarray, at: int) -> Any:
-        """A function giving each event's byte offset, by decoding ``words``
-        again from ``state`` (called only when an event is bad)."""
-        return lambda: at + self._decode(words, state.copy())[4] * np.dtype(self.word).itemsize
+    def _where_of(self, f: Any, at: int, end: int, state: np.ndarray) -> Any:
+        """A function giving the byte offset of each event decoded from the
+        words in bytes ``[at, end)`` of the file, by reading them again and
+        decoding them from ``state`` (called only when an event is bad)."""
+        size = np.dtype(self.word).itemsize
 
+        def where() -> np.ndarray:
+            back = f.tell()
+            f.seek(at)
+            data = b""
+            while len(data) < end - at and (got := f.read(end - at - len(data))):  # unbuffered: may come short
+                data += got
+            f.seek(back)
+            words = np.frombuffer(data, np.dtype(self.word).newbyteorder("<"), count=len(data) // size)
+            return at + self._decode(words, state.copy())[4] * size
+        return where
+
+
+#: Bytes of RAW words read at a time (they stay in the core's L2 cache
+#: until decoded; as :data:`_DAT_READ`).
+_RAW_READ = 1 << 19
 
 #: Words an EVT 2.0 bisection probe reads (64 KB) looking for a TIME_HIGH word.
 _PROBE_WORDS = 1 << 14

@@ -175,3 +175,25 @@ def test_order_across_a_time_base_after_a_partial_group(before, after, step):
     times = t[:n].tolist()
     assert bool(ordered) == all(a <= b for a, b in zip(times, times[1:]))
     assert bool(ordered) == (step >= 0 or after == 0)
+
+
+@pytest.mark.parametrize("fault", ["fall", "outside"])
+@pytest.mark.parametrize("at", [0, 1, 7])
+def test_a_fault_just_past_a_read_piece(tmp_path: Path, fault: str, at: int) -> None:
+    """The reader decodes a chunk's words in pieces of 512 KiB into one set
+    of columns: a time falling at the first events of the second piece
+    (against the last of the first) or an x outside the sensor there is
+    refused at its word's offset (the offsets found by reading the words
+    again), not trusted as in order or in bounds."""
+    n = (1 << 19) // 4 + 64  # the second piece's words start at index 131072 (the TIME_HIGH is word 0)
+    low = np.where(np.arange(n) < (1 << 17) - 1 + at, 10, 10 if fault == "outside" else 5).astype(np.uint32)
+    xs = np.full(n, 5, np.uint32)
+    if fault == "outside":
+        xs[(1 << 17) - 1 + at] = 700
+    cd = (low << 22) | (xs << 11) | 7
+    words = np.concatenate([[(8 << 28) | 1000], cd]).astype("<u4")
+    path = tmp_path / "f.raw"
+    path.write_bytes(HEAD + words.tobytes())
+    with pytest.raises(FormatError) as e:
+        list(Evt2Source(str(path)).packets())
+    assert e.value.offset == len(HEAD) + 4 * ((1 << 17) + at)

@@ -201,7 +201,22 @@ def test_dat_short_reads_give_the_same_events(tmp_path: Path, files, most: int, 
     want = concat([q for q in open_file(str(files["dat"])).packets() if isinstance(q, EventPacket)])
     src = open_file(str(files["dat"]), chunk_bytes=8 * 500)
     plain = src._open
-    monkeypatch.setattr(src, "_open", lambda: _ShortReads(plain(), most))
+    monkeypatch.setattr(src, "_open", lambda **kw: _ShortReads(plain(**kw), most))
+    got = concat([q for q in src.packets() if isinstance(q, EventPacket)])
+    assert got.t.tolist() == want.t.tolist() and got.x.tolist() == want.x.tolist()
+    assert got.y.tolist() == want.y.tolist() and got.p.tolist() == want.p.tolist()
+
+
+@pytest.mark.parametrize("fmt", ["evt2", "evt3"])
+@pytest.mark.parametrize("most", [1, 1001, 4096 + 3])
+def test_raw_short_reads_give_the_same_events(tmp_path: Path, files, fmt: str, most: int, monkeypatch) -> None:
+    """RAW files are read unbuffered in pieces: a read returning fewer bytes
+    than asked (not whole words) is completed, not taken for a truncated
+    word; the same events as whole reads."""
+    want = concat([q for q in open_file(str(files[fmt])).packets() if isinstance(q, EventPacket)])
+    src = open_file(str(files[fmt]), chunk_bytes=2000)
+    plain = src._open
+    monkeypatch.setattr(src, "_open", lambda **kw: _ShortReads(plain(**kw), most))
     got = concat([q for q in src.packets() if isinstance(q, EventPacket)])
     assert got.t.tolist() == want.t.tolist() and got.x.tolist() == want.x.tolist()
     assert got.y.tolist() == want.y.tolist() and got.p.tolist() == want.p.tolist()
