@@ -65,20 +65,39 @@ def read_prefixed_header(f: Any, prefix: bytes, path: str, limit: int = 1 << 20)
     """Read the text header lines starting with ``prefix`` at the top of ``f``.
 
     Returns the lines (prefix and line end stripped) and the byte offset of
-    the first byte after the header. A ``% end`` line closes the header.
+    the first byte after the header, where ``f`` is left. A ``% end`` line
+    closes the header. The bytes are read in blocks (4 KiB, then doubling)
+    and split here, so ``f`` may be unbuffered (a reader that reads big
+    chunks into its own buffers: a buffered file's terminal test and seek
+    cost system calls) at a read or two for the usual header.
     """
     f.seek(0)
+    data = b""
+    eof = False
+
+    def want(n: int) -> bytes:
+        """``data`` holding at least ``n`` bytes, or all the file's."""
+        nonlocal data, eof
+        while len(data) < n and not eof:
+            got = f.read(max(4096, len(data)))
+            eof = not got
+            data += got or b""
+        return data
+
     lines: list[str] = []
     pos = 0
     while True:
-        first = f.read(1)
-        if first != prefix:
+        if want(pos + 1)[pos:pos + 1] != prefix:
             break
-        rest = f.readline(limit)
-        if not rest.endswith(b"\n"):
+        nl = data.find(b"\n", pos + 1, pos + 1 + limit)
+        while nl < 0 and not eof and len(data) < pos + 1 + limit:  # the line goes on past the bytes read
+            want(len(data) + 1)
+            nl = data.find(b"\n", pos + 1, pos + 1 + limit)
+        if nl < 0:  # no line end within ``limit`` bytes (``readline(limit)`` would stop there) or before the end
             raise FormatError("header line is not terminated (truncated or not a text header)", path=path,
                               offset=pos)
-        pos += 1 + len(rest)
+        rest = data[pos + 1:nl + 1]
+        pos = nl + 1
         if pos > limit:
             raise FormatError(f"header longer than {limit} bytes", path=path, offset=pos)
         line = rest.rstrip(b"\r\n").decode("latin1").strip()

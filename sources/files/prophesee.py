@@ -189,7 +189,7 @@ class RawSource(FileSource):
             pos += got
 
     def _packets(self) -> Iterator[Packet]:
-        f = self._open()
+        f = self._open(buffering=0)  # big reads into its own buffers
         h, start, sensor = self._header(f)
         sensor = self._sensor(sensor)
         if sensor is None:
@@ -479,7 +479,7 @@ class DatSource(FileSource):
         return start + 2, sensor_from_header(h)
 
     def _packets(self) -> Iterator[Packet]:
-        f = self._open()
+        f = self._open(buffering=0)  # big reads into its own buffers
         start, sensor = self._header(f)
         sensor = self._sensor(sensor)
         size = f.seek(0, 2)

@@ -9,6 +9,8 @@ import io
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from tectum import FormatError
 from tectum.sources.files._common import (
@@ -79,3 +81,55 @@ def test_raw_header_check(tmp_path: Path) -> None:
     path.write_bytes(b"% camera_integrator_name Prophesee\n% end\n")
     with pytest.raises(FormatError, match="names no event format"):
         check_raw_header(str(path))
+
+
+def _header_by_lines(f, prefix: bytes, path: str, limit: int = 1 << 20):  # type: ignore[no-untyped-def]
+    """read_prefixed_header as it was (buffered, a line at a time): the
+    reference for the block-reading one."""
+    f.seek(0)
+    lines, pos = [], 0
+    while True:
+        if f.read(1) != prefix:
+            break
+        rest = f.readline(limit)
+        if not rest.endswith(b"\n"):
+            raise FormatError("header line is not terminated (truncated or not a text header)", path=path,
+                              offset=pos)
+        pos += 1 + len(rest)
+        if pos > limit:
+            raise FormatError(f"header longer than {limit} bytes", path=path, offset=pos)
+        line = rest.rstrip(b"\r\n").decode("latin1").strip()
+        lines.append(line)
+        if prefix == b"%" and line.lower() == "end":
+            break
+    f.seek(pos)
+    return lines, pos
+
+
+_header_line = st.one_of(st.just(b"% end\n"), st.just(b"%\n"), st.just(b"% evt 2.0\r\n"),
+                         st.binary(max_size=30).map(lambda b: b"%" + b.replace(b"\n", b" ") + b"\n"),
+                         st.binary(min_size=3000, max_size=9000).map(lambda b: b"% " + b.replace(b"\n", b"x") + b"\n"))
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(_header_line, max_size=6), st.binary(max_size=40), st.sampled_from([64, 5000, 1 << 20]))
+def test_header_read_in_blocks_as_line_by_line(tmp_path_factory, lines, tail, limit) -> None:  # type: ignore[no-untyped-def]
+    """The block-reading header parser gives the line-by-line one's lines,
+    end and errors (with offsets), and leaves the file at the end, from an
+    unbuffered file (reads may come short) and from memory; lines longer
+    than the first 4 KiB block and the limit, a header cut anywhere."""
+    data = b"".join(lines) + tail
+    path = tmp_path_factory.mktemp("h") / "f.raw"
+    path.write_bytes(data)
+
+    def outcome(fn, f):  # type: ignore[no-untyped-def]
+        try:
+            got = fn(f, b"%", "f", limit)
+            return got, f.tell()
+        except FormatError as e:
+            return str(e), e.offset
+
+    want = outcome(_header_by_lines, io.BytesIO(data))
+    assert outcome(read_prefixed_header, io.BytesIO(data)) == want
+    with open(path, "rb", buffering=0) as f:
+        assert outcome(read_prefixed_header, f) == want
