@@ -411,3 +411,24 @@ def test_lz4_fast_path_equals_the_frame_decoder() -> None:
     bad[20] ^= 0xFF
     with pytest.raises(ValueError):
         codec.decompress(bytes(bad), "lz4")
+
+
+def test_raw_columns_full_inside_a_piece(tmp_path: Path) -> None:
+    """EVT 3.0 vector words give up to 12 events a word: a chunk's words can
+    fill its columns before they are all decoded, inside a read piece. The
+    words left are read again for the next packet: the same events as one
+    big chunk."""
+    words = [0x8000 | 7, 0x0000 | 5]  # TIME_HIGH, ADDR_Y
+    for k in range(40):
+        words += [0x6000 | k, 0x3000 | (k % 2) << 11]  # TIME_LOW, VECT_BASE_X at 0 (polarity alternating)
+        words += [0x4FFF] * 150  # VECT_12, all set: x 0 .. 1799
+    path = tmp_path / "v.raw"
+    path.write_bytes(b"% evt 3.0\n% geometry 2048x720\n% end\n" + np.array(words, "<u2").tobytes())
+    want = concat([q for q in open_file(str(path)).packets() if isinstance(q, EventPacket)])
+    assert len(want) == 40 * 1800
+    small = [q for q in open_file(str(path), chunk_bytes=1000).packets()
+             if isinstance(q, EventPacket)]
+    got = concat(small)
+    assert len(small) > 1
+    assert got.t.tolist() == want.t.tolist() and got.x.tolist() == want.x.tolist()
+    assert got.y.tolist() == want.y.tolist() and got.p.tolist() == want.p.tolist()
