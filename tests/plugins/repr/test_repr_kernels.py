@@ -129,3 +129,43 @@ def test_window_splits_is_searchsorted_right():
             out = np.full(m, -7, np.int64)
             window_splits(t, first, step, out)
             assert np.array_equal(out, t.searchsorted(first + step * np.arange(m), "right")), (n, first, step)
+
+
+@pytest.mark.parametrize("mode, dtype", [(0, np.int32), (1, np.int32), (2, np.int32), (2, np.uint8), (1, np.int8)])
+@pytest.mark.parametrize("cap", [0, 3 * 2048])
+def test_windows_kernel_windows_longer_than_a_fill_pass(mode, dtype, cap):
+    """Windows of more events than a pass of the fill takes (kernels.CHUNK:
+    indices first, then the steps), recorded in marks (``cap``) or not, on
+    fresh frames and again on the same frames recycled: every frame and the
+    state equal a plain loop's (saturating small dtypes step by step)."""
+    from tectum.plugins.repr import kernels as K
+
+    assert K.CHUNK == 2048
+    rng = np.random.default_rng(mode)
+    w, h = 7, 5
+    s_size = w * h * (2 if mode == K.HISTOGRAM else 1)
+    info = np.iinfo(dtype)
+    frames = np.zeros(3 * s_size, dtype)
+    marks = np.empty((3, cap), np.uint32)
+    n_marks = np.zeros(3, np.int64)
+    state, touched, n_touched = np.zeros(s_size, dtype), np.empty(s_size, np.int64), np.zeros(1, np.int64)
+    for _ in range(2):
+        n = 3 * K.CHUNK + 517
+        x = rng.integers(0, w, n).astype(np.uint16)
+        y = rng.integers(0, h, n).astype(np.uint16)
+        p = rng.choice(np.array([-1, 1], np.int8), n)
+        splits = np.array([K.CHUNK + 5, 2 * K.CHUNK + 300, 3 * K.CHUNK + 1], np.int64)
+        held = np.int64(state.astype(np.int64).__abs__().max())
+        want = np.zeros((4, s_size), np.int64)
+        want[0] = state
+        k = 0
+        for e in range(n):
+            while k < 3 and e >= splits[k]:
+                k += 1
+            i = (int(y[e]) * w + int(x[e])) * (2 if mode == K.HISTOGRAM else 1) + (int(p[e] > 0) if mode == K.HISTOGRAM else 0)
+            v = want[k, i] + (int(p[e]) if mode == K.SIGNED else 1)
+            want[k, i] = min(max(v, info.min), info.max)
+        K.windows_kernel(mode, w, int(info.min), int(info.max), held, x, y, p, splits, state, touched, n_touched,
+                         frames, marks, n_marks)
+        assert np.array_equal(frames.reshape(3, s_size), want[:3])
+        assert np.array_equal(state, want[3])
