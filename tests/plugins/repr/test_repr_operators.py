@@ -168,6 +168,7 @@ def test_frames_in_several_blocks(ev, make, monkeypatch):
 
     one = concat(feed(make(window_us=1000), [ev]))
     monkeypatch.setattr(operators, "BLOCK_BYTES", 16 * 10 * 8)  # 1 or 2 frames a block
+    monkeypatch.setattr(operators, "MIN_FRAMES", 1)
     out = feed(make(window_us=1000), [ev])
     assert len(out) > 5
     assert_stream_contract(out)
@@ -178,18 +179,23 @@ def test_frames_in_several_blocks(ev, make, monkeypatch):
 
 def test_joined_runs_span_about_a_cache_of_frames():
     """The engine joins small packets before an image operator into runs of
-    about JOIN_BYTES of frames and state on a JOIN_PIXELS sensor (2 windows
-    of 8-byte pixels, 16 of 1-byte ones, 1 of a time surface's 8-byte
-    frames and 8-byte state), so what a call sweeps is still in cache when
-    the next reuses it; count windows and the operators without a frame
-    size state no limit."""
-    from tectum.plugins.repr import _window
+    as many windows as a block of its frames holds on a JOIN_PIXELS sensor:
+    about BLOCK_BYTES of frames, at least MIN_FRAMES windows within
+    MAX_BLOCK_BYTES (8 windows of 8-byte pixels, 16 of 1-byte ones); a
+    time surface, about JOIN_BYTES of frames and state (1 window of its
+    8-byte frames and 8-byte state), so what a call sweeps is still in
+    cache when the next reuses it; count windows and the operators without
+    a frame size state no limit."""
+    from tectum.plugins.repr import _window, operators
 
     per_px = {R.EventFrame(window_us=7000): 8, R.CountImage(window_us=7000, dtype="uint8"): 1,
-              R.Accumulate(window_us=7000, dtype="int16"): 2, R.TimeSurface(window_us=7000): 16}
+              R.Accumulate(window_us=7000, dtype="int16"): 2}
     for op, px in per_px.items():
-        assert op.join_us() == 7000 * max(1, _window.JOIN_BYTES // (px * _window.JOIN_PIXELS))
-    assert R.EventFrame(window_us=7000).join_us() == 14_000 and R.CountImage(dtype="uint8").join_us() == 160_000
+        fb = px * _window.JOIN_PIXELS
+        want = max(1, min(operators.MAX_BLOCK_BYTES // fb, max(operators.MIN_FRAMES, operators.BLOCK_BYTES // fb)))
+        assert op.join_us() == 7000 * want
+    assert R.EventFrame(window_us=7000).join_us() == 56_000 and R.CountImage(dtype="uint8").join_us() == 160_000
+    assert R.TimeSurface(window_us=7000).join_us() == 7000 * max(1, _window.JOIN_BYTES // (16 * _window.JOIN_PIXELS))
     assert R.TimeSurface(window_us=7000).join_us() == 7000
     for op in (R.EventFrame(count=100), R.Sae(window_us=7000), R.Color(window_us=7000)):
         assert op.join_us() is None
@@ -203,13 +209,13 @@ class _SpansSeen(R.EventFrame):
         return super().process(packet)
 
 
-def test_in_a_pipeline_of_small_packets_each_call_gets_two_windows(ev):
+def test_in_a_pipeline_of_small_packets_each_call_gets_eight_windows(ev):
     pieces = [ev.slice_time(a, a + 500) for a in range(ev.t_start, ev.t_end, 500)]
     op, sink = _SpansSeen(window_us=2000), ListSink()
     p = tectum.Pipeline()
     p.sink(sink, p.op(op, p.source(ListSource(pieces))))
     tectum.run(p)
-    assert max(op.spans) == 4000 and len(op.spans) < len(pieces) // 3
+    assert max(op.spans) == 16_000 and len(op.spans) < len(pieces) // 12
     want = concat(feed(R.EventFrame(window_us=2000), [ev]))
     got = concat([q for q in sink.packets if q.kind == tectum.Kind.FRAMES])
     assert np.array_equal(got.t, want.t) and np.array_equal(got.images, want.images)

@@ -193,6 +193,7 @@ def test_frame_packets_built_on_the_trusted_path_pass_the_plain_checks(ev, name,
     from tectum.testing import feed
 
     monkeypatch.setattr(operators, "BLOCK_BYTES", 2 * 16 * 10)  # 2 frames of 8 bits, 1 of 32 or 2 x 32
+    monkeypatch.setattr(operators, "MIN_FRAMES", 1)
     out = feed(MAKES[name](**window), list(ev.batches(97)))
     assert sum(len(q) for q in out) > 10 and max(len(q) for q in out) <= 2
     for q in out:
