@@ -19,12 +19,14 @@
 from __future__ import annotations
 
 import datetime
+import time
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 from typing import Any, cast
 
 import numpy as np
+from numba import njit
 
 from tectum import EventPacket, concat
 from tectum.evaluation.harness import (
@@ -351,22 +353,58 @@ def _dv_ba_fn(dv: Any, stores: list[Any], sensor: tuple[int, int], dt: int) -> C
 FRAME_BYTES = {"event frame": 8, "count image uint8": 1, "dv": 1}
 #: bytes an event costs a histogram beyond its frame: x, y (2 each), p (1) read
 EVENT_BYTES = 5
+#: frames in the block :func:`frame_write_bandwidth` writes in turn: the
+#: event frame's pooled blocks (``repr.operators.MIN_FRAMES``)
+WRITE_FRAMES = 8
 
 
-def frame_limit(n_events: int, n_frames: int, px_bytes: int, bandwidth: float) -> float:
+@njit(cache=True, nogil=True)
+def _zero(a):  # type: ignore[no-untyped-def]
+    a[:] = 0  # a memset, as the frame kernels zero a frame
+
+
+def frame_write_bandwidth(px_bytes: int = 8, frames: int = WRITE_FRAMES, repeat: int = 41) -> float:
+    """Bytes/s at which this machine writes frames where the event frame
+    writes them: a block of ``frames`` frames of ``px_bytes`` per pixel of
+    :data:`SENSOR`, each zeroed in turn (a memset, as the kernels zero a
+    recycled frame), the block staying in cache, as the pool's blocks do
+    (it hands out again the block handed out last, once nobody holds it:
+    the frames of this bench never reach main memory). The median of
+    ``repeat`` passes over the block after three (the first faults its pages in),
+    per CPU second (see :func:`~tectum.evaluation.harness.memory_bandwidth`)."""
+    block = np.zeros((frames, SENSOR[1] * SENSOR[0] * px_bytes), np.uint8)
+    for _ in range(3):
+        for f in block:
+            _zero(f)
+    times = []
+    for _ in range(repeat):
+        t0 = time.process_time()
+        for f in block:
+            _zero(f)
+        times.append(max(time.process_time() - t0, 1e-9))
+    return block.nbytes / float(np.median(times))
+
+
+def frame_limit(n_events: int, n_frames: int, px_bytes: int, bandwidth: float,
+                frame_bandwidth: float | None = None) -> float:
     """The fastest Mev/s memory allows an accumulator that writes a fresh
-    frame of ``px_bytes`` per pixel of :data:`SENSOR` per window:
-    ``bandwidth`` (bytes/s, read + write) over the bytes per event
-    (the frames' bytes spread over the events, plus :data:`EVENT_BYTES`)."""
-    per_event = n_frames * px_bytes * SENSOR[0] * SENSOR[1] / max(n_events, 1) + EVENT_BYTES
-    return bandwidth / per_event / 1e6
+    frame of ``px_bytes`` per pixel of :data:`SENSOR` per window: the
+    frames' bytes (spread over the events) written at ``frame_bandwidth``
+    (bytes/s; :func:`frame_write_bandwidth`: in cache, where the pooled
+    frames are written; None: ``bandwidth``) plus :data:`EVENT_BYTES` an
+    event read at ``bandwidth`` (main memory: the bench's event columns,
+    25 MB, stream from it)."""
+    frame_bytes = n_frames * px_bytes * SENSOR[0] * SENSOR[1] / max(n_events, 1)
+    seconds = frame_bytes / (frame_bandwidth or bandwidth) + EVENT_BYTES / bandwidth
+    return 1 / seconds / 1e6
 
 
 def limit_binds(ours: float, peer_mev_s: float, limit: float) -> bool:
     """Whether a frame row missing 2x the peer is judged within 1.5x of the
     memory ``limit`` instead (all Mev/s): when 2x the peer is past
     ``limit / 1.5`` and tectum does not already run faster than the limit
-    (frames that stay in cache are not held to main memory's speed: there
+    (it writes fewer bytes than whole frames: a recycled frame is zeroed
+    only where its last use wrote, when its windows held few events; there
     the limit does not bind, and the row stays judged by 2x the peer)."""
     return 2.0 * peer_mev_s > limit / 1.5 and ours <= limit
 
@@ -384,14 +422,17 @@ def peer_targets(ev: EventPacket, quick: bool) -> tuple[list[dict[str, Any]], li
     a pixel) against dv's one uint8 channel. So a second row times
     tectum's count image in uint8 (1 byte a pixel, saturating, like dv's),
     and where 2x dv is past what memory allows for tectum's 8-byte frames
-    (:func:`frame_limit`), the event frame's target is within 1.5x of that
-    limit instead; not where tectum runs faster than that limit (frames
-    that stay in cache: the limit does not bind them)."""
+    (:func:`frame_limit`: the frames written in cache, where the pool keeps
+    them, the events read from main memory), the event frame's target is
+    within 1.5x of that limit instead; not where tectum runs faster than
+    that limit (it did not write whole frames: :func:`limit_binds`)."""
     dv = peer("dv_processing")
     if dv is None:
         return [], []
     bw = memory_bandwidth()
-    print(f"memory copy bandwidth now: {bw / 1e9:.1f} GB/s (read + write)")
+    fbw = frame_write_bandwidth()
+    print(f"memory copy bandwidth now: {bw / 1e9:.1f} GB/s (read + write); frames written in cache: "
+          f"{fbw / 1e9:.1f} GB/s")
     rows, targets = [], []
     repeat = 3 if quick else 11
     for rate in TARGET_RATES:
@@ -412,7 +453,8 @@ def peer_targets(ev: EventPacket, quick: bool) -> tuple[list[dict[str, Any]], li
         for what, ours, theirs in cases:
             r = interleaved({"tectum": ours, "dv": theirs}, len(rev), repeat=repeat)
             row = {"operation": what, "rate_mev_s": rate, "tectum": r["tectum"]["mev_s"], "dv": r["dv"]["mev_s"]}
-            limit = frame_limit(len(rev), len(pieces), FRAME_BYTES[what], bw) if what in FRAME_BYTES else None
+            limit = frame_limit(len(rev), len(pieces), FRAME_BYTES[what], bw, fbw) if what in FRAME_BYTES else None
+            per_px = len(pieces) * SENSOR[0] * SENSOR[1] / len(rev)  # frame pixels an event
             for clock in ("wall", "cpu"):
                 rec = versus(f"{what} @ {rate:g} Mev/s", r["tectum"], r["dv"], 2.0, clock=clock,
                              peer_name="dv-processing")
@@ -425,7 +467,8 @@ def peer_targets(ev: EventPacket, quick: bool) -> tuple[list[dict[str, Any]], li
                     rec["name"] += f" [2x = {2.0 * r['dv'][key]:.0f} Mev/s is past the memory limit: next row]"
                     targets.append(target(
                         f"{what} @ {rate:g} Mev/s within 1.5x of the memory limit {limit:.0f} Mev/s "
-                        f"({FRAME_BYTES[what]} B/px frames: {bw / limit / 1e6:.0f} B/event at "
+                        f"({FRAME_BYTES[what]} B/px frames: {per_px * FRAME_BYTES[what]:.0f}"
+                        f" B/event written in cache at {fbw / 1e9:.0f} GB/s, {EVENT_BYTES} B/event read at "
                         f"{bw / 1e9:.1f} GB/s) ({clock})", r["tectum"][key], limit / 1.5, "Mev/s"))
             if limit is not None:
                 row["memory_limit_mev_s"] = limit
