@@ -247,64 +247,33 @@ def _unbounded(mode, vmin, vmax, most):  # type: ignore[no-untyped-def]
     return most <= (min(vmax, -vmin) if mode == SIGNED else vmax)
 
 
-#: events per pass of :func:`_fill`: their flat indices (uint32, 8 kB: in L1)
-#: first, then the steps
-CHUNK = 2048
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _index_pass(mode, w, x, y, p, out):  # type: ignore[no-untyped-def]
-    """``out[e]``: event ``e``'s flat index (:func:`_at`, uint32: frames
-    under 2**32 values) for every event. A loop of its own, without the
-    image: it vectorises (~0.1 ns an event, AVX-512, 16 at a time)."""
-    for e in range(x.shape[0]):
-        i = np.uint32(y[e]) * w + np.uint32(x[e])
-        if mode == HISTOGRAM:
-            i = i * np.uint32(2) + np.uint32(p[e] > 0)
-        out[e] = i
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _step_pass(mode, vmin, vmax, idx, p, img, free):  # type: ignore[no-untyped-def]
-    """``img[idx[e]]`` stepped (:func:`_step`) by event ``e``, for every event."""
-    for e in range(idx.shape[0]):
-        i = np.uint64(idx[e])
-        img[i] = _step(mode, np.int64(img[i]), np.int64(p[e]), vmin, vmax, free)
-
-
-# The events go in two passes (indices, then steps) instead of one loop
-# doing both: the index pass vectorises and the step loop is a load and a
-# read-modify-write an event (histogram into an int32 frame, 346x260, warm:
-# 0.95 -> 0.72 ns an event, AMD Zen 4, loaded).
 @njit(cache=True, nogil=True)
-def _fill(mode, width, vmin, vmax, x, y, p, img, free, buf):  # type: ignore[no-untyped-def]
+def _fill(mode, width, vmin, vmax, x, y, p, img, free):  # type: ignore[no-untyped-def]
     """Events into the flat image ``img`` (see :func:`windows_kernel`);
-    ``free``: no limit can be reached (:func:`_unbounded`); ``buf``: a
-    uint32 scratch (its length: the events of a pass)."""
+    ``free``: no limit can be reached (:func:`_unbounded`)."""
     literally(mode)
-    w = np.uint32(width)
-    n, c = x.shape[0], buf.shape[0]
-    a = 0
-    while a < n:
-        b = min(a + c, n)
-        k = buf[:b - a]
-        _index_pass(mode, w, x[a:b], y[a:b], p[a:b], k)
-        _step_pass(mode, vmin, vmax, k, p[a:b], img, free)
-        a = b
+    w = np.uint64(width)
+    for e in range(x.shape[0]):
+        pe = np.int64(p[e])
+        i = _at(mode, w, x[e], y[e], pe)
+        img[i] = _step(mode, np.int64(img[i]), pe, vmin, vmax, free)
 
 
 @njit(cache=True, nogil=True)
 def _fill_marked(mode, width, vmin, vmax, x, y, p, img, marks, free):  # type: ignore[no-untyped-def]
-    """:func:`_fill` that writes each event's index into ``marks`` (as
-    long as ``x``; its scratch: the indices are the marks)."""
+    """:func:`_fill` that also writes each event's index into ``marks``
+    (as long as ``x``; one store per event, no test)."""
     literally(mode)
-    k = marks[:x.shape[0]]
-    _index_pass(mode, np.uint32(width), x, y, p, k)
-    _step_pass(mode, vmin, vmax, k, p, img, free)
+    w = np.uint64(width)
+    for e in range(x.shape[0]):
+        pe = np.int64(p[e])
+        i = _at(mode, w, x[e], y[e], pe)
+        marks[e] = i
+        img[i] = _step(mode, np.int64(img[i]), pe, vmin, vmax, free)
 
 
 @njit(cache=True, nogil=True)
-def _add_events(mode, width, vmin, vmax, x, y, p, img, touched, n, buf):  # type: ignore[no-untyped-def]
+def _add_events(mode, width, vmin, vmax, x, y, p, img, touched, n):  # type: ignore[no-untyped-def]
     """Events into the flat image ``img`` (see :func:`_fill`), recording the
     indices that leave zero in ``touched[n:]``; returns the new count
     (``n < 0``: no record; -1 too when ``touched`` fills up). Indices are
@@ -312,7 +281,7 @@ def _add_events(mode, width, vmin, vmax, x, y, p, img, touched, n, buf):  # type
     costs a negative-index check per access."""
     literally(mode)
     if n < 0:
-        _fill(mode, width, vmin, vmax, x, y, p, img, False, buf)
+        _fill(mode, width, vmin, vmax, x, y, p, img, False)
         return n
     w = np.uint64(width)
     cap = touched.shape[0]
@@ -322,7 +291,7 @@ def _add_events(mode, width, vmin, vmax, x, y, p, img, touched, n, buf):  # type
         old = np.int64(img[i])
         if old == 0:
             if n == cap:  # the list is full: the rest without it
-                _fill(mode, width, vmin, vmax, x[e:], y[e:], p[e:], img, False, buf)
+                _fill(mode, width, vmin, vmax, x[e:], y[e:], p[e:], img, False)
                 return -1
             touched[n] = i
             n += 1
@@ -340,7 +309,6 @@ def _windows(mode, width, vmin, vmax, held, x, y, p, splits, state, touched, n_t
     n_win = splits.shape[0]
     s_size = frames.shape[0] // n_marks.shape[0] if n_win else 0
     cap = marks.shape[1]
-    buf = np.empty(CHUNK, np.uint32)
     lo = 0
     for k in range(n_win):
         # each frame zeroed (where its last use wrote, if a recycled block) just
@@ -371,10 +339,10 @@ def _windows(mode, width, vmin, vmax, held, x, y, p, splits, state, touched, n_t
             _fill_marked(mode, width, vmin, vmax, x[lo:hi], y[lo:hi], p[lo:hi], f, marks[k, first:], free)
             n_marks[k] = first + hi - lo
         else:
-            _fill(mode, width, vmin, vmax, x[lo:hi], y[lo:hi], p[lo:hi], f, free, buf)
+            _fill(mode, width, vmin, vmax, x[lo:hi], y[lo:hi], p[lo:hi], f, free)
             n_marks[k] = -1
         lo = hi
-    n_touched[0] = _add_events(mode, width, vmin, vmax, x[lo:], y[lo:], p[lo:], state, touched, n_touched[0], buf)
+    n_touched[0] = _add_events(mode, width, vmin, vmax, x[lo:], y[lo:], p[lo:], state, touched, n_touched[0])
 
 
 def windows_kernel(mode, width, vmin, vmax, held, x, y, p, splits, state, touched, n_touched, frames, marks,  # type: ignore[no-untyped-def]
