@@ -239,3 +239,19 @@ def test_the_window_in_progress_is_made_only_when_events_stay_in_it(ev, make):
     assert op2._flat.shape[0] == 16 * 10 * (2 if make is R.EventFrame else 1)
     for out in (concat(got), concat(got2)):
         assert np.array_equal(out.t, want.t) and np.array_equal(out.images, want.images)
+
+
+def test_image_blocks_hold_at_least_eight_frames_within_8_mib():
+    """A block of frames costs the same whatever it holds: an image
+    operator's blocks hold what BLOCK_BYTES does, at least MIN_FRAMES
+    frames within MAX_BLOCK_BYTES (346x260: 8 int32 x 2 frames, 23 of
+    uint8; 640x480: 3 int32 x 2 frames; one, however big)."""
+    from tectum.plugins.repr import operators
+
+    assert operators._per_block(346 * 260 * 8) == 8 and operators._per_block(346 * 260) == 23
+    assert operators._per_block(640 * 480 * 8) == 3 and operators._per_block(50_000_000) == 1
+    ev = EventPacket(np.array([5, 1500], np.int64), np.array([1, 2], np.uint16), np.array([3, 4], np.uint16),
+                     np.array([1, -1], np.int8), sensor=(346, 260), t_start=0, t_end=2000)
+    op = R.EventFrame(window_us=1000)
+    op.process(ev)
+    assert op._pool.per_block == 8
