@@ -62,13 +62,18 @@ def test_split_is_the_struct_layout(shift: int) -> None:
             assert (c[:o] == 77).all() and (c[o + n:] == 77).all(), n
 
 
-def test_plain_sixteen_is_the_struct_layout() -> None:
-    """The plain form of the 16-event step (``NUMBA_DISABLE_JIT``) too."""
+def test_plain_blocks_are_the_struct_layout() -> None:
+    """The plain form of the 16-event step (``NUMBA_DISABLE_JIT``) too,
+    with its checks."""
     rng = np.random.default_rng(1)
-    b = rng.integers(0, 256, 16 * 20, dtype=np.uint8)
-    cols = [np.zeros(16, d) for d in (np.int64, np.uint16, np.uint16, np.int8)]
-    AK._split16(b.view(np.int64), 3, *cols)
-    _, want = _reference(b[16 * 3:16 * 19], 0)
+    b = rng.integers(0, 256, 16 * 40, dtype=np.uint8)
+    q = np.frombuffer(b.tobytes(), EVENT).copy()
+    q["t"] = np.cumsum(rng.integers(-2, 50, 40))
+    b = np.frombuffer(q.tobytes(), np.uint8)[16 * 3:16 * 35]
+    cols = [np.zeros(32, d) for d in (np.int64, np.uint16, np.uint16, np.int8)]
+    got = AK._split_blocks(b.view(np.int64), 2, *cols, 10)
+    (dec, mx, my, _), want = _reference(b, 10)
+    assert got == (dec, mx, my)
     for c, w in zip(cols, want):
         assert np.array_equal(c, w)
 
