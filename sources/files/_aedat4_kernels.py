@@ -429,12 +429,13 @@ def lz4_frame(buf, lo, hi):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def scan_packets(buf, start, have, max_size, lz4, rows):  # pragma: no cover - numba
+def scan_packets(buf, start, have, max_size, lz4, rows, base=0):  # pragma: no cover - numba
     """Walk the packet headers (int32 stream id, int32 size) in
     ``buf[start:have]``: one row per complete packet, ``(payload start,
     payload end, stream id, first block, end mark, room, linked, content
-    size)`` (the last five from :func:`lz4_frame` when ``lz4``, else first
-    block -1). Returns (rows filled, end of the last complete packet,
+    size, file offset of the header)`` (first block to content size from
+    :func:`lz4_frame` when ``lz4``, else first block -1; the buffer starts
+    at file offset ``base``). Returns (rows filled, end of the last complete packet,
     status): status 0 when what follows is an incomplete packet or ``rows``
     is full, 1 when the header there has a size below 0 or above
     ``max_size``."""
@@ -454,6 +455,7 @@ def scan_packets(buf, start, have, max_size, lz4, rows):  # pragma: no cover - n
         rows[k, 0] = lo
         rows[k, 1] = hi
         rows[k, 2] = sid
+        rows[k, 8] = base + i
         if lz4:
             rows[k, 3], rows[k, 4], rows[k, 5], rows[k, 6], rows[k, 7], _ = lz4_frame(buf, lo, hi)
         else:

@@ -270,9 +270,9 @@ class Aedat4Source(FileSource):
             pos = base + have
             i, status = 0, 0
             while True:
-                k, i, status = AK.scan_packets(buf, i, have, _MAX_PACKET, lz4, rows)
+                k, i, status = AK.scan_packets(buf, i, have, _MAX_PACKET, lz4, rows, base)
                 if k:
-                    yield buf, _located(rows[:k], base)
+                    yield buf, rows[:k].copy()
                 if k < rows.shape[0] or status:
                     break
             if status or (i < have and (have < n or pos >= limit)):  # broken, or cut by the end of the data
@@ -686,13 +686,6 @@ def _where(pos: np.ndarray, counts: np.ndarray) -> np.ndarray:
     headers) holding ``counts`` events each (below 0: none)."""
     good = counts > 0
     return np.repeat(pos[good], counts[good])
-
-
-def _located(rows: np.ndarray, base: int) -> np.ndarray:
-    """``rows`` with the file offset of each packet's header in the last
-    column, the buffer starting at file offset ``base``."""
-    rows[:, 8] = base + rows[:, 0] - 8
-    return rows.copy()
 
 
 def _tiles(table: np.ndarray, start: int, end: int) -> bool:
