@@ -18,7 +18,6 @@ but never added again).
 from __future__ import annotations
 
 import functools
-import os
 import struct
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
@@ -49,8 +48,6 @@ _GAP = 1 << 16
 _RUN_EVENTS = 1 << 22
 #: Bytes of decompressed packets a thread takes at least.
 _PART_BYTES = 1 << 19
-#: Reads of at least this many bytes are split between two threads.
-_SPLIT_READ = 1 << 20
 
 
 @dataclass
@@ -266,7 +263,7 @@ class Aedat4Source(FileSource):
                 return
             buf = byte_buffer(n)
             buf[:carry.shape[0]] = carry
-            have = carry.shape[0] + self._read(f, buf[carry.shape[0]:n], pos)
+            have = carry.shape[0] + read_full(f, buf[carry.shape[0]:n])
             pos = base + have
             i, status = 0, 0
             while True:
@@ -286,29 +283,6 @@ class Aedat4Source(FileSource):
                 return
             carry = buf[i:have].copy()
             need = 8 + int.from_bytes(carry[4:8].tobytes(), "little") if carry.shape[0] >= 8 else 8
-
-    def _read(self, f: Any, view: np.ndarray, pos: int) -> int:
-        """Fill ``view`` from the file at ``pos`` (where ``f`` stands), as
-        :func:`read_full`, and leave ``f`` after what was read. From
-        :data:`_SPLIT_READ` bytes on, with ``threads`` above 1, a worker
-        reads the second half (``os.preadv``) while this thread reads the
-        first: the kernel's copy out of the page cache, ~0.4 ms of a 2.6 MB
-        read, is CPU work, so by the wall clock the read takes half as
-        long."""
-        n = view.shape[0]
-        if self.threads < 2 or n < _SPLIT_READ or not hasattr(os, "preadv"):
-            return read_full(f, view)
-        half = n // 2
-        rest = workers().submit(_pread_full, f.fileno(), view[half:], pos + half)
-        try:
-            have = read_full(f, view[:half])
-            more = rest.result()
-        except BaseException:  # an error or a Ctrl-C: the worker stops writing into the view first
-            _finish([rest])
-            raise
-        have += more if have == half else 0
-        f.seek(pos + have)
-        return have
 
     def _bad_tail(self, buf: np.ndarray, base: int, i: int, have: int, limit: int) -> int | None:
         """The data ends (or breaks) at ``buf[i]`` inside a packet: raise, or
@@ -649,19 +623,6 @@ def _finish(futures: list[Future[Any]]) -> None:
             interrupted = e
     if interrupted is not None:
         raise interrupted
-
-
-def _pread_full(fd: int, view: np.ndarray, pos: int) -> int:
-    """Fill ``view`` from the file ``fd`` at ``pos`` (the file's position
-    untouched), reading again while the OS returns less: the bytes read,
-    fewer only at the end of the file."""
-    have = 0
-    while have < view.shape[0]:
-        got = os.preadv(fd, [view[have:].data], pos + have)
-        if not got:
-            break
-        have += got
-    return have
 
 
 def _inflate(payload: memoryview, comp: int) -> Any:

@@ -73,30 +73,6 @@ def test_every_path_reads_the_same_events(tmp_path: Path, compiled: bool, compre
     assert _same(got, ev)
 
 
-def test_reads_split_between_threads(tmp_path: Path, monkeypatch) -> None:
-    """Reads split between two threads (every read here: _SPLIT_READ
-    lowered) give the same events as one thread's reads, packets cut by the
-    reads included, and on a file cut short the same error, or with
-    skip_bad the same events and skips."""
-    ev = _events()
-    f = _write(tmp_path / "e.aedat4", ev, packet_events=PER_PACKET)
-    monkeypatch.setattr(aedat4, "_SPLIT_READ", 64)
-    for chunk in (5000, 1 << 22):
-        got, _ = _read(f, chunk_bytes=chunk, threads=2)
-        assert _same(got, ev), chunk
-    data = f.read_bytes()
-    cut = tmp_path / "cut.aedat4"
-    cut.write_bytes(data[:len(data) * 3 // 5])
-    errors = []
-    for threads in (1, 2):
-        with pytest.raises(FormatError) as e:
-            _read(cut, chunk_bytes=5000, threads=threads)
-        errors.append((str(e.value), e.value.offset))
-        got, src = _read(cut, chunk_bytes=5000, threads=threads, skip_bad=True)
-        errors.append((len(got), int(got.t[-1]), src.skipped_events, src.skipped_ranges))
-    assert errors[:2] == errors[2:]
-
-
 def _packet_at(path: Path, k: int) -> tuple[int, int]:
     """(offset of the header, payload size) of event packet ``k``."""
     entries = [e for e in Aedat4Source(str(path)).packet_table() if e.stream == 0]

@@ -193,36 +193,3 @@ def test_no_worker_writes_after_the_consumer_stops(tmp_path, monkeypatch) -> Non
     it.close()
     assert state["ended"]
     assert sum(len(q) for q in Aedat4Source(path, threads=2).packets() if isinstance(q, EventPacket)) == 20_000
-
-
-@pytest.mark.parametrize("fail", [KeyboardInterrupt(), OSError("broken")], ids=["ctrl-c", "error"])
-def test_no_worker_reads_after_an_interrupt(tmp_path, monkeypatch, fail: BaseException) -> None:
-    """A Ctrl-C (or an error) on the reading thread while a worker reads
-    the second half of a split read: the worker's read has ended when the
-    exception reaches the caller (no thread still writing into a buffer
-    given back to the pool)."""
-    if not hasattr(aedat4.os, "preadv"):
-        pytest.skip("no preadv here: reads are not split")
-    path = _file(tmp_path)
-    state = {"ended": True}
-    started = threading.Event()
-    real = aedat4._pread_full
-
-    def pread(*args):
-        state["ended"] = False
-        started.set()
-        time.sleep(0.2)
-        out = real(*args)
-        state["ended"] = True
-        return out
-
-    def read_full(f, view):
-        assert started.wait(5)  # the worker is reading its half
-        raise fail
-
-    monkeypatch.setattr(aedat4, "_pread_full", pread)
-    monkeypatch.setattr(aedat4, "read_full", read_full)
-    monkeypatch.setattr(aedat4, "_SPLIT_READ", 64)
-    with pytest.raises(type(fail)):
-        list(Aedat4Source(path, threads=2).packets())
-    assert state["ended"]
