@@ -272,8 +272,9 @@ async def _main(plan: Plan, graph: Graph, edges: dict[str, Edge], scope: trio.Ca
                 async with trio.open_nursery() as sources:
                     for nid in sorted(graph.offloaded):
                         sources.start_soon(_offload_task, nid, graph, edges["offload:" + nid], outbox, watch)
+                    pace = _PaceClock()  # one replay origin for every paced source
                     for node in plan.of_role("source"):
-                        sources.start_soon(_source_task, node, plan.batch, graph, outbox, watch)
+                        sources.start_soon(_source_task, node, plan.batch, graph, outbox, watch, pace)
             if scope.cancelled_caught:  # user cancel: end every edge so sinks drain
                 for edge in edges.values():
                     edge.close()
@@ -590,13 +591,14 @@ class _LoopWatch:
 
 
 async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox,
-                       watch: _LoopWatch | None = None, *,
+                       watch: _LoopWatch | None = None, pace: _PaceClock | None = None, *,
                        checkpoint: Callable[[], Awaitable[None]] = trio.lowlevel.checkpoint,
                        now: Callable[[], float] | None = None) -> None:
     """Read source ``node``, check (or repair), pace or join and cut its
     packets, push them through ``graph`` and hand what they deliver to
-    ``out``; ``checkpoint`` lets the other tasks run, ``now`` reads trio's
-    clock (both replaced when :func:`_run_inline` runs the task alone)."""
+    ``out``; ``pace``: what the run's paced sources share; ``checkpoint``
+    lets the other tasks run, ``now`` reads trio's clock (both replaced when
+    :func:`_run_inline` runs the task alone)."""
     sid = node.id
     st = graph.stats.node(sid)
     guard = Guard(sid)
@@ -606,7 +608,7 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
     source: Source | None = None
     try:
         source = node.instantiate()
-        pacer = _Pacer(batch) if batch.pace is not None and not source.live else None
+        pacer = _Pacer(batch, pace) if batch.pace is not None and not source.live else None
         late = LatencyRecorder()  # how late paced pieces go out after their oldest data could
         if pacer is not None:
             graph.stats.released_late[sid] = late
@@ -897,23 +899,83 @@ _CHECK_EVERY = 63
 _SMALL = 8192
 
 
-#: Pacing sleeps until this long (s) before a release time, then spins:
-#: the OS wakes sleepers up to a millisecond late.
+#: Pacing waits on trio's clock until this long (s) before a release time
+#: (trio's wait rounds up to whole milliseconds), then in short sleeps that
+#: let go of the GIL (:class:`_PaceClock`), then yields in a loop.
 _SPIN_S = 1.2e-3
 
+#: The last stretch (s) before a release that pacing spends yielding in a
+#: loop instead of asleep: the OS wakes a sleeper 50-90 µs late (its timer
+#: slack and the wake-up), unloaded.
+_WAKE_S = 1.5e-4
 
-async def _wait_until(deadline: float) -> None:
-    """Sleep until ``deadline`` on trio's clock, precisely: the last stretch
-    is spent yielding in a loop (on the real clock only: a test clock has no
-    wake-up jitter and would never advance while we spin)."""
-    clock = trio.lowlevel.current_clock()
-    if isinstance(clock, trio.testing.MockClock) or deadline - trio.current_time() <= 0:
-        await trio.sleep_until(deadline)
-        return
-    if deadline - trio.current_time() > _SPIN_S:
-        await trio.sleep_until(deadline - _SPIN_S)
-    while trio.current_time() < deadline:
-        await trio.lowlevel.checkpoint()
+#: The longest sleep (s) between two passes of trio's scheduler while pacing
+#: waits (what other tasks wait for, a worker thread's result or a socket,
+#: waits at most this long).
+_NAP_S = 2.5e-4
+
+
+class _PaceClock:
+    """What the paced sources of one run share: the wall time their replay
+    started (``origin``, trio's clock, s: set by the first to release, so
+    that two sources of one recording release the same instant of it
+    together, not apart by how much later one task started) and the release
+    times the tasks are waiting for (``waiting``), so that while every task
+    that could run is one of them, the wait is spent asleep
+    (:meth:`wait_until`)."""
+
+    def __init__(self) -> None:
+        self.origin: float | None = None
+        self.waiting: dict[object, float] = {}
+
+    def start(self) -> float:
+        """The run's replay origin (trio's clock, s), set now by the first caller."""
+        if self.origin is None:
+            self.origin = trio.current_time()
+        return self.origin
+
+    async def wait_until(self, deadline: float) -> None:
+        """Sleep until ``deadline`` on trio's clock, precisely, holding the
+        GIL as little as possible: a worker thread (an offloaded operator)
+        that needs it gets it at once instead of after the switch interval
+        (5 ms) and a forced switch that stalls this thread, and on a loaded
+        machine a task that sleeps is given the CPU back sooner than one
+        that spins. Until ``_SPIN_S`` before the deadline it waits on
+        trio's clock; then, each time every other task waits (other pacers
+        too) and no I/O or worker thread's result is ready, it sleeps in
+        ``time.sleep`` (which lets go of the GIL) for at most ``_NAP_S``,
+        up to ``_WAKE_S`` before the earliest deadline waited for or trio's
+        next timer; the last ``_WAKE_S`` it yields in a loop. On a test
+        clock (no wake-up jitter: it would never advance while we spin) it
+        sleeps on trio's clock."""
+        clock = trio.lowlevel.current_clock()
+        now = clock.current_time
+        if isinstance(clock, trio.testing.MockClock) or deadline - now() <= 0:
+            await trio.sleep_until(deadline)
+            return
+        if deadline - now() > _SPIN_S:
+            await trio.sleep_until(deadline - _SPIN_S)
+        waiting, me = self.waiting, object()
+        waiting[me] = deadline
+        try:
+            while (left := deadline - now()) > 0:
+                if left <= _WAKE_S:
+                    await trio.lowlevel.checkpoint()
+                    continue
+                # until every other task waits (trio then has polled for I/O and found none)
+                with trio.move_on_at(deadline - _WAKE_S):
+                    await trio.testing.wait_all_tasks_blocked()
+                nap = min(min(waiting.values()) - _WAKE_S - now(),
+                          trio.lowlevel.current_statistics().seconds_to_next_deadline, _NAP_S)
+                if nap > 0:
+                    _sleep(nap)
+        finally:
+            del waiting[me]
+
+
+#: A sleep of the thread that lets go of the GIL (pacing's waits; a name of
+#: its own so that tests can watch it).
+_sleep = time.sleep
 
 
 class _Pacer:
@@ -922,13 +984,18 @@ class _Pacer:
     With ``max_latency_us == 0`` each event goes out as soon as it is due, so
     under light load packets hold one timestamp and under load they grow by
     themselves; otherwise events go out in windows of ``max_latency_us``. A
-    piece's arrival time is when its newest event was due: latency measured
-    from there is what the engine adds.
+    piece's arrival time is when it was due to go out: when its newest
+    sample was due, or with windows when that sample's window closed (the
+    wait for a window to fill is the latency asked for, not the engine's:
+    a sparse stream's lone sample at a window's start is not a window late).
+    Latency measured from there is what the engine adds. The paced sources
+    of a run share their wall-clock origin (``pace``).
     """
 
-    def __init__(self, batch: BatchPolicy) -> None:
+    def __init__(self, batch: BatchPolicy, pace: _PaceClock | None = None) -> None:
         self.batch = batch
         self.speed = float(batch.pace or 1.0)
+        self.pace = pace or _PaceClock()
         self.t0: int | None = None
         self.c0 = 0.0
 
@@ -938,13 +1005,21 @@ class _Pacer:
     def sensor_now(self) -> float:
         return self.t0 + (trio.current_time() - self.c0) * 1e6 * self.speed  # type: ignore[operator]
 
+    def window_end(self, t_us: int) -> int:
+        """The end (µs) of the window holding time ``t_us``."""
+        win = self.batch.max_latency_us
+        return self.t0 + (math.floor((t_us - self.t0) / win) + 1) * win  # type: ignore[operator]
+
     async def release(self, pkt: Packet) -> AsyncIterator[tuple[Packet, float, float]]:
-        """Pieces of ``pkt`` as they fall due: (piece, when its newest
-        sample was due, when its oldest data could go: its first window
-        closed, or its first sample was due)."""
+        """Pieces of ``pkt`` as they fall due: (piece, when it was due to go
+        out (its newest sample due, or that sample's window closed), when
+        its oldest data could go: its first window closed, or its first
+        sample was due). A window is released once it has closed, the last
+        one of a packet too (its data after the packet's end come with the
+        next packet)."""
         if self.t0 is None:
             self.t0 = pkt.t_start
-            self.c0 = trio.current_time()
+            self.c0 = self.pace.start()
         win = self.batch.max_latency_us
         cursor = pkt.t_start
         t = pkt.t
@@ -960,16 +1035,16 @@ class _Pacer:
                 cursor = upto
                 # when its oldest data could go: its first window closed, or its first sample was due
                 if win:
-                    ready = self.clock(min(upto, self.t0 + (math.floor((piece.t_start - self.t0) / win) + 1) * win))
+                    ready = self.clock(self.window_end(piece.t_start))
                 else:
                     ready = self.clock(int(piece.t[0]) if len(piece) else upto - 1)
                 for b in piece.batches(self.batch.max_events):
-                    due = self.clock(int(b.t[-1]) if len(b) else b.t_end - 1)
-                    yield b, due, ready
+                    last = int(b.t[-1]) if len(b) else b.t_end - 1
+                    yield b, self.clock(self.window_end(last) if win else last), ready
                 continue
-            if win:
+            if win:  # the window under way closes (a packet's last one too: it goes out whole)
                 nxt = self.t0 + (math.floor((now - self.t0) / win) + 1) * win
             else:
                 i = int(t.searchsorted(cursor))
-                nxt = int(t[i]) if i < len(t) else pkt.t_end - 1
-            await _wait_until(self.clock(min(nxt, pkt.t_end)))
+                nxt = min(int(t[i]) if i < len(t) else pkt.t_end - 1, pkt.t_end)
+            await self.pace.wait_until(self.clock(nxt))
