@@ -945,9 +945,9 @@ class _PaceClock:
         too) and no I/O or worker thread's result is ready, it sleeps in
         ``time.sleep`` (which lets go of the GIL) for at most ``_NAP_S``,
         up to ``_WAKE_S`` before the earliest deadline waited for or trio's
-        next timer; the last ``_WAKE_S`` it yields in a loop. On a test
-        clock (no wake-up jitter: it would never advance while we spin) it
-        sleeps on trio's clock."""
+        next timer; the last ``_WAKE_S`` it yields in a loop (all of it on
+        a clock of the user's own). On a test clock (no wake-up jitter: it
+        would never advance while we spin) it sleeps on trio's clock."""
         clock = trio.lowlevel.current_clock()
         now = clock.current_time
         if isinstance(clock, trio.testing.MockClock) or deadline - now() <= 0:
@@ -955,11 +955,13 @@ class _PaceClock:
             return
         if deadline - now() > _SPIN_S:
             await trio.sleep_until(deadline - _SPIN_S)
+        # (asleep on trio's own clock only: another clock's seconds need not be the thread's)
+        naps = type(clock).__name__ == "SystemClock"
         waiting, me = self.waiting, object()
         waiting[me] = deadline
         try:
             while (left := deadline - now()) > 0:
-                if left <= _WAKE_S:
+                if left <= _WAKE_S or not naps:
                     await trio.lowlevel.checkpoint()
                     continue
                 # until every other task waits (trio then has polled for I/O and found none)

@@ -205,3 +205,28 @@ def test_pacing_does_not_sleep_while_another_task_can_run(monkeypatch: pytest.Mo
 
     trio.run(main)
     assert naps == []
+
+
+class _OwnClock(trio.abc.Clock):
+    """A clock of the user's own (real seconds here, but the engine cannot know)."""
+
+    def start_clock(self) -> None:
+        pass
+
+    def current_time(self) -> float:
+        return time.perf_counter()
+
+    def deadline_to_sleep_time(self, deadline: float) -> float:
+        return deadline - self.current_time()
+
+
+def test_pacing_on_a_clock_of_its_own_does_not_sleep_the_thread(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The pacer sleeps the thread only on trio's own clock, whose seconds
+    are the thread's: on another clock it yields in a loop, as before."""
+    naps = _napped(monkeypatch)
+    out = tectum.testing.ListSink()
+    p = Pipeline(pace=1.0, max_latency_us=1000)
+    p.sink(out, p.source(ListSource([_events(0, 10_000)]), id="src"), id="out")
+    tectum.run(p, clock=_OwnClock())
+    assert naps == []
+    tectum.testing.assert_streams_equal([_events(0, 10_000)], out.packets)
