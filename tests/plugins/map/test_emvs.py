@@ -13,7 +13,7 @@ import pytest
 import tectum
 from tectum import Pipeline, PipelineError, PosePacket
 from tectum.camera import rot_to_quat, so3_exp
-from tectum.plugins.map._dsi import ray_traces, vote
+from tectum.plugins.map._dsi import focus_argmax, ray_traces, vote
 from tectum.plugins.map.emvs import Emvs, depth_map, depth_planes, translating_points
 from tectum.plugins.repr.motion_compensated import _rotating_points
 from tectum.testing import ListSink, ListSource, feed_ports
@@ -139,6 +139,51 @@ def test_the_depth_map_reads_the_best_plane_and_thresholds_it():
     assert np.isfinite(depth).sum() == 10
     np.testing.assert_allclose(depth[5:15, 10], depths[6], rtol=1e-6)
     assert conf[10, 10] == 9.0 and conf[0, 0] == pytest.approx(0.1)
+
+
+def test_focus_picks_the_plane_whose_local_variance_is_largest():
+    """focus_argmax against the local variance written out (the window
+    clipped at the borders), without and with the parabola."""
+    rng = np.random.default_rng(3)
+    dsi = rng.random((6, 9, 11)).astype(np.float32)
+    P, H, W = dsi.shape
+    r = 2
+    var = np.empty((P, H, W))
+    for k in range(P):
+        for j in range(H):
+            for i in range(W):
+                win = dsi[k, max(0, j - r):j + r + 1, max(0, i - r):i + r + 1].astype(np.float64)
+                var[k, j, i] = win.var()
+    index = np.empty((H, W))
+    focus_argmax(dsi, r, False, index)
+    np.testing.assert_array_equal(index, var.argmax(0))
+    focus_argmax(dsi, r, True, index)
+    k = var.argmax(0)
+    inner = (k > 0) & (k < P - 1)
+    a, b, c = (np.take_along_axis(var, np.clip(k + d, 0, P - 1)[None], 0)[0] for d in (-1, 0, 1))
+    off = np.clip(0.5 * (a - c) / (a - 2 * b + c), -0.5, 0.5)
+    np.testing.assert_allclose(index[inner], (k + off)[inner], atol=1e-9)
+    np.testing.assert_array_equal(index[~inner], k[~inner])
+
+
+def test_focus_finds_the_sharp_plane_where_smeared_votes_pile_higher():
+    """A sharp pattern of votes on plane 3 (0 and 2, mean 1) and the same
+    votes smeared flat but piled higher (1.5) on plane 7: the most votes
+    put the pattern's dark pixels on plane 7, the sharpest slice puts
+    every pixel on plane 3."""
+    depths = depth_planes(10, 1.0, 4.0)
+    dsi = np.full((10, 21, 21), 0.2, np.float32)
+    yy, xx = np.mgrid[0:21, 0:21]
+    dsi[3] = np.where((yy + xx) % 2 == 0, 2.0, 0.0)
+    dsi[7] = 1.5
+    opts = {"refine": False, "median_size": 1, "threshold_c": -1.0}  # every pixel kept
+    free, _ = depth_map(dsi, depths, **opts)
+    assert np.mean(free == np.float32(depths[7])) == pytest.approx(0.5, abs=0.01)
+    sharp, conf = depth_map(dsi, depths, focus=2, **opts)
+    np.testing.assert_allclose(sharp, depths[3], rtol=1e-6)
+    assert conf.max() == 2.0  # the confidence is still the most votes
+    with pytest.raises(ValueError, match="focus"):
+        Emvs(calib=CALIB, focus=-1)
 
 
 # -- the operator -------------------------------------------------------------------------
