@@ -58,7 +58,14 @@ moved on at the last velocity for ``coast_us``, then held with zero
 velocities; each is counted in ``counts``. While lost, each step tries to
 relocalise from that prediction with one coarser level, and resumes when
 the overlap is back to ``relocalise_overlap`` times the running overlap
-(twice ``min_overlap`` on a new map) and the jump is plausible.
+and the jump is plausible. A map without good steps yet has no running
+overlap: with ``known_overlap`` (the default) the one the map before it
+had stands in (after the bootstrap: its points' overlap at the pose
+predicted from the bootstrap's last), when at least ``min_overlap``;
+otherwise, and without ``known_overlap``, twice ``min_overlap`` (20 %).
+A map filled in by a plane prior (``map.emvs surface=plane``) lands only
+15-18 % of its points on edges even where it is right, so the fixed bar
+kept the tracker lost for good (``docs/evo.md``).
 
 Output (:class:`~tectum.PosePacket`): ``position`` (m), ``orientation``
 (x, y, z, w, world-from-camera), ``linear_velocity`` (m/s, world),
@@ -161,6 +168,10 @@ class EdgeAlign(Operator):
     coast_us:
         While lost, the prediction goes on at the last velocity for this
         long after the last good step, µs; then it holds the last good pose.
+    known_overlap:
+        While lost on a map without good steps, ask ``relocalise_overlap``
+        times the overlap of the map before (or at the bootstrap's end)
+        rather than twice ``min_overlap`` (False: the latter, as before).
     """
 
     name = "tracker.edge_align"
@@ -179,7 +190,8 @@ class EdgeAlign(Operator):
                  overlap_drop: float = 0.3, relocalise_overlap: float = 0.8, max_speed: float = 10.0,
                  max_rate: float = 20.0, min_neighbours: int = 8, neighbour_tol: float = 0.03,
                  prior_rad: float = 0.01, prior_m: float = 0.01, velocity_gain: float = 0.3,
-                 binary: bool = False, coast_us: int = 50_000) -> None:
+                 binary: bool = False, coast_us: int = 50_000,
+                 known_overlap: bool = True) -> None:
         if bootstrap_us < 0 or not plane_depth >= 0:
             raise ValueError(f"tracker.edge_align: need bootstrap_us >= 0 and plane_depth >= 0 m, got {bootstrap_us}, "
                              f"{plane_depth}")
@@ -220,6 +232,9 @@ class EdgeAlign(Operator):
         if coast_us < 0:
             raise ValueError(f"tracker.edge_align: coast_us must be >= 0 µs, got {coast_us}")
         self.coast_us = int(coast_us)
+        self.known_overlap = bool(known_overlap)
+        self._ref_pending = False
+        self._known_overlap: float | None = None
         self.counts = {"steps": 0, "tracked": 0, "bootstrap_poses": 0, "bootstrap_steps": 0, "maps": 0,
                        "lost_no_map": 0, "lost_few_points": 0, "lost_overlap": 0, "lost_jump": 0, "relocalised": 0}
         #: (cost, points in view, overlap, iterations) of the last alignment (for diagnostics)
@@ -401,6 +416,8 @@ class EdgeAlign(Operator):
         t_mid = int(self._t[(a + b - 1) // 2])
         while self._maps and self._maps[0][0] <= t_last:  # the latest map stamped by now
             self._points = self._maps.pop(0)[1]
+            if self._overlap is not None and self.known_overlap:
+                self._known_overlap = self._overlap  # the map before's, until this one has its own
             self._overlap = None
             self.counts["maps"] += 1
         if self._R is None and not self._begin(a, b, t_mid, t_last):
@@ -414,6 +431,13 @@ class EdgeAlign(Operator):
         R, tr = self._predict(dt)  # lost: relocalise from the coasting prediction, one level coarser
         levels = self.levels + 1 if self._lost else self.levels
         info = np.zeros(4)
+        if self._ref_pending:  # the map's overlap where the bootstrap says the camera is
+            self._ref_pending = False
+            self._image(a, b, self.sigma_px)
+            align(self._points, R.copy(), tr.copy(), R, tr, self.cam, self._img, self._gx, self._gy, self.huber, 1.0,
+                  MIN_DEPTH_M, 0, 1e-6, self._prior, info)
+            if info[1] >= self.min_points:
+                self._known_overlap = float(info[2])
         Rp, tp = R.copy(), tr.copy()
         prior = self._prior
         for lvl in range(levels - 1, -1, -1):
@@ -426,7 +450,11 @@ class EdgeAlign(Operator):
             return self._lost_row(t_last, lose=True)
         ov, ref = float(info[2]), self._overlap
         if self._lost:
-            bad = ov < (2 * self.min_overlap if ref is None else max(self.min_overlap, self.relocalise_overlap * ref))
+            known = ref if ref is not None else self._known_overlap
+            if ref is None and known is not None and known < self.min_overlap:
+                known = None  # the map before, or this one at the bootstrap, was no better than lost: no bar from it
+            bad = ov < (2 * self.min_overlap if known is None else
+                        max(self.min_overlap, self.relocalise_overlap * known))
         else:
             bad = ov < self.min_overlap or (ref is not None and ov < self.overlap_drop * ref)
         if bad:
@@ -452,6 +480,7 @@ class EdgeAlign(Operator):
             R1, t1 = self._bootstrap_pose(int(self._bt[-1]))
             t0 = max(int(self._bt[0]), int(self._bt[-1]) - 10_000)
             self._set_state(R1, t1, int(self._bt[-1]))
+            self._ref_pending = self.known_overlap
             if t0 < int(self._bt[-1]):
                 R0, p0 = self._bootstrap_pose(t0)
                 self._xi = _twist(R0, p0, R1, t1, (int(self._bt[-1]) - t0) * 1e-6)

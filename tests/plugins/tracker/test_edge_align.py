@@ -222,3 +222,39 @@ def test_planar_bootstrap_tracks_without_poses():
     path = true[-1]
     assert abs(moved[-1, 0] - path) <= 0.05 * path  # the scale is plane_depth's
     assert np.abs(moved[:, 1:]).max() <= 0.15 * path  # measured: 12 mm once, 0.3 mm at the end
+
+
+def _diluted(m: MapPacket, t0: int, t1: int, share: float = 6.0) -> MapPacket:
+    """``m``'s depth with ``share`` times as many pixels again at random
+    depths (points off the scene's edges: a map whose points seldom all
+    land on edges, like a plane filled in), valid from ``t0`` to ``t1`` µs."""
+    rng = np.random.default_rng(5)
+    depth = m.depth[0].copy()
+    empty = np.flatnonzero(~np.isfinite(depth))
+    fill = rng.choice(empty, int(share * np.isfinite(depth).sum()), replace=False)
+    depth.ravel()[fill] = rng.uniform(1.0, 4.0, len(fill))
+    return MapPacket(np.array([t0], np.int64), depth=depth[None], K=m.K, pose=m.pose, t_start=t0, t_end=t1)
+
+
+def test_relocalises_on_a_map_whose_points_seldom_land_on_edges():
+    """A right map diluted with points off the edges (its overlap about
+    0.15, under the 0.2 asked of a map with no good steps yet), a wrong map
+    for 30 ms, then the diluted map again: the tracker relocalises on it,
+    judged against the overlap the diluted map had while tracking (the
+    known overlap); without it, lost to the end."""
+    s = _scene()
+    right = s["maps"]
+    assert isinstance(right, MapPacket)
+    wrong = _wrong_map()
+    maps = [_diluted(right, 0, 30_000),
+            MapPacket(np.array([30_000], np.int64), depth=wrong.depth, K=wrong.K, pose=wrong.pose, t_start=30_000,
+                      t_end=60_000),
+            _diluted(right, 60_000, 200_001)]
+    for known in (False, True):
+        est, op = _track({"events": s["events"], "maps": maps, "poses": s["poses"]}, known_overlap=known)
+        tail = est.t >= 100_000
+        if not known:
+            assert est.lost[tail].all(), op.counts
+            continue
+        assert op.counts["relocalised"] >= 1 and not est.lost[tail].any(), op.counts
+        assert _errors(est)[tail].max() <= 0.015  # the points off the edges pull a little (1.2 cm at most)
