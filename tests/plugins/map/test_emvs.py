@@ -463,3 +463,13 @@ def test_on_an_ecd_folder_the_ports_fill_by_kind(tmp_path):
     assert len(maps) == len(ref) == 2
     for a, b in zip(maps, ref):
         np.testing.assert_array_equal(a.depth, b.depth)
+
+
+def test_tracker_evo_passes_focus_to_its_mapper():
+    p = Pipeline()
+    cam = p.source("pattern:", id="cam")
+    p.op("tracker.evo", events=cam, id="evo", calib=CALIB, focus=4)
+    plan = p.validate()
+    assert dict(plan.nodes["evo.mapper"].params) == {"calib": CALIB, "focus": 4}
+    assert "focus" not in plan.nodes["evo.tracker"].params
+    assert plan.nodes["evo.mapper"].instantiate().map_options["focus"] == 4
