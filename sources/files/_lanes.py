@@ -27,6 +27,31 @@ def splat(builder, kind, value):  # type: ignore[no-untyped-def]
                                                                             [0] * LANES))
 
 
+def _cd_words(builder, src, base, to, xo, yo, po):  # type: ignore[no-untyped-def]
+    """Codegen shared by the EVT 2.0 forms: load the 16 words at ``src``,
+    write each as a CD word to the columns at ``to, xo, yo, po`` (t =
+    ``base`` | bits 22-27, x bits 11-21, y bits 0-10, p +1 where bit 28 is
+    set, else -1); returns the words and their 6-bit times, x and y."""
+    i8, i16, i32, i64 = (ir.IntType(b) for b in (8, 16, 32, 64))
+
+    def const(kind, v):  # type: ignore[no-untyped-def]
+        return splat(builder, kind, ir.Constant(kind, v))
+
+    def store(value, ptr):  # type: ignore[no-untyped-def]
+        builder.store(value, builder.bitcast(ptr, value.type.as_pointer()), align=1)
+
+    w = builder.load(builder.bitcast(src, ir.VectorType(i32, LANES).as_pointer()), align=1)
+    low = builder.and_(builder.lshr(w, const(i32, 22)), const(i32, 0x3F))
+    store(builder.or_(builder.zext(low, ir.VectorType(i64, LANES)), splat(builder, i64, base)), to)
+    xs = builder.trunc(builder.and_(builder.lshr(w, const(i32, 11)), const(i32, 0x7FF)), ir.VectorType(i16, LANES))
+    ys = builder.trunc(builder.and_(w, const(i32, 0x7FF)), ir.VectorType(i16, LANES))
+    store(xs, xo)
+    store(ys, yo)
+    on = builder.icmp_unsigned("!=", builder.and_(w, const(i32, 1 << 28)), const(i32, 0))
+    store(builder.select(on, const(i8, 1), const(i8, -1)), po)
+    return w, low, xs, ys
+
+
 def evt2_lanes(words, i, t, x, y, p, base, prev):  # type: ignore[no-untyped-def]
     """Decode the EVT 2.0 CD words ``i .. i + 15`` (all CD_OFF or CD_ON)
     into ``t, x, y, p`` at the same indices: t = ``base`` | the 6-bit time
@@ -53,31 +78,17 @@ def _evt2_lanes_ir(typingctx, words, i, t, x, y, p, base, prev):  # type: ignore
     sig = types.int64(words, types.intp, t, x, y, p, types.int64, types.int64)
 
     def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
-        i8, i16, i32, i64 = (ir.IntType(b) for b in (8, 16, 32, 64))
+        i16, i32, i64 = (ir.IntType(b) for b in (16, 32, 64))
         tys, vals = signature.args[:1] + signature.args[2:6], args[:1] + args[2:6]
         src, to, xo, yo, po = (builder.gep(context.make_array(ty)(context, builder, v).data, [args[1]])
                                for ty, v in zip(tys, vals))
-
-        def const(kind, v):  # type: ignore[no-untyped-def]
-            return splat(builder, kind, ir.Constant(kind, v))
-
-        def store(value, ptr):  # type: ignore[no-untyped-def]
-            builder.store(value, builder.bitcast(ptr, value.type.as_pointer()), align=1)
 
         def largest(vec):  # type: ignore[no-untyped-def]
             fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(i16, [vec.type]),
                                                 f"llvm.vector.reduce.umax.v{LANES}i16")
             return builder.zext(builder.call(fn, [vec]), i64)
 
-        w = builder.load(builder.bitcast(src, ir.VectorType(i32, LANES).as_pointer()), align=1)
-        low = builder.and_(builder.lshr(w, const(i32, 22)), const(i32, 0x3F))
-        store(builder.or_(builder.zext(low, ir.VectorType(i64, LANES)), splat(builder, i64, args[6])), to)
-        xs = builder.trunc(builder.and_(builder.lshr(w, const(i32, 11)), const(i32, 0x7FF)), ir.VectorType(i16, LANES))
-        ys = builder.trunc(builder.and_(w, const(i32, 0x7FF)), ir.VectorType(i16, LANES))
-        store(xs, xo)
-        store(ys, yo)
-        on = builder.icmp_unsigned("!=", builder.and_(w, const(i32, 1 << 28)), const(i32, 0))
-        store(builder.select(on, const(i8, 1), const(i8, -1)), po)
+        _, low, xs, ys = _cd_words(builder, src, args[6], to, xo, yo, po)
         first = builder.insert_element(ir.Constant(ir.VectorType(i32, LANES), None), builder.trunc(args[7], i32),
                                        ir.Constant(i32, 0))
         before = builder.shuffle_vector(first, low, ir.Constant(ir.VectorType(i32, LANES),
@@ -135,7 +146,7 @@ def _evt2_group_ir(typingctx, words, i, t, x, y, p, n, base, prev):  # type: ign
     sig = types.int64(words, types.intp, t, x, y, p, types.intp, types.int64, types.int64)
 
     def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
-        i8, i16, i32, i64 = (ir.IntType(b) for b in (8, 16, 32, 64))
+        i16, i32, i64 = (ir.IntType(b) for b in (16, 32, 64))
         mask = ir.IntType(LANES)
         arrays = [context.make_array(ty)(context, builder, v)
                   for ty, v in zip(signature.args[:1] + signature.args[2:6], args[:1] + args[2:6])]
@@ -145,22 +156,11 @@ def _evt2_group_ir(typingctx, words, i, t, x, y, p, n, base, prev):  # type: ign
         def const(kind, v):  # type: ignore[no-untyped-def]
             return splat(builder, kind, ir.Constant(kind, v))
 
-        def store(value, ptr):  # type: ignore[no-untyped-def]
-            builder.store(value, builder.bitcast(ptr, value.type.as_pointer()), align=1)
-
         def call(name, ret, *vals):  # type: ignore[no-untyped-def]
             fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ret, [v.type for v in vals]), name)
             return builder.call(fn, list(vals))
 
-        w = builder.load(builder.bitcast(src, ir.VectorType(i32, LANES).as_pointer()), align=1)
-        low = builder.and_(builder.lshr(w, const(i32, 22)), const(i32, 0x3F))
-        store(builder.or_(builder.zext(low, ir.VectorType(i64, LANES)), splat(builder, i64, args[7])), to)
-        xs = builder.trunc(builder.and_(builder.lshr(w, const(i32, 11)), const(i32, 0x7FF)), ir.VectorType(i16, LANES))
-        ys = builder.trunc(builder.and_(w, const(i32, 0x7FF)), ir.VectorType(i16, LANES))
-        store(xs, xo)
-        store(ys, yo)
-        on = builder.icmp_unsigned("!=", builder.and_(w, const(i32, 1 << 28)), const(i32, 0))
-        store(builder.select(on, const(i8, 1), const(i8, -1)), po)
+        w, low, xs, ys = _cd_words(builder, src, args[7], to, xo, yo, po)
         # j: the CD words before the first other one (bit 16 set: 16 when all are CD)
         cd = builder.zext(builder.bitcast(builder.icmp_unsigned("<", w, const(i32, CD_END)), mask), i32)
         j = call("llvm.cttz.i32", i32, builder.or_(builder.xor(cd, ir.Constant(i32, 0xFFFF)),
