@@ -370,8 +370,18 @@ def coerce_param(cls: type, name: str, value: Any) -> Any:
                 return _coerce_to(a, value)
             except (TypeError, ValueError) as e:
                 last = e
-        raise TypeError(f"expected {typ}, got {value!r}") from last
+        raise TypeError(f"expected {' or '.join(_type_name(a) for a in args)}, got {value!r}") from last
     return _coerce_to(typ, value)
+
+
+def _type_name(typ: Any) -> str:
+    """``int``, ``'auto'`` (a Literal's values), ``list[float]``: a type as a
+    parameter's error message names it."""
+    import typing
+
+    if typing.get_origin(typ) is typing.Literal:
+        return " or ".join(repr(v) for v in typing.get_args(typ))
+    return typ.__name__ if isinstance(typ, type) else str(typ).replace("typing.", "")
 
 
 def _coerce_to(typ: Any, value: Any) -> Any:

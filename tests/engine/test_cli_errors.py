@@ -59,6 +59,15 @@ def test_bad_invocation_is_one_line_and_fails(what: str, files: Path) -> None:
     assert len(lines) == 1 and "error:" in lines[0], r.stderr
 
 
+def test_a_parameter_of_two_kinds_names_both(files: Path) -> None:
+    """A value fitting none of a parameter's kinds (``dt_us``: a number of
+    µs or ``auto``) is refused in the user's words, not as a typing repr."""
+    r = subprocess.run([*TECTUM, "run", str(files / "ok.npz"), "--op", "filter.background_activity:dt_us=fast"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode != 0 and "Traceback" not in r.stderr, r.stderr
+    assert "parameter 'dt_us': expected int or 'auto', got 'fast'" in r.stderr, r.stderr
+
+
 def test_a_closed_pipe_ends_quietly() -> None:
     """``tectum plugins --json | head``: the reader goes away before the
     output is written; tectum stops without a word on stderr."""
