@@ -204,17 +204,17 @@ def test_without_calib_txt_the_command_line_fails_before_running(tmp_path):
     assert not (tmp_path / "omega.csv").exists()
 
 
-def test_rotdisk_estimates_follow_its_gyro_with_the_stated_axes():
+def test_rotdisk_estimates_follow_its_gyro_with_the_stated_axes(shared):
     """The real DAVIS240 recording: camera = diag(-1, 1, -1) IMU (what the
-    bench states); the camera mostly rolls, so x and z carry the signal."""
-    from tectum.evaluation.harness import shared_data
+    bench states); the camera mostly rolls, so x and z carry the signal.
+    (The recordings are found beside the tests, as every test finds them:
+    the evaluation package's own look-up is beside the installed package.)"""
     from tectum.evaluation.imu_truth import read_events_and_imu
     from tectum.evaluation.suites._tracker_angular import ROTDISK_CAMERA_FROM_IMU
 
-    data = shared_data()
-    path = data / "aedat" / "davis240_imu_rotdisk.aedat" if data else None
-    if path is None or not path.exists():
-        pytest.skip("../shared/data/aedat/davis240_imu_rotdisk.aedat is absent")
+    path = shared / "aedat" / "davis240_imu_rotdisk.aedat"
+    if not path.exists():
+        pytest.skip(f"{path} is absent")
     ev, imu = read_events_and_imu(str(path))
     ev = ev.slice_time(int(ev.t[0]), int(ev.t[0]) + 800_000)
     out = concat(feed(AngularVelocity(calib="200;200;119.5;89.5", window_events=15_000, step_events=5_000), [ev]))
