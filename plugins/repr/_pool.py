@@ -24,7 +24,12 @@ import numpy as np
 
 __all__ = ["Block", "FramePool", "pool", "POOL_BYTES", "POOLS", "SHARED_BYTES"]
 
-#: the most bytes of blocks one pool keeps for reuse
+#: the most bytes of blocks one pool keeps for reuse (blocks are plain
+#: ``np.zeros``: numpy advises huge pages for them, and gets them for the
+#: 2 MB pages wholly inside, 4 of a 5.5 MB block of event frames; a block
+#: in a map of its own aligned to 2 MB, all on huge pages, zeroed a 720 kB
+#: frame in 8.4 us against 10.2 on 4 kB pages, but frames through a
+#: pipeline did not gain: 0.98x, 1.00, 1.00 at 0.5, 2, 5 Mev/s, per round)
 POOL_BYTES = 1 << 26
 #: the most pools (frame shapes and dtypes) kept, the last used
 POOLS = 4

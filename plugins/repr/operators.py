@@ -164,7 +164,11 @@ BLOCK_BYTES = 1 << 21
 #: packet to hand on): blocks of 2 int32 x 2 frames of 346x260 (720 kB each)
 #: spent more on that than on 1000 events (0.1 Mev/s, 10 ms windows). Eight
 #: a block (5.8 MB, in the 32 MB L3 of this AMD Zen 4) took 8.3 -> 5.0 µs a
-#: window at 0.1 Mev/s, 40 -> 36 at 2 Mev/s (pipeline CPU time, loaded)
+#: window at 0.1 Mev/s, 40 -> 36 at 2 Mev/s (pipeline CPU time, loaded).
+#: Against eight, per round (interleaved, 9 rounds, CPU, load 0.4-1.9): blocks of 4
+#: in calls of 4 windows 0.82x at 0.1 Mev/s, 0.90 at 0.5, 0.99 at 5; in
+#: calls of 8 windows 0.77, 0.83, 0.95; calls of 16 windows in 2 blocks of
+#: 8 0.93, 0.93, 0.99 (a packet out costs the engine ~2-3 us)
 MIN_FRAMES = 8
 #: the most bytes of frames :data:`MIN_FRAMES` may bring a block to
 MAX_BLOCK_BYTES = 1 << 23
@@ -182,7 +186,10 @@ def _per_block(frame_bytes: int) -> int:
 #: and at most :data:`MARKS`; else whole (a memset). Beyond that many random
 #: writes, a frame that left the cache zeroes faster by a memset (346x260:
 #: uint8 frames up to 1406 events, int32 x 2 up to 2048; CPU time through
-#: a pipeline, interleaved medians of 9, loaded)
+#: a pipeline, interleaved medians of 9, loaded). A map of the rows or 1-4 kB
+#: spans a frame's last window wrote would zero nothing less: the bench's
+#: windows of more than 2048 events (0.1-2 Mev/s) write every row and every
+#: 1 kB span of an int32 x 2 frame, and 65-80 % of its 64-byte lines
 MARK_BYTES = 64
 MARKS = 2048
 _NO_XY, _NO_P = np.empty(0, np.uint16), np.empty(0, np.int8)
