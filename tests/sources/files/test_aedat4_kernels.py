@@ -1,15 +1,17 @@
 """AEDAT 4.0 kernels against slow obvious references: the split of
 ``Event`` structs into columns (16 at a time in vector code, the rest one
 by one) gives what NumPy's structured view of the same bytes gives, for any
-bytes; the threads' parts of a run hold about equal compressed bytes; no
-worker thread is left decoding after an error, a Ctrl-C or a consumer that
-stops early."""
+bytes; the threads' parts of a run hold about equal compressed bytes; a
+part no worker has started is decoded by the reading thread; no worker
+thread is left decoding after an error, a Ctrl-C or a consumer that stops
+early."""
 
 from __future__ import annotations
 
 import signal as signals
 import threading
 import time
+from concurrent.futures import wait
 
 import numpy as np
 import pytest
@@ -19,6 +21,7 @@ from tectum.sinks.files import SINKS
 from tectum.sinks.files._common import write_all
 from tectum.sources.files import _aedat4_kernels as AK
 from tectum.sources.files import _lz4, aedat4
+from tectum.sources.files._common import workers
 from tectum.sources.files.aedat4 import Aedat4Source
 
 #: The ``Event`` struct of the AEDAT 4.0 EventPacket, as NumPy reads it
@@ -134,8 +137,10 @@ def _slow_worker(monkeypatch, fail_here: BaseException | None, signal: bool = Fa
 
     def inflate(*args):
         if threading.get_ident() == main:
+            if fail_here is not None or signal:
+                # the worker is decoding its part (else this thread would decode it, having ended its own)
+                assert started.wait(5)
             if fail_here is not None:
-                assert started.wait(5)  # the worker is decoding its part
                 raise fail_here
             return real(*args)
         state["ended"] = False
@@ -179,6 +184,37 @@ def test_no_worker_writes_after_an_interrupt(tmp_path, monkeypatch, fail: BaseEx
     with pytest.raises(KeyboardInterrupt if fail is None else type(fail)):
         list(Aedat4Source(path, threads=2).packets())
     assert state["ended"]
+
+
+def test_a_part_no_worker_started_is_decoded_here(tmp_path, monkeypatch) -> None:
+    """Every worker thread busy elsewhere (for 3 s): the reading thread
+    decodes the worker's part itself once it has ended its own, instead of
+    waiting for a worker; the events are those of one thread."""
+    if not _lz4.AVAILABLE:
+        pytest.skip("no compiled LZ4 path")
+    path = _file(tmp_path)
+    want = [q for q in Aedat4Source(path, threads=1).packets() if isinstance(q, EventPacket)]
+    monkeypatch.setattr(aedat4, "_PART_BYTES", 1 << 12)  # two parts even for a small file
+    release, busy = threading.Event(), threading.Semaphore(0)
+
+    def block() -> None:
+        busy.release()
+        release.wait(3)
+
+    pool = workers()
+    blockers = [pool.submit(block) for _ in range(pool._max_workers)]
+    try:
+        for _ in blockers:
+            assert busy.acquire(timeout=5)
+        got = [q for q in Aedat4Source(path, threads=2).packets() if isinstance(q, EventPacket)]
+        assert not any(b.done() for b in blockers)  # it did not wait for them
+    finally:
+        release.set()
+        wait(blockers)
+    assert len(got) > 1  # decoded in two parts
+    for name in ("t", "x", "y", "p"):
+        assert np.array_equal(np.concatenate([getattr(q, name) for q in got]),
+                              np.concatenate([getattr(q, name) for q in want]))
 
 
 def test_no_worker_writes_after_the_consumer_stops(tmp_path, monkeypatch) -> None:
