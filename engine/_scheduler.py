@@ -936,7 +936,7 @@ class _PaceClock:
 
     async def wait_until(self, deadline: float) -> None:
         """Sleep until ``deadline`` on trio's clock, precisely, holding the
-        GIL as little as possible: a worker thread (an offloaded operator)
+        GIL as little as possible before the last stretch: a worker thread (an offloaded operator)
         that needs it gets it at once instead of after the switch interval
         (5 ms) and a forced switch that stalls this thread, and on a loaded
         machine a task that sleeps is given the CPU back sooner than one
@@ -945,8 +945,10 @@ class _PaceClock:
         too) and no I/O or worker thread's result is ready, it sleeps in
         ``time.sleep`` (which lets go of the GIL) for at most ``_NAP_S``,
         up to ``_WAKE_S`` before the earliest deadline waited for or trio's
-        next timer; the last ``_WAKE_S`` it yields in a loop (all of it on
-        a clock of the user's own). On a test clock (no wake-up jitter: it
+        next timer; the last ``_WAKE_S``, while no other task is queued to
+        run, it waits in a loop that keeps the GIL (:func:`_hold`), up to
+        the earliest deadline waited for, and else yields; on a clock of the
+        user's own it yields in a loop all along. On a test clock (no wake-up jitter: it
         would never advance while we spin) it sleeps on trio's clock."""
         clock = trio.lowlevel.current_clock()
         now = clock.current_time
@@ -962,6 +964,16 @@ class _PaceClock:
         try:
             while (left := deadline - now()) > 0:
                 if left <= _WAKE_S or not naps:
+                    # the last stretch: with no other task queued to run (this task
+                    # comes out of a nap, or others queued by the previous pass have
+                    # run), up to the earliest deadline waited for, keeping the GIL
+                    # (a pass of trio's scheduler would hand it to a worker thread)
+                    stats = trio.lowlevel.current_statistics()
+                    if naps and not stats.tasks_runnable:
+                        first = min(min(waiting.values()), now() + stats.seconds_to_next_deadline)
+                        _hold(first, now)
+                        if first >= deadline:
+                            continue
                     await trio.lowlevel.checkpoint()
                     continue
                 # until every other task waits (trio then has polled for I/O and found none)
@@ -978,6 +990,18 @@ class _PaceClock:
 #: A sleep of the thread that lets go of the GIL (pacing's waits; a name of
 #: its own so that tests can watch it).
 _sleep = time.sleep
+
+
+def _hold(until: float, now: Callable[[], float]) -> None:
+    """Wait until ``until`` (trio's clock, s) in a loop that keeps the GIL:
+    the last stretch of a pacer's wait, while no other task is queued. A
+    worker thread (an offloaded operator) that needs the GIL meanwhile, to
+    start a call or hand back its result, gets it after the release instead
+    of just before it: handing the GIL over and back costs the trio thread
+    the worker's turn and its own wake-up, 60-90 µs (idle machine), which
+    a release due then would wait for. The worker waits at most ``_WAKE_S``."""
+    while now() < until:
+        pass
 
 
 class _Pacer:

@@ -230,3 +230,29 @@ def test_pacing_on_a_clock_of_its_own_does_not_sleep_the_thread(monkeypatch: pyt
     tectum.run(p, clock=_OwnClock())
     assert naps == []
     tectum.testing.assert_streams_equal([_events(0, 10_000)], out.packets)
+
+
+class _Passes(trio.abc.Instrument):
+    """Counts the passes of trio's scheduler (each polls for I/O, letting go of the GIL)."""
+
+    def __init__(self) -> None:
+        self.n = 0
+
+    def before_io_wait(self, timeout: float) -> None:
+        self.n += 1
+
+
+def test_pacing_keeps_the_gil_in_the_last_stretch() -> None:
+    """The last stretch before a release, with no other task queued, is
+    waited in a loop that keeps the GIL, not in passes of trio's scheduler
+    (each lets go of it: a worker thread of an offloaded operator took it
+    there and held the release up by its turn and this thread's wake-up,
+    60-90 µs): a few passes a window (one before each nap), not the 20 of
+    a loop of checkpoints over the last 150 µs."""
+    passes = _Passes()
+    p = Pipeline(pace=1.0, max_latency_us=1000)
+    out = tectum.testing.ListSink()
+    p.sink(out, p.source(ListSource([_events(0, 60_000)]), id="src"), id="out")
+    trio.run(lambda: tectum.arun(p), instruments=[passes])
+    assert passes.n / 60 <= 8
+    tectum.testing.assert_streams_equal([_events(0, 60_000)], out.packets)
