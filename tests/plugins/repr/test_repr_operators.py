@@ -182,9 +182,9 @@ def test_joined_runs_span_about_a_cache_of_frames():
     as many windows as a block of its frames holds on a JOIN_PIXELS sensor:
     about BLOCK_BYTES of frames, at least MIN_FRAMES windows within
     MAX_BLOCK_BYTES (8 windows of 8-byte pixels, 16 of 1-byte ones); a
-    time surface, about JOIN_BYTES of frames and state (1 window of its
-    8-byte frames and 8-byte state), so what a call sweeps is still in
-    cache when the next reuses it; count windows and the operators without
+    time surface, about JOIN_BYTES of frames and state (4 windows of its
+    8-byte frames and 8-byte state: 8 MiB), so what a call sweeps is still
+    in cache when the next reuses it; count windows and the operators without
     a frame size state no limit."""
     from tectum.plugins.repr import _window, operators
 
@@ -196,7 +196,7 @@ def test_joined_runs_span_about_a_cache_of_frames():
         assert op.join_us() == 7000 * want
     assert R.EventFrame(window_us=7000).join_us() == 56_000 and R.CountImage(dtype="uint8").join_us() == 160_000
     assert R.TimeSurface(window_us=7000).join_us() == 7000 * max(1, _window.JOIN_BYTES // (16 * _window.JOIN_PIXELS))
-    assert R.TimeSurface(window_us=7000).join_us() == 7000
+    assert R.TimeSurface(window_us=7000).join_us() == 28_000
     for op in (R.EventFrame(count=100), R.Sae(window_us=7000), R.Color(window_us=7000)):
         assert op.join_us() is None
 
