@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._lanes import CD_END, LANES, evt2_group, evt2_lanes
+from ._lanes import CD_END, LANES, evt2_group
 
 
 @njit(cache=True, nogil=True)
@@ -55,14 +55,21 @@ def decode_evt2(words, state, strict, t, x, y, p, where, trig):  # pragma: no co
 def decode_evt2_bounded(words, state, strict, t, x, y, p, trig):  # pragma: no cover - numba
     """:func:`decode_evt2` without ``where``, returning also the bounds of
     the events written (:meth:`EventAssembler.commit`'s): (..., times never
-    fell from one event to the next, largest x, largest y).
+    fell from one event to the next, largest x, largest y)."""
+    return _evt2(words, state, strict, t, x, y, p, np.empty(0, np.int64), trig)
+
+
+@njit(cache=True, nogil=True)
+def _evt2(words, state, strict, t, x, y, p, where, trig):  # pragma: no cover - numba
+    """The EVT 2.0 kernel of :func:`decode_evt2` (``where``: each event's
+    word index, unless empty) and :func:`decode_evt2_bounded`.
 
     The words go 16 at a time through :func:`._lanes.evt2_group`, which
     decodes them all as CD words and says how many lead before another
     type: the column index moves on by that many, the other word is
     decoded on its own, and the next 16 start just after it. No scan for
     the end of a run of CD words, no slice per run, no last few one by one
-    but at the chunk's end (:func:`_evt2`, with ``where``, does those)."""
+    but at the chunk's end."""
     n = 0
     nt = 0
     bad = -1
@@ -72,6 +79,7 @@ def decode_evt2_bounded(words, state, strict, t, x, y, p, trig):  # pragma: no c
     last_raw = state[2]
     wraps = state[3]
     dropped = state[4]
+    track = where.shape[0] > 0
     m = min(words.shape[0], t.shape[0])  # one event per word at most
     fell = np.int64(0)  # events whose time is below the one before
     mx = np.int64(0)
@@ -92,6 +100,9 @@ def decode_evt2_bounded(words, state, strict, t, x, y, p, trig):  # pragma: no c
                 mx = max(mx, (got >> 16) & 0xFFFF)
                 my = max(my, (got >> 32) & 0xFFFF)
                 j = got & 0xFF
+                if track:
+                    for q in range(j):
+                        where[np.uint64(n + q)] = i + q
                 if j == LANES:  # the usual case, by constants: the next load's address waits for no result
                     low = np.int64((words[np.uint64(i + LANES - 1)] >> np.uint32(22)) & np.uint32(0x3F))
                     lth = th
@@ -120,6 +131,8 @@ def decode_evt2_bounded(words, state, strict, t, x, y, p, trig):  # pragma: no c
             x[k] = xq
             y[k] = yq
             p[k] = np.int8((w >> 27) & 2) - np.int8(1)
+            if track:
+                where[k] = i - 1
             fell += np.int64(lq < low)
             low = lq
             lth = th
@@ -162,113 +175,6 @@ def decode_evt2_bounded(words, state, strict, t, x, y, p, trig):  # pragma: no c
     return n, nt, bad, nbad, i, fell == 0, mx, my
 
 
-@njit(cache=True, nogil=True)
-def _evt2(words, state, strict, t, x, y, p, where, trig):  # pragma: no cover - numba
-    """:func:`decode_evt2_bounded` with ``where``: the bounds are found in
-    the loop over a run of CD words (no pass of their own)."""
-    n = 0
-    nt = 0
-    bad = -1
-    nbad = 0
-    th = state[0]
-    have = state[1]
-    last_raw = state[2]
-    wraps = state[3]
-    track = where.shape[0] > 0
-    m = min(words.shape[0], t.shape[0])  # one event per word at most
-    cd_end = np.uint32(0x20000000)  # words below are CD_OFF / CD_ON
-    last = np.int64(-1) << 62  # the time of the event before (bounds)
-    fell = np.int64(0)  # events whose time is below the one before
-    mx = np.uint16(0)
-    my = np.uint16(0)
-    i = 0
-    while i < m:
-        # a run of CD events sharing one time base: a branch-free, vectorisable loop
-        k = i
-        while k + 8 <= m:  # 8 words at a time: all are CD when their OR is (cd_end is a power of two)
-            if (words[np.uint64(k)] | words[np.uint64(k + 1)] | words[np.uint64(k + 2)] | words[np.uint64(k + 3)]
-                    | words[np.uint64(k + 4)] | words[np.uint64(k + 5)] | words[np.uint64(k + 6)]
-                    | words[np.uint64(k + 7)]) >= cd_end:
-                break
-            k += 8
-        while k < m:  # not ``while k < m and ...``: numba compiles that loop several times slower
-            if words[np.uint64(k)] >= cd_end:
-                break
-            k += 1
-        r = k - i
-        if r and have == 0:  # no time base yet: dropped, counted
-            state[4] += r
-        elif r:
-            base = th << 6
-            src = words[i:k]
-            to = t[n:n + r]
-            xo = x[n:n + r]
-            yo = y[n:n + r]
-            po = p[n:n + r]
-            fell += np.int64(base | np.int64((src[0] >> np.uint32(22)) & np.uint32(0x3F)) < last)
-            low = np.int64(0)  # in a run, times differ in their 6 bits alone: compared by those
-            q = 0
-            while q + LANES <= r:
-                got = evt2_lanes(src, q, to, xo, yo, po, base, low)
-                fell += got & 0xFFFF
-                mx = max(mx, np.uint16((got >> 16) & 0xFFFF))
-                my = max(my, np.uint16((got >> 32) & 0xFFFF))
-                low = np.int64((src[q + LANES - 1] >> np.uint32(22)) & np.uint32(0x3F))
-                q += LANES
-            for e in range(q, r):  # the last few one by one
-                w = src[e]
-                lq = np.int64((w >> np.uint32(22)) & np.uint32(0x3F))
-                xq = np.uint16((w >> np.uint32(11)) & np.uint32(0x7FF))
-                yq = np.uint16(w & np.uint32(0x7FF))
-                mx = max(mx, xq)
-                my = max(my, yq)
-                fell += np.int64(lq < low)
-                low = lq
-                to[e] = base | lq
-                xo[e] = xq
-                yo[e] = yq
-                po[e] = np.int8((w >> np.uint32(27)) & np.uint32(2)) - np.int8(1)
-            last = to[r - 1]
-            if track:
-                wo = where[n:n + r]
-                for q in range(r):
-                    wo[q] = i + q
-            n += r
-        i = k
-        if i >= m:
-            break
-        w = np.int64(words[i])
-        i += 1
-        typ = w >> 28
-        if typ == 8:
-            raw = w & 0x0FFFFFFF
-            if have == 1 and raw < last_raw and last_raw - raw > (1 << 27):
-                wraps += 1
-            elif have == 1 and raw > last_raw and raw - last_raw > (1 << 27):
-                wraps -= 1  # a step back across a wrap (a corrupt word): unrolled to the nearest time
-            last_raw = raw
-            th = (wraps << 28) + raw
-            have = 1
-        elif typ == 0xA:
-            if have == 1:
-                trig[nt, 0] = (th << 6) | ((w >> 22) & 0x3F)
-                trig[nt, 1] = (w >> 8) & 0x1F
-                trig[nt, 2] = w & 1
-                nt += 1
-        elif typ == 0xE or typ == 0xF:
-            pass
-        else:
-            if bad < 0:
-                bad = i - 1
-            nbad += 1
-            if strict:
-                i -= 1
-                break
-    state[0] = th
-    state[1] = have
-    state[2] = last_raw
-    state[3] = wraps
-    return n, nt, bad, nbad, i, fell == 0, np.int64(mx), np.int64(my)
 
 
 # --- Prophesee EVT 3.0 ------------------------------------------------------------

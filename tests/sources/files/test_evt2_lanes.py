@@ -14,7 +14,7 @@ from numba import njit
 
 from tectum import EventPacket, FormatError
 from tectum.sources.files import _kernels as K
-from tectum.sources.files._lanes import LANES, evt2_group, evt2_lanes
+from tectum.sources.files._lanes import LANES, evt2_group
 from tectum.sources.files.prophesee import Evt2Source
 
 
@@ -67,23 +67,6 @@ def test_runs_decode_as_the_reference_in_any_calls(seed, runs, cap):
         got += list(zip(t[:n].tolist(), x[:n].tolist(), y[:n].tolist(), p[:n].tolist()))
         i += used
     assert got == reference(words)
-
-
-@pytest.mark.parametrize("seed", range(6))
-def test_plain_lanes_equal_the_compiled_ones(seed):
-    """evt2_lanes' plain form (NUMBA_DISABLE_JIT) gives the compiled vector
-    code's columns and packed falls and largest x and y."""
-    rng = np.random.default_rng(seed)
-    words = ((rng.integers(0, 2, 48) << 28) | (rng.integers(0, 64, 48) << 22) | (rng.integers(0, 2048, 48) << 11)
-             | rng.integers(0, 2048, 48)).astype(np.uint32)
-    compiled = njit(lambda w, i, t, x, y, p, base, prev: evt2_lanes(w, i, t, x, y, p, base, prev))
-    for i, prev in ((0, 0), (16, 63), (32, 17)):
-        a = (np.zeros(48, np.int64), np.zeros(48, np.uint16), np.zeros(48, np.uint16), np.zeros(48, np.int8))
-        b = tuple(c.copy() for c in a)
-        got = compiled(words, i, *a, seed << 6, prev)
-        assert got == evt2_lanes(words, i, *b, seed << 6, prev)
-        assert all(np.array_equal(u, v) for u, v in zip(a, b))
-        assert got & 0xFFFF  # random times fall somewhere in 16
 
 
 @pytest.mark.parametrize("seed", range(6))
