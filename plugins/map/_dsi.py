@@ -177,14 +177,18 @@ def argmax_depth(dsi, refine, index, score):  # type: ignore[no-untyped-def]  # 
             k = best[j, i]
             off = 0.0
             if refine and 0 < k < P - 1:
-                a = dsi[k - 1, j, i]
-                b = dsi[k, j, i]
-                c = dsi[k + 1, j, i]
-                den = a - 2.0 * b + c
-                if den < 0.0:
-                    off = 0.5 * (a - c) / den
-                    off = min(0.5, max(-0.5, off))
+                off = _vertex(dsi[k - 1, j, i], dsi[k, j, i], dsi[k + 1, j, i])
             index[j, i] = k + off
+
+
+@njit(cache=True, nogil=True)
+def _vertex(a, b, c):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+    """Where (planes, within +-0.5) the parabola through three neighbouring
+    scores ``a, b, c`` peaks, ``b`` the middle's: 0 unless it curves down."""
+    den = a - 2.0 * b + c
+    if den >= 0.0:
+        return 0.0
+    return min(0.5, max(-0.5, 0.5 * (a - c) / den))
 
 
 @njit(cache=True, nogil=True)
@@ -277,11 +281,5 @@ def focus_argmax(dsi, radius, refine, index):  # type: ignore[no-untyped-def]  #
             k = kbest[j, i]
             off = 0.0
             if refine and 0 < k < P - 1:
-                a = before[j, i]
-                b = best[j, i]
-                c = after[j, i]
-                den = a - 2.0 * b + c
-                if den < 0.0:
-                    off = 0.5 * (a - c) / den
-                    off = min(0.5, max(-0.5, off))
+                off = _vertex(before[j, i], best[j, i], after[j, i])
             index[j, i] = k + off
