@@ -130,6 +130,11 @@ def decode_dat_within(records, k, state, t, x, y, p, at, w, h):  # type: ignore[
     (:meth:`EventAssembler.commit`'s bounds, as ``(ok, 0, 0)``; ``w`` and
     ``h`` at most 65536).
 
+    ``records`` may be ``t[at:at + k]`` itself (viewed as uint64): each
+    record is read before its time is written, and where a block's times
+    are unrolled again only their low 32 bits, the raw time, are read back
+    (the DAT reader decodes in place, see ``DatSource._events``).
+
     Per block of 4096 records, :func:`dat_lanes` 16 at a time as if no
     time wrapped, then, when a time fell or they rose by more than half
     the 32-bit range, the times unrolled again one by one

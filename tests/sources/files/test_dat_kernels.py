@@ -66,6 +66,34 @@ def test_within_equals_decode_dat_in_any_chunking(n, cuts, n_jumps, n_out, senso
         assert ok == (ordered and mx < w and my < h)
 
 
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 9000), st.lists(st.integers(0, 9000), max_size=3), st.integers(0, 4), st.integers(0, 2),
+       st.sampled_from([(1280, 720), (1 << 16, 1 << 16)]), st.integers(0, 40))
+def test_within_decodes_in_place(n, cuts, n_jumps, n_out, sensor, at):
+    """The records read into the time column (as the DAT reader does) and
+    decoded there give decode_dat's events, state and bounds: each record
+    is read before its time overwrites it, also in the blocks whose times
+    are unrolled again (wraps, falls, steps back), and whatever the
+    column's alignment (``at``)."""
+    rec = records(n, 3 * n + n_jumps, *sensor, n_jumps, n_out)
+    w, h = sensor
+    ref_state, state = np.zeros(K.DAT_STATE, np.int64), np.zeros(K.DAT_STATE, np.int64)
+    got = columns(n + at)
+    done = 0
+    for part in np.split(rec, sorted(c % (n + 1) for c in cuts)):
+        want = columns(len(part))
+        _, ordered, mx, my = K.decode_dat(part, ref_state, *want)
+        place = got[0][at + done:at + done + len(part)].view(np.uint64)
+        place[:] = part
+        k, ok = DK.decode_dat_within(place, len(part), state, *got, at + done, w, h)
+        assert k == len(part)
+        for a, b in zip(got, want):
+            assert np.array_equal(a[at + done:at + done + len(part)], b)
+        assert state.tolist() == ref_state.tolist()
+        assert ok == (ordered and mx < w and my < h)
+        done += len(part)
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_plain_lanes_equal_the_compiled_ones(seed):
     """dat_lanes' plain form (NUMBA_DISABLE_JIT) gives the compiled vector
