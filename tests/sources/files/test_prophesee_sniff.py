@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from tectum.sources.files.prophesee import DatSource, Evt2Source, Evt3Source
 
@@ -40,3 +42,22 @@ def test_equal_heads_in_turn_and_other_heads_between() -> None:
             data = bytes(bytearray(head + _BODY))  # a new object each time
             assert Evt2Source.sniff(data) == (fmt == "evt2")
             assert Evt3Source.sniff(data) == (fmt == "evt3")
+
+
+_LINES = [b"1.5 0 0 0 0 0 0 1", b"12 1 2 3 0.6 0 0.8 0", b"t,ax,ay,az,gx,gy,gz", b"10,0,0,9.81,0.1,0.2,0.3",
+          b"t,x,y,z", b"1,0.5,0.25,2.0", b"# tectum imu", b"# a comment", b"", b"evt 2.0", b"1 2 3 4"]
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.sampled_from([b"%", b"% ", b"%1 ", b"%t,", b"", b" "]), st.lists(st.sampled_from(_LINES), max_size=6),
+       st.binary(max_size=40))
+def test_text_sniffers_say_no_to_a_prophesee_header_at_once(first: bytes, lines: list[bytes], tail: bytes) -> None:
+    """The pose and sample text sniffers, which come before the RAW and DAT
+    ones, answer a head starting with ``%`` without parsing its lines, and
+    every head as their full text test does (``_sniff_text``)."""
+    from tectum.sources.files.samples_csv import CsvSource
+    from tectum.sources.files.tum import TumSource
+
+    head = first + b"\n".join(lines) + b"\n" + tail
+    for cls in (TumSource, CsvSource):
+        assert cls.sniff(head) == cls._sniff_text(head)
