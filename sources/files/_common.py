@@ -214,11 +214,14 @@ class ColumnPool:
         owned by the caller until it drops every reference to them and to
         views of them."""
         with self._lock:
-            best = -1
+            best, size = -1, 0
             for k in range(len(self._sets)):
-                if self._sets[k][0].shape[0] >= n and self._is_free(k) and (
-                        best < 0 or self._sets[k][0].shape[0] < self._sets[best][0].shape[0]):
-                    best = k
+                m = self._sets[k][0].shape[0]
+                # the size first, then whether it is free: a set no smaller than the best so far is not
+                # looked at (a DAT decode in a process whose pool also holds three bigger sets from
+                # other files: 3.4 -> 2.4 us a packet)
+                if m >= n and (best < 0 or m < size) and self._is_free(k):
+                    best, size = k, m
             if best >= 0:
                 return self._sets[best]  # referenced by the caller before the lock is released
             cols = self._new_set(n)

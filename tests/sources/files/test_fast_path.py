@@ -60,6 +60,22 @@ def test_pool_never_hands_out_columns_in_use() -> None:
     assert all(len(s) == 4 for s in pool._sets) and len(pool._sets) <= 2
 
 
+def test_pool_hands_out_the_smallest_free_set_that_fits() -> None:
+    """Of the free sets holding at least ``n`` events, the smallest (the
+    first of equal ones); bigger sets and busy ones are passed over."""
+    pool = ColumnPool(max_sets=6)
+    held = [pool.take(n) for n in (400, 100, 300, 100, 200, 150)]
+    ids = [id(c[0]) for c in held]
+    busy = held[5]  # 150: the smallest that fits 120, but in use
+    del held
+    assert id(pool.take(120)[0]) == ids[4]  # 200, not 400 or 300
+    assert id(pool.take(100)[0]) == ids[1]  # the first of the two of 100
+    assert id(pool.take(350)[0]) == ids[0]
+    got = pool.take(10_000)  # none fits: a new set
+    assert got[0].shape[0] == 10_000 and id(got[0]) not in ids
+    del busy
+
+
 def test_pool_big_sets_share_an_aligned_block_and_stay_busy_while_viewed() -> None:
     """A set from HUGE_SET bytes on is carved from one block (huge-page
     aligned, columns apart): a packet's view of any column refers to the
