@@ -120,7 +120,11 @@ def _split_blocks_ir(typingctx, q, nb, t, x, y, p, last):
     earlier version to ``vpmovqw`` to memory, slow on AMD Zen 4; with the
     checks in a second pass over the columns, 0.55 against 0.38 ns an
     event here (columns in cache; 1.08 against 0.96 written to cold
-    memory). Any target lowers the same IR."""
+    memory). Any target lowers the same IR. Tried, no gain: the times'
+    stores non-temporal (``!nontemporal``, a fence after the loop): this
+    loop alone 0.97 -> 0.87 ns an event into cold columns, but the whole
+    decode 1.0015x the CPU (dvxplorer_2, 151 interleaved rounds in one
+    process, 1 and 2 threads, loaded)."""
     sig = types.UniTuple(types.int64, 3)(q, types.intp, t, x, y, p, types.int64)
 
     def codegen(context, builder, signature, args):

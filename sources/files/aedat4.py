@@ -544,6 +544,12 @@ class _Batch:
         a CPU, and this thread waited for it (wall 2973-3076 against
         2871-2893 us a decode, its upper quartile 5988-6117 against
         3134-3232; CPU 1.3-2 % less; dvxplorer_2, 201 alternated rounds x 3).
+        Tried, no gain: every part's arguments made before a worker is woken
+        and the worker calling the kernel itself (no frame of ours), so it
+        would not wake to a GIL this thread holds: 0.994x the CPU, voluntary
+        context switches 4.04 -> 4.06 a decode (201 rounds, loaded); a
+        1-thread pool in place of the shared 3: 0.998x; this thread taking 8
+        or 15 % more than an equal share: 0.996x (loaded).
         ``plan``: :func:`plan_run` of the rows, when already made."""
         assert self.asm is not None
         _, c, a, size = plan if plan is not None else AK.plan_run(rows, self.src.threads, _RUN_EVENTS, _PART_BYTES)
