@@ -131,19 +131,24 @@ def as_buffer(buf: bytes | np.ndarray) -> bytes | memoryview:
 
 
 @overload
-def compress(buf: bytes, compression: int | str) -> bytes: ...
+def compress(buf: bytes, compression: int | str, acceleration: int = 1) -> bytes: ...
 @overload
-def compress(buf: np.ndarray, compression: int | str) -> bytes | np.ndarray: ...
-def compress(buf: bytes | np.ndarray, compression: int | str) -> bytes | np.ndarray:
+def compress(buf: np.ndarray, compression: int | str, acceleration: int = 1) -> bytes | np.ndarray: ...
+def compress(buf: bytes | np.ndarray, compression: int | str, acceleration: int = 1) -> bytes | np.ndarray:
     """``buf`` compressed with the AEDAT 4.0 ``compression`` (name or code);
-    uncompressed, ``buf`` itself."""
+    uncompressed, ``buf`` itself. ``acceleration``: LZ4's fast-mode
+    acceleration for ``lz4`` (1, LZ4's and DV's default: the smallest output
+    of the fast mode; n > 1 looks for fewer matches, the frame format is the
+    same); other compressions ignore it."""
     c = compression_code(compression)
     if c == 0:
         return buf
     if c in (1, 2):
         import lz4.frame
 
-        return lz4.frame.compress(buf, compression_level=9 if c == 2 else 0, content_checksum=False)
+        # lz4.frame's level -k is LZ4F's acceleration k + 1; 0 is acceleration 1
+        level = 9 if c == 2 else 1 - acceleration if acceleration > 1 else 0
+        return lz4.frame.compress(buf, compression_level=level, content_checksum=False)
     import zstandard
 
     return zstandard.ZstdCompressor(level=9 if c == 4 else 3).compress(as_buffer(buf))
