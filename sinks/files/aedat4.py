@@ -36,8 +36,10 @@ _XML_ROOM = 8192
 #: process (machine loaded, load 4.7): imx636_evt3.raw converted, tectum 107 ->
 #: 124 Mev/s per CPU second, dv-processing 85 -> 96, file +4.8 %; the bench's
 #: random 1 M events 99 -> 133 and 82 -> 102, file +10.7 %; dvxplorer_2 re-written
-#: 102 -> 108 and 57 -> 62, +2.2 %; gen31_evt2.raw unchanged, -0.5 %. Encode CPU
-#: unchanged (within +-3 %, 9 rounds).
+#: 102 -> 108 and 57 -> 62, +2.2 %; gen31_evt2.raw unchanged, -0.5 %. At load
+#: ~1 (13 rounds), in the same order: 106 -> 122 and 86 -> 96; 91 -> 122 and
+#: 79 -> 98; 111 -> 125 and 63 -> 66; 151 -> 154 and 93 -> 97. Encode CPU
+#: unchanged (+-3 %, 9-11 rounds).
 DEFAULT_ACCELERATION = 3
 _STREAMS = {"EVTS": (0, "events", "Array of events (polarity ON/OFF)."),
             "FRME": (1, "frames", "Standard frame (8-bit image)."),
