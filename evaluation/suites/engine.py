@@ -6,8 +6,10 @@ offloaded operator runs beside it on the same source."""
 
 from __future__ import annotations
 
+import math
 import resource
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +17,7 @@ import numpy as np
 
 import tectum
 from tectum import EventPacket, Kind, Operator, Pipeline, Port, PosePacket
-from tectum.evaluation.harness import TARGET_COLUMNS, table, target, target_row
+from tectum.evaluation.harness import TARGET_COLUMNS, _fmt, table, target, target_row
 from tectum.testing import ListSource
 
 
@@ -144,26 +146,74 @@ def paced_ports_latency(rate_hz: float, duration_s: float, window_us: int) -> di
     return tectum.run(_ports_pipeline(pk, pace=1.0, max_latency_us=window_us)).latency["sink"].percentiles()
 
 
-def fast_beside_slow(rate_hz: float, duration_s: float, window_us: int, cost_us: float) -> dict[str, Any]:
+#: The cases of :func:`fast_beside_slow`: the slow operator absent, offloaded, inline.
+SIDE_CASES: dict[str, bool | None] = {"alone": None, "offloaded_slow_beside": True, "inline_slow_beside": False}
+
+
+def fast_beside_slow(rate_hz: float, duration_s: float, window_us: int, cost_us: float, *, rounds: int = 5,
+                     run_case: Callable[[bool | None, float], dict[str, float]] | None = None) -> dict[str, Any]:
     """Latency (µs) of a fast operator's output, alone and with a slow
     operator (``cost_us`` per packet, offloaded, and inline) fed by the
-    same paced source."""
+    same paced source, each a run of ``duration_s``: ``rounds`` rounds, every
+    case once a round in a seeded order of its own (so load from other
+    processes falls on all cases alike, and no case always runs just after
+    the same one), after a short warm-up round. One run's p99 is its 1 %
+    worst windows: one burst of other work moves it by 2x, so each case
+    gives the median of its runs' percentiles (``p99`` etc.), the spread
+    (``p99_min``, ``p99_max``) and every run's ``p99s`` in round order.
+    ``run_case(slow, duration_s)``: one run's percentiles (tests replace it)."""
+    if run_case is None:
+        run_case = _side_run(rate_hz, window_us, cost_us)
+    for slow in SIDE_CASES.values():  # warm-up
+        run_case(slow, min(duration_s, 0.2))
+    runs: dict[str, list[dict[str, float]]] = {k: [] for k in SIDE_CASES}
+    rng = np.random.default_rng(0)
+    for _ in range(rounds):
+        for k in rng.permutation(list(SIDE_CASES)).tolist():
+            runs[k].append(run_case(SIDE_CASES[k], duration_s))
+    out: dict[str, Any] = {}
+    for k, rs in runs.items():
+        out[k] = {q: float(np.median([r.get(q, math.nan) for r in rs])) for q in ("p50", "p90", "p99", "max")}
+        p99s = [r.get("p99", math.nan) for r in rs]
+        out[k].update({"p99_min": min(p99s), "p99_max": max(p99s), "p99s": p99s})
+    return out
+
+
+def _side_run(rate_hz: float, window_us: int, cost_us: float) -> Callable[[bool | None, float], dict[str, float]]:
+    """One run of :func:`fast_beside_slow`'s pipeline: the fast sink's
+    latency percentiles (µs), the slow operator absent (``None``),
+    offloaded (``True``) or inline (``False``)."""
     from tectum.sinks.null import NullSink
 
-    pk = stream(int(rate_hz * duration_s), rate_hz)
+    streams: dict[float, EventPacket] = {}
 
-    def build(slow: bool | None) -> Pipeline:
+    def one(slow: bool | None, duration_s: float) -> dict[str, float]:
+        pk = streams.get(duration_s)
+        if pk is None:
+            pk = streams[duration_s] = stream(int(rate_hz * duration_s), rate_hz)
         p = Pipeline(pace=1.0, max_latency_us=window_us)
         src = p.source(ListSource([pk]), id="src")
         p.sink(NullSink(), p.op(Identity(), src, id="fast"), id="fast_sink")
         if slow is not None:
             p.sink(NullSink(), p.op(Sleeper(cost_us), src, id="slow", offload=slow), id="slow_sink")
-        return p
+        return tectum.run(p).latency["fast_sink"].percentiles()
 
-    out: dict[str, Any] = {}
-    for label, slow in (("alone", None), ("offloaded_slow_beside", True), ("inline_slow_beside", False)):
-        out[label] = tectum.run(build(slow)).latency["fast_sink"].percentiles()
-    return out
+    return one
+
+
+def side_ratio(side: dict[str, Any], goal: float = 1.25) -> dict[str, Any]:
+    """The target "the fast operator's p99 beside a slow offloaded one is at
+    most ``goal`` x its p99 alone", from :func:`fast_beside_slow`: the ratio
+    of the two cases' median p99s (each case's typical run: a burst of other
+    work that spoils one run of either case is left out; a ratio per round
+    would carry the bursts of both runs into it), with the spread of the
+    rounds' own ratios (each round's two runs: min and max) shown beside it."""
+    alone, beside = side["alone"], side["offloaded_slow_beside"]
+    per_round = [b / a for a, b in zip(alone["p99s"], beside["p99s"])]
+    rec = target("fast op p99 with a slow offloaded op beside / alone", beside["p99"] / alone["p99"], goal, "x",
+                 higher_is_better=False)
+    rec.update({"ratio_min": min(per_round), "ratio_max": max(per_round), "rounds": len(per_round)})
+    return rec
 
 
 def paced_latency(rate_hz: float, duration_s: float, window_us: int) -> dict[str, float]:
@@ -220,23 +270,21 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
     ports_ebe = port_join(stream(n_ebe), 1)
     ports_mb = port_join(stream(n_mb // 5), 4096)
     ports_lat = paced_ports_latency(1e6, 1.0 if quick else 3.0, 1000)
-    side = fast_beside_slow(2e5, 1.0 if quick else 3.0, 1000, 400.0)
+    side = fast_beside_slow(2e5, 0.5 if quick else 1.0, 1000, 400.0, rounds=5 if quick else 9)
     res.update({"ports_event_by_event": ports_ebe, "ports_micro_batch_4096": ports_mb,
                 "ports_latency_1mevs_1ms_us": ports_lat, "fast_beside_slow_us": side})
     p99_ports = target("two ports, latency p99 @1 Mev/s, 1 ms", ports_lat.get("p99", float("nan")), 1000.0, "µs",
                        higher_is_better=False)
-    alone, beside = side["alone"].get("p99", float("nan")), side["offloaded_slow_beside"].get("p99", float("nan"))
-    no_rise = target("fast op p99 with a slow offloaded op beside / alone", beside / alone, 1.25, "x",
-                     higher_is_better=False)
+    no_rise = side_ratio(side)
     rows += [
         {"measure": "two ports, event by event", "value": ports_ebe["events_s"], "unit": "events/s"},
         {"measure": "port join per packet (ebe)", "value": ports_ebe["join_overhead_us_per_packet"], "unit": "µs"},
         {"measure": "port join per packet (4096)", "value": ports_mb["join_overhead_us_per_packet"], "unit": "µs"},
         target_row(p99_ports),
-        {"measure": "fast op p99, alone", "value": alone, "unit": "µs"},
-        {"measure": "fast op p99, slow op offloaded beside", "value": beside, "unit": "µs"},
-        {"measure": "fast op p99, slow op inline beside", "value": side["inline_slow_beside"].get("p99", float("nan")),
-         "unit": "µs"},
+        *({"measure": f"fast op p99, {label} (median of {no_rise['rounds']})", "unit": "µs",
+           "value": f"{_fmt(side[k]['p99'])} ({_fmt(side[k]['p99_min'])}-{_fmt(side[k]['p99_max'])})"}
+          for k, label in (("alone", "alone"), ("offloaded_slow_beside", "slow op offloaded beside"),
+                           ("inline_slow_beside", "slow op inline beside"))),
         target_row(no_rise),
     ]
     print(table(rows, TARGET_COLUMNS))
