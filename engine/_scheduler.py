@@ -31,6 +31,7 @@ from ._packet import _NO_COLUMNS, EventPacket, Kind, Packet, _built, join_consec
 from ._pipeline import BatchPolicy, EdgePolicy, Pipeline, Plan
 from ._registry import Registry
 from ._stats import LatencyRecorder, Stats, _add
+from ._worker import NodeThread
 from .errors import NodeError, TectumError
 
 __all__ = ["run", "arun", "open_pipeline", "RunningPipeline"]
@@ -524,7 +525,8 @@ _CLOSE: Any = object()
 
 async def _offload_task(nid: str, graph: Graph, edge: Edge, out: _Outbox, watch: _LoopWatch | None) -> None:
     """Run an offloaded operator: take what the graph delivered to its edge,
-    call the operator in a worker thread (its kernels release the GIL), and
+    call the operator in a thread of its own (:class:`NodeThread`; its
+    kernels release the GIL), and
     push its outputs on from the trio thread. End of stream: ``finish()`` in
     the worker thread, then the end propagates below the node."""
     finish, forward, call = graph.call_finish, graph.forward, graph.call_marked
@@ -533,25 +535,29 @@ async def _offload_task(nid: str, graph: Graph, edge: Edge, out: _Outbox, watch:
     def call_all(items: list[tuple[Any, float]]) -> list[tuple[list[Packet], int | None]]:
         return [call(nid, item) for item, _ in items]
 
-    while True:
-        if watch is not None and not len(edge):
-            await watch.idle(loop)
-        try:
-            items = await edge.receive_all()
-        except trio.EndOfChannel:
-            break
-        if watch is not None:
-            watch.busy += 1
-        # everything queued goes to the worker in one hand-over (a thread
-        # round trip costs tens of µs: not one per packet)
-        results = await trio.to_thread.run_sync(call_all, items)
-        for (_, arrival), (res, mark) in zip(items, results):
-            out.arrival = arrival
-            out.add(forward(nid, res, mark=mark), arrival)
-        await out.flush(loop)
-        if watch is not None:
-            watch.busy -= 1
-    res = await trio.to_thread.run_sync(finish, nid)
+    worker = NodeThread(f"tectum-offload-{nid}")
+    try:
+        while True:
+            if watch is not None and not len(edge):
+                await watch.idle(loop)
+            try:
+                items = await edge.receive_all()
+            except trio.EndOfChannel:
+                break
+            if watch is not None:
+                watch.busy += 1
+            # everything queued goes to the worker in one hand-over (a thread
+            # round trip costs tens of µs: not one per packet)
+            results = await worker.call(call_all, items)
+            for (_, arrival), (res, mark) in zip(items, results):
+                out.arrival = arrival
+                out.add(forward(nid, res, mark=mark), arrival)
+            await out.flush(loop)
+            if watch is not None:
+                watch.busy -= 1
+        res = await worker.call(finish, nid)
+    finally:
+        worker.close()
     out.arrival = trio.current_time()
     out.add(forward(nid, res, ended=True), out.arrival)
     await out.flush(loop)
