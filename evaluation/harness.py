@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["throughput", "interleaved", "versus", "peer", "table", "target", "target_row", "targets_table",
+__all__ = ["throughput", "interleaved", "versus", "peer", "fmt", "table", "target", "target_row", "targets_table",
            "write_results", "shared_data", "memory_bandwidth"]
 
 #: columns of :func:`targets_table`
@@ -124,7 +124,8 @@ def peer(module: str) -> Any | None:
         return None
 
 
-def _fmt(v: Any) -> str:
+def fmt(v: Any) -> str:
+    """A table cell: floats to 3 significant digits (whole numbers from 1000 on)."""
     if isinstance(v, float):
         return f"{v:.3g}" if abs(v) < 1000 else f"{v:.0f}"
     return str(v)
@@ -132,7 +133,7 @@ def _fmt(v: Any) -> str:
 
 def table(rows: list[dict[str, Any]], cols: list[str]) -> str:
     """Format rows as a fixed-width text table (a missing cell is blank)."""
-    cells = [[_fmt(r.get(c, "")) for c in cols] for r in rows]
+    cells = [[fmt(r.get(c, "")) for c in cols] for r in rows]
     widths = [max(len(c), *(len(x[i]) for x in cells)) if cells else len(c) for i, c in enumerate(cols)]
     lines = ["  ".join(c.ljust(w) for c, w in zip(cols, widths))]
     lines += ["  ".join(x.ljust(w) for x, w in zip(r, widths)) for r in cells]
@@ -154,10 +155,10 @@ def target_row(rec: dict[str, Any]) -> dict[str, Any]:
     as ``>= 200000`` / ``<= 5``, and ``met`` or ``MISSED``; a ratio from
     :func:`versus` shows its spread over the rounds in ``value``
     (``2.31 (2.05-2.6)``)."""
-    goal = (">= " if rec["higher_is_better"] else "<= ") + _fmt(float(rec["goal"]))
+    goal = (">= " if rec["higher_is_better"] else "<= ") + fmt(float(rec["goal"]))
     value: Any = rec["value"]
     if "ratio_min" in rec:
-        value = f"{_fmt(float(rec['value']))} ({_fmt(float(rec['ratio_min']))}-{_fmt(float(rec['ratio_max']))})"
+        value = f"{fmt(float(rec['value']))} ({fmt(float(rec['ratio_min']))}-{fmt(float(rec['ratio_max']))})"
     return {"measure": rec["name"], "value": value, "unit": rec["unit"], "target": goal,
             "met": "met" if rec["met"] else "MISSED"}
 

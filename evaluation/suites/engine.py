@@ -17,7 +17,7 @@ import numpy as np
 
 import tectum
 from tectum import EventPacket, Kind, Operator, Pipeline, Port, PosePacket
-from tectum.evaluation.harness import TARGET_COLUMNS, _fmt, table, target, target_row
+from tectum.evaluation.harness import TARGET_COLUMNS, fmt, table, target, target_row
 from tectum.testing import ListSource
 
 
@@ -282,7 +282,7 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
         {"measure": "port join per packet (4096)", "value": ports_mb["join_overhead_us_per_packet"], "unit": "µs"},
         target_row(p99_ports),
         *({"measure": f"fast op p99, {label} (median of {no_rise['rounds']})", "unit": "µs",
-           "value": f"{_fmt(side[k]['p99'])} ({_fmt(side[k]['p99_min'])}-{_fmt(side[k]['p99_max'])})"}
+           "value": f"{fmt(side[k]['p99'])} ({fmt(side[k]['p99_min'])}-{fmt(side[k]['p99_max'])})"}
           for k, label in (("alone", "alone"), ("offloaded_slow_beside", "slow op offloaded beside"),
                            ("inline_slow_beside", "slow op inline beside"))),
         target_row(no_rise),
