@@ -1037,8 +1037,8 @@ class _Pacer:
     def sensor_now(self) -> float:
         return self.t0 + (trio.current_time() - self.c0) * 1e6 * self.speed  # type: ignore[operator]
 
-    def window_end(self, t_us: int) -> int:
-        """The end (µs) of the window holding time ``t_us``."""
+    def window_end(self, t_us: float) -> int:
+        """The end (µs) of the window holding sensor time ``t_us``."""
         win = self.batch.max_latency_us
         return self.t0 + (math.floor((t_us - self.t0) / win) + 1) * win  # type: ignore[operator]
 
@@ -1075,7 +1075,7 @@ class _Pacer:
                     yield b, self.clock(self.window_end(last) if win else last), ready
                 continue
             if win:  # the window under way closes (a packet's last one too: it goes out whole)
-                nxt = self.t0 + (math.floor((now - self.t0) / win) + 1) * win
+                nxt = self.window_end(now)
             else:
                 i = int(t.searchsorted(cursor))
                 nxt = min(int(t[i]) if i < len(t) else pkt.t_end - 1, pkt.t_end)
