@@ -33,7 +33,7 @@ from tectum import EventPacket, FormatError, Kind, Packet, SamplePacket, Source
 from . import _kernels as K
 
 __all__ = ["FileSource", "EventAssembler", "SampleTiler", "ColumnPool", "parse_size", "byte_buffer",
-           "read_full", "read_prefixed_header", "sensor_from_header", "thread_count", "workers",
+           "read_full", "read_array", "read_prefixed_header", "sensor_from_header", "thread_count", "workers",
            "DEFAULT_CHUNK_BYTES"]
 
 DEFAULT_CHUNK_BYTES = 1 << 22
@@ -253,6 +253,14 @@ def read_full(f: Any, view: np.ndarray) -> int:
             break
         have += got
     return have
+
+
+def read_array(f: Any, n: int, dtype: Any) -> np.ndarray:
+    """Up to ``n`` items of ``dtype`` read from ``f`` (:func:`read_full`:
+    again while the OS returns less, as an unbuffered file may), whole
+    items only: fewer only at the end of the file."""
+    a = np.empty(n, dtype)
+    return a[:read_full(f, a.view(np.uint8)) // a.itemsize]
 
 
 def thread_count(threads: int) -> int:

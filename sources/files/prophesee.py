@@ -44,6 +44,7 @@ from ._common import (
     SampleTiler,
     byte_buffer,
     header_dict,
+    read_array,
     read_full,
     read_prefixed_header,
     record_offsets,
@@ -177,7 +178,7 @@ class RawSource(FileSource):
         dtype = np.dtype(self.word).newbyteorder("<")
         pos = start
         while True:
-            got = f.readinto(buf)
+            got = read_full(f, buf)  # the file may be unbuffered: a read may come short before its end
             if not got:
                 return
             k = got - got % size
@@ -231,7 +232,7 @@ class RawSource(FileSource):
         last = None
         for i in range(max(0, n - _PROBE_WORDS), -1, -_PROBE_WORDS):  # the last block holding one
             f.seek(start + 4 * i)
-            words = np.frombuffer(f.read(4 * min(_PROBE_WORDS, n - i)), "<u4")
+            words = read_array(f, min(_PROBE_WORDS, n - i), "<u4")  # (f may be unbuffered)
             hit = np.flatnonzero((words >> 28) == 8)
             if hit.size:
                 last = i + int(hit[-1]), int(words[hit[-1]]) & 0x0FFFFFFF
@@ -297,10 +298,7 @@ class RawSource(FileSource):
             ordered, mx, my, full = True, 0, 0, False
             end = pos + step
             while pos < end and not full:
-                want = min(piece, end - pos)
-                got = f.readinto(buf if want == piece else buf[:want])
-                if got and got < want:  # a short read: the rest, unless the file ends
-                    got += read_full(f, buf[got:want])
+                got = read_full(f, buf[:min(piece, end - pos)])  # short only where the file ends
                 if not got:
                     eof = True
                     break
@@ -373,11 +371,8 @@ class RawSource(FileSource):
         def where() -> np.ndarray:
             back = f.tell()
             f.seek(at)
-            data = b""
-            while len(data) < end - at and (got := f.read(end - at - len(data))):  # unbuffered: may come short
-                data += got
+            words = read_array(f, (end - at) // size, np.dtype(self.word).newbyteorder("<"))
             f.seek(back)
-            words = np.frombuffer(data, np.dtype(self.word).newbyteorder("<"), count=len(data) // size)
             return at + self._decode(words, state.copy())[4] * size
         return where
 
@@ -395,7 +390,7 @@ def _time_base_from(f: Any, start: int, n: int, i: int) -> tuple[int, int] | Non
     after word ``i`` of a file of ``n`` words from byte ``start``."""
     while i < n:
         f.seek(start + 4 * i)
-        words = np.frombuffer(f.read(4 * min(_PROBE_WORDS, n - i)), "<u4")
+        words = read_array(f, min(_PROBE_WORDS, n - i), "<u4")  # (f may be unbuffered)
         hit = np.flatnonzero((words >> 28) == 8)
         if hit.size:
             return i + int(hit[0]), int(words[hit[0]]) & 0x0FFFFFFF
@@ -534,7 +529,7 @@ class DatSource(FileSource):
         buf = byte_buffer(step)
         f.seek(pos)
         while pos < end:
-            got = f.readinto(buf[:min(step, end - pos)])
+            got = read_full(f, buf[:min(step, end - pos)])  # unbuffered: a read may come short before the end
             if not got:
                 return
             yield pos, np.frombuffer(buf, "<u8", count=got // 8)
@@ -578,10 +573,7 @@ class DatSource(FileSource):
             while n < m:
                 records = t[n:n + min(piece, m - n)].view(np.uint64)  # the records, then their times
                 raw = records.view(np.uint8)
-                got = f.readinto(raw)
-                if got and got < raw.shape[0]:  # a short read: the rest, unless the file ends
-                    got += read_full(f, raw[got:])
-                k = got // 8
+                k = read_full(f, raw) // 8  # short only where the file ends
                 if not k:
                     break
                 ok = decode_dat_within(records, k, state, t, x, y, p, n, w, h)[1] and ok
