@@ -197,8 +197,8 @@ class Aedat4Source(FileSource):
 
     def packet_table(self) -> list[PacketEntry] | None:
         """The file's packet table, or None when it has none (or it is corrupt)."""
-        f, comp, dtp, _, start = self._open_header()
-        try:
+        try:  # a header that fails (an empty or corrupt file) closes the file too
+            f, comp, dtp, _, start = self._open_header()
             tab = self._table(f, comp, dtp, start)
         finally:
             self.close()

@@ -3,9 +3,11 @@ fuzzing every parser never crashes, hangs or returns invalid packets."""
 
 from __future__ import annotations
 
+import gc
 import importlib.util
 import os
 import struct
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -230,9 +232,13 @@ def test_empty_file_is_an_error(ext: str, verb: str, tmp_path: Path, capsys) -> 
     f = tmp_path / ("empty" + ext)
     f.write_bytes(b"")
     out = tmp_path / "o.npz"
-    code, err = _cli(["info", str(f)] if verb == "info" else ["convert", "--skip-bad", str(f), str(out)], capsys)
+    with warnings.catch_warnings(record=True) as caught:  # a file the error left open warns when it is freed
+        warnings.simplefilter("always", ResourceWarning)
+        code, err = _cli(["info", str(f)] if verb == "info" else ["convert", "--skip-bad", str(f), str(out)], capsys)
+        gc.collect()
     assert code != 0 and len(err) == 1 and "error:" in err[0], err
     assert not out.exists() and [p.name for p in tmp_path.iterdir()] == [f.name]
+    assert not [str(w.message) for w in caught if issubclass(w.category, ResourceWarning)]
 
 
 # -- damage with skip_bad, over every binary format (issue 20, items 14-15) -----------------
