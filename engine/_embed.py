@@ -14,6 +14,7 @@ import dataclasses
 import threading
 import time
 from collections.abc import Callable, Iterable
+from contextlib import aclosing
 from types import MappingProxyType
 from typing import Any
 
@@ -197,12 +198,13 @@ class ThreadedPipeline:
                     n.start_soon(self._pump, run, w)
 
     async def _pump(self, run: Any, node: str) -> None:
-        async for pkt in run.outputs(node):
-            with self._lock:
-                self._latest[node] = (pkt, time.monotonic())
-                self._lock.notify_all()
-            for fn in self._callbacks[node]:
-                fn(pkt)
+        async with aclosing(run.outputs(node)) as outputs:  # closed when the run stops, not by the collector
+            async for pkt in outputs:
+                with self._lock:
+                    self._latest[node] = (pkt, time.monotonic())
+                    self._lock.notify_all()
+                for fn in self._callbacks[node]:
+                    fn(pkt)
 
     @property
     def done(self) -> bool:

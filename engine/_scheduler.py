@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping
-from contextlib import asynccontextmanager
+from collections.abc import AsyncGenerator, AsyncIterator, Awaitable, Callable, Iterable, Mapping
+from contextlib import aclosing, asynccontextmanager
 from time import perf_counter_ns
 from typing import Any
 
@@ -50,7 +50,7 @@ class RunningPipeline:
     def stats(self) -> Stats:
         return self.graph.stats
 
-    async def outputs(self, node_id: str) -> AsyncIterator[Packet]:
+    async def outputs(self, node_id: str) -> AsyncGenerator[Packet, None]:
         """The packets node ``node_id`` emits (it must be tapped when opened);
         an async iterator that ends with the stream."""
         edge = self._taps.get(node_id)
@@ -612,6 +612,7 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
     if repair is not None:
         st.repairs = repair.counts
     source: Source | None = None
+    apackets: Any = None
     try:
         source = node.instantiate()
         pacer = _Pacer(batch, pace) if batch.pace is not None and not source.live else None
@@ -665,23 +666,26 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
                 st.busy_ns += clock_ns() - t0
             else:
                 await out.flush()
-                raw = await anext(apackets, None)  # type: ignore[arg-type]
+                raw = await anext(apackets, None)
             if raw is None:
                 break
             for pkt in repair(raw) if repair is not None else (raw,):
                 pkt = guard(pkt)
                 if pacer is not None:
-                    async for piece, due, ready in pacer.release(pkt):
-                        st.packets_out += 1
-                        st.gave(piece)
-                        late.add(trio_now() - ready)
-                        out.arrival = due
-                        add(push(sid, piece), due)
-                        await out.flush()  # paced: hand over at once, latency counts
-                        # the pacer releases a piece whenever time has moved on, without
-                        # sleeping while each microsecond brings one: let the other
-                        # tasks (sinks, watchers) run after each piece, however long the packet
-                        await trio.lowlevel.checkpoint()
+                    # closed here, not left suspended to the garbage collector when the run is
+                    # cancelled mid-packet (the finaliser would then run outside the run)
+                    async with aclosing(pacer.release(pkt)) as paced:
+                        async for piece, due, ready in paced:
+                            st.packets_out += 1
+                            st.gave(piece)
+                            late.add(trio_now() - ready)
+                            out.arrival = due
+                            add(push(sid, piece), due)
+                            await out.flush()  # paced: hand over at once, latency counts
+                            # the pacer releases a piece whenever time has moved on, without
+                            # sleeping while each microsecond brings one: let the other
+                            # tasks (sinks, watchers) run after each piece, however long the packet
+                            await trio.lowlevel.checkpoint()
                     continue
                 # As fast as possible: yield to the other tasks (sinks) every
                 # _SLICE_S of work, not per packet: a task switch costs more
@@ -864,6 +868,11 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
     except Exception as e:
         raise NodeError(sid, e) from e
     finally:
+        if apackets is not None and hasattr(apackets, "aclose"):
+            # an async source's generator, left at a packet when the run stopped (cancelled, an
+            # error downstream): closed here, its own clean-up (a network source's flush) done
+            # before the source closes, not left to the garbage collector after the run
+            await apackets.aclose()
         if source is not None:
             source.close()
             counts = getattr(source, "counts", None)
@@ -1042,7 +1051,7 @@ class _Pacer:
         win = self.batch.max_latency_us
         return self.t0 + (math.floor((t_us - self.t0) / win) + 1) * win  # type: ignore[operator]
 
-    async def release(self, pkt: Packet) -> AsyncIterator[tuple[Packet, float, float]]:
+    async def release(self, pkt: Packet) -> AsyncGenerator[tuple[Packet, float, float], None]:
         """Pieces of ``pkt`` as they fall due: (piece, when it was due to go
         out (its newest sample due, or that sample's window closed), when
         its oldest data could go: its first window closed, or its first

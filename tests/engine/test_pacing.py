@@ -4,8 +4,10 @@ window, and waits spent asleep (the GIL let go) instead of spinning."""
 
 from __future__ import annotations
 
+import gc
 import threading
 import time
+import warnings
 from typing import Any
 
 import numpy as np
@@ -155,6 +157,34 @@ def test_a_packet_ending_inside_a_window_waits_for_the_window() -> None:
     assert [(q.t_start, q.t_end) for q in out.packets] == [(0, 1000), (1000, 2000), (2000, 2500), (2500, 3000),
                                                           (3000, 4000), (4000, 5000)]
     tectum.testing.assert_streams_equal([_events(0, 5000)], out.packets)
+
+
+def test_a_paced_run_cancelled_inside_a_packet_closes_its_pacer() -> None:
+    """A paced run cancelled while a packet is half released (a deadline,
+    Ctrl-C, a live view closed) closes the pacer's generator of that
+    packet's pieces inside the run, rather than leaving it suspended for
+    the garbage collector, whose finaliser runs after the run has ended
+    (trio's ResourceWarning "garbage collected before it had been
+    exhausted")."""
+    scope = trio.CancelScope()
+
+    class _Stop(tectum.testing.ListSink):
+        def write(self, packet: Any) -> None:  # the run is cancelled as the first window goes out
+            super().write(packet)
+            scope.cancel()
+
+    p = Pipeline(pace=1.0, max_latency_us=1000)
+    p.sink(_Stop(), p.source(ListSource([_events(0, 20_000)]), id="src"), id="out")
+
+    async def main() -> None:
+        with scope:
+            await tectum.arun(p)
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ResourceWarning)
+        trio.run(main, clock=trio.testing.MockClock(autojump_threshold=0))
+        gc.collect()
+    assert not [str(w.message) for w in caught if issubclass(w.category, ResourceWarning)]
 
 
 def _napped(monkeypatch: pytest.MonkeyPatch) -> list[float]:

@@ -305,3 +305,42 @@ def test_an_interrupt_aborts_the_sinks_without_trio_too(small_stream, tmp_path):
         tectum.run(p)
     assert sink.aborted and not sink.closed
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_stopped_async_source_is_closed_in_order():
+    """A run cancelled while an async source (a socket, a device) is held
+    at a packet it gave closes the source's packet generator before the
+    source: the generator's own clean-up (a network source flushes what it
+    holds) runs inside the run, in order, not later from the garbage
+    collector (here the sink cancels the run as its third packet arrives)."""
+    order: list[str] = []
+    scope = trio.CancelScope()
+
+    class _Live(tectum.Source):
+        name = "live_order_test"
+
+        async def apackets(self):
+            try:
+                for t in range(1000):
+                    yield EventPacket.from_arrays([t], [0], [0], [1], sensor=(4, 4), t_start=t, t_end=t + 1)
+            finally:
+                order.append("generator")
+
+        def close(self) -> None:
+            order.append("source")
+
+    class _Stop(ListSink):
+        def write(self, packet) -> None:
+            super().write(packet)
+            if len(self.packets) == 3:
+                scope.cancel()
+
+    p = Pipeline()
+    p.sink(_Stop(), p.source(_Live(), id="src"), id="out")
+
+    async def main() -> None:
+        with scope:
+            await tectum.arun(p)
+
+    trio.run(main)
+    assert order == ["generator", "source"]
