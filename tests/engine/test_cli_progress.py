@@ -32,8 +32,8 @@ def _on_a_terminal(argv: list[str]) -> tuple[str, str]:
         if not data:
             break
         seen += data
-    out = p.stdout.read() if p.stdout else b""
-    assert p.wait(timeout=120) == 0, seen
+    out, _ = p.communicate(timeout=120)
+    assert p.returncode == 0, seen
     os.close(master)
     return seen.decode(), out.decode()
 

@@ -43,8 +43,10 @@ def test_two_processes_over_tcp_give_the_same_file(tmp_path) -> None:
     port = free_port()
     recv = tectum_cli("run", f"tcp://127.0.0.1:{port}", "--sink", str(rx))
     send = tectum_cli("run", str(sent), "--sink", f"tcp://127.0.0.1:{port}")  # may start first: it retries
-    assert send.wait(60) == 0, send.stderr.read()
-    assert recv.wait(60) == 0, recv.stderr.read()
+    _, err = send.communicate(timeout=60)  # read to the end (a full pipe would stall the child), closed
+    assert send.returncode == 0, err
+    _, err = recv.communicate(timeout=60)
+    assert recv.returncode == 0, err
     a, b = np.load(sent), np.load(rx)
     assert sorted(a.files) == sorted(b.files)
     for k in a.files:

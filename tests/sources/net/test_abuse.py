@@ -245,7 +245,8 @@ def _unsent_or_unread(port: int) -> int | None:
     """Bytes still queued (sent, not yet read) on the loopback TCP connections
     of ``port`` (Linux ``/proc/net/tcp``); None where that is not readable."""
     try:
-        lines = open("/proc/net/tcp").read().splitlines()[1:]
+        with open("/proc/net/tcp") as f:
+            lines = f.read().splitlines()[1:]
     except OSError:
         return None
     queued = 0
@@ -285,7 +286,8 @@ def test_ctrl_c_keeps_what_was_received(tmp_path) -> None:
     proc, c = _receiver(address, out)
     with c:
         c.sendall(b"".join(frame(m) for m in msgs))
-    assert proc.wait(timeout=120) == 0 and len(np.load(out)["t"]) == len(pk)
+    proc.communicate(timeout=120)  # its pipes read to the end and closed
+    assert proc.returncode == 0 and len(np.load(out)["t"]) == len(pk)
     out.unlink()
     address = url()
     proc, c = _receiver(address, out)
