@@ -1,0 +1,98 @@
+"""The photometric-loop measurement (docs/evo.md, "The photometric loop"):
+an EMVS depth map moved into an APS frame's view, the median of inverse
+depth, and the photometric map made of the last frame before the map."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from tectum import FramePacket, MapPacket, PosePacket
+from tectum.evaluation.suites._pose_evo_photo import Run, median_depth, photo_map, reproject
+
+K = np.array([[50.0, 0.0, 19.5], [0.0, 50.0, 14.5], [0.0, 0.0, 1.0]])
+W, H = 40, 30
+STILL = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+
+
+def _plane(depth_m: float = 2.0) -> np.ndarray:
+    return np.full((H, W), depth_m)
+
+
+def test_reproject_moves_a_plane_sideways_and_turns_it() -> None:
+    # the camera 0.2 m to the right: a point of the plane 2 m away moves 50 * 0.2 / 2 = 5 px to the left
+    d = np.full((H, W), np.nan)
+    d[15, 20] = 2.0
+    out = reproject(d, K, STILL, np.array([0.2, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]))
+    assert np.isfinite(out).sum() == 1 and out[15, 15] == 2.0
+    # the camera turned 0.1 rad about y (x towards z): the point's depth is 2 cos 0.1 and it moves left
+    a = 0.05
+    q = np.array([0.0, np.sin(a), 0.0, np.cos(a)])
+    out = reproject(d, K, STILL, np.concatenate([[0.0, 0.0, 0.0], q]))
+    v, u = np.nonzero(np.isfinite(out))
+    X = np.array([(20 - K[0, 2]) / K[0, 0] * 2.0, 0.0, 2.0])
+    c, s = np.cos(0.1), np.sin(0.1)
+    Xd = np.array([c * X[0] - s * X[2], X[1], s * X[0] + c * X[2]])  # R^T X, R about y by 0.1
+    assert (int(v[0]), int(u[0])) == (15, int(np.rint(K[0, 0] * Xd[0] / Xd[2] + K[0, 2])))
+    assert abs(out[v[0], u[0]] - Xd[2]) < 1e-9
+
+
+def test_reproject_keeps_the_nearest_surface() -> None:
+    d = np.full((H, W), np.nan)
+    d[15, 10], d[15, 15] = 2.0, 4.0
+    # from the camera 0.4 m to the left a point moves f t / z to the right: 10 px at 2 m, 5 px at 4 m: both at 20
+    out = reproject(d, K, STILL, np.array([-0.4, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]))
+    assert out[15, 20] == 2.0 and np.isfinite(out).sum() == 1
+
+
+def test_median_depth_replaces_an_outlier_by_its_neighbours() -> None:
+    d = _plane(2.0)
+    d[10, 10] = 4.0
+    d[0:3, :] = np.nan
+    out = median_depth(d, 2)
+    assert out[10, 10] == 2.0 and np.isnan(out[1, 5]) and np.allclose(out[5:, :], 2.0)
+    assert median_depth(d, 0) is d
+
+
+def _run() -> Run:
+    """Frames at 10, 50, 90 ms (exposure 5 ms), the camera moving along x at 1 m/s."""
+    t = np.array([10_000, 50_000, 90_000], np.int64)
+    imgs = np.stack([np.full((H, W), v, np.uint8) for v in (10, 100, 200)])
+    frames = FramePacket(t, images=imgs, exposure_start=t - 2500, exposure_end=t + 2500, t_start=0, t_end=100_000)
+    return Run(events=None, truth=None, frames=frames, sim=None, K=K, eps=1e-3)  # type: ignore[arg-type]
+
+
+def _poses() -> PosePacket:
+    t = np.arange(0, 100_001, 1000, dtype=np.int64)
+    pos = np.stack([t * 1e-6, 0 * t, 0 * t], axis=1).astype(np.float64)
+    quat = np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1))
+    return PosePacket(t, position=pos, orientation=quat, t_start=0, t_end=100_001)
+
+
+def _emvs_map(t_map: int, t_ref: int, **extra: Any) -> MapPacket:
+    pose = np.array([t_ref * 1e-6, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+    return MapPacket(np.array([t_map], np.int64), depth=_plane()[None], confidence=np.ones((1, H, W)), K=K[None],
+                     pose=pose[None], t_ref=np.array([t_ref], np.int64), t_start=t_map, t_end=t_map + 1, **extra)
+
+
+def test_photo_map_takes_the_last_frame_exposed_before_the_map() -> None:
+    run, poses = _run(), _poses()
+    # made at 92.4 ms: the 90 ms frame's exposure ends at 92.5 ms, so the 50 ms frame is the last whole one
+    m = photo_map(_emvs_map(92_400, 20_000), 0, run, poses, median_px=0)
+    assert m is not None
+    assert np.allclose(m.data["image"][0], np.log(100 / 255 + 1e-3))
+    assert np.allclose(m.data["pose"][0], [0.05, 0, 0, 0, 0, 0, 1])  # the pose at the frame's time
+    # the plane seen from 30 mm further right: its pixels 50 * 0.03 / 2 = 0.75 px left, rounded to 1
+    assert np.isnan(m.data["depth"][0][:, -1]).all() and np.allclose(m.data["depth"][0][:, :-1], 2.0)
+    at = photo_map(_emvs_map(92_500, 20_000), 0, run, poses, median_px=0)
+    assert at is not None and np.allclose(at.data["pose"][0][:3], [0.09, 0, 0])
+    ref = photo_map(_emvs_map(92_400, 20_000), 0, run, poses, frame="ref", median_px=0)
+    assert ref is not None and np.allclose(ref.data["pose"][0][:3], [0.01, 0, 0])  # nearest the map's view
+
+
+def test_photo_map_needs_a_pose_at_the_frame() -> None:
+    run, poses = _run(), _poses()
+    late = poses.slice_time(60_000, 100_001)
+    assert photo_map(_emvs_map(70_000, 20_000), 0, run, late) is None  # the 50 ms frame is before the poses
+    assert photo_map(_emvs_map(5_000, 0), 0, run, poses) is None  # no frame exposed yet
