@@ -182,6 +182,27 @@ def _with_true_poses(name: str, sim: tuple[EventPacket, PosePacket, str], mapper
     return {"case": name, "events": len(ev), "maps": len(maps), **scores(est, truth, BOOT_US)}
 
 
+#: the photometric loop's mapper on the plane: depth from focus (within 5 % on the bootstrap's maps) and one plane
+#: for the run from the bootstrap's first three maps (a planar-scene prior; docs/evo.md)
+PHOTO_MAPPER: dict[str, Any] = {**MAPPERS["plane"], "focus": 6, "surface": "world_plane", "plane_maps": 3}
+
+
+def _photometric_plane(duration_us: int) -> dict[str, Any]:
+    """The plane's loop with ``tracker.pose_6dof`` against photometric maps
+    (the simulated DAVIS's APS frames with :data:`PHOTO_MAPPER`'s depth),
+    the measurement code of :mod:`._pose_evo_photo` (not yet a
+    ``tracker.evo`` option): a planar-scene prior, so a row of its own."""
+    from tectum.evaluation.suites import _pose_evo_photo as P
+
+    run = P.simulate_davis(duration_us)
+    est, tr, made, cpu = P.loop(run, 0, PHOTO_MAPPER)
+    span = (run.events.t_end - run.events.t_start) * 1e-6
+    print(f"  plane, photometric: {tr.counts}")
+    return {"case": "plane, photometric tracker (APS) + map.emvs world_plane, focus 6", "events": len(run.events),
+            "mev_per_s": len(run.events) / span / 1e6, "maps": made, **scores(est, run.truth, BOOT_US),
+            "cpu_mev_s": len(run.events) / cpu / 1e6, "realtime_x": span / cpu}
+
+
 def slider_depth(mapper_over: dict[str, Any] | None = None) -> tuple[dict[str, Any], Run] | None:
     """EVO on ``ecd/slider_depth``: the truth's first 80 ms as bootstrap,
     then tracking to the events' end (0.17 s), the mapper's settings updated
@@ -279,6 +300,8 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
         # prior, not the default ("auto" finds no map of this plane planar: its EMVS depth is too scattered); over six
         # starts 7.6 % on five, one lost from the start (docs/evo.md)
         rows.append(_case("plane, map.emvs surface=plane", PLANE, {**MAPPERS["plane"], "surface": "plane"}, dur)[0])
+    photo = _photometric_plane(dur)
+    rows.append(photo)
     real = slider_depth()
     if real is not None:
         rows.append(real[0])
@@ -301,5 +324,8 @@ def run(out: Path, quick: bool) -> dict[str, Any]:
     targets = [target(f"EVO {what}, {r['case']} ({secs:g} s after bootstrap)", r[key], 5.0, "% of path",
                       higher_is_better=False)
                for r in rows[:2] for what, key in (("drift (final error)", "drift_pct"), ("position RMSE", "pos_pct"))]
+    targets += [target(f"EVO {what}, {photo['case']} ({secs:g} s after bootstrap)", photo[key], 5.0, "% of path",
+                       higher_is_better=False)
+                for what, key in (("drift (final error)", "drift_pct"), ("position RMSE", "pos_pct"))]
     targets.append(target("EVO processing rate, boxes_3d (one core, CPU time)", rows[1]["cpu_mev_s"], 0.5, "Mev/s"))
     return {"rows": rows, "known_map_rows": known, "targets": targets, "picture": pic, "picture_boxes": pic_boxes}

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["PlaneFit", "fit_plane", "plane_depth", "explains"]
+__all__ = ["PlaneFit", "fit_plane", "plane_depth", "explains", "plane_to_world", "plane_in_view"]
 
 #: Tukey's biweight constant, in robust standard deviations (95 % efficiency under Gaussian noise)
 TUKEY_C = 4.685
@@ -111,3 +111,27 @@ def plane_depth(coef: np.ndarray, K: np.ndarray, shape: tuple[int, int]) -> np.n
     r = coef[0] * x[None, :] + coef[1] * y[:, None] + coef[2]
     ok = r > 0
     return np.where(ok, 1.0 / np.where(ok, r, 1.0), np.nan)
+
+
+def plane_to_world(coef: np.ndarray, R_wc: np.ndarray, t_wc: np.ndarray) -> tuple[np.ndarray, float]:
+    """The plane ``1 / Z = a x + b y + c`` (``coef``, 1/m) of a camera at
+    world-from-camera ``R_wc``, ``t_wc`` (m) as ``(n, o)`` in the world:
+    points ``W`` with ``n · W = o``, ``n`` a unit normal, ``o`` (m). (In the
+    camera the plane is ``coef · X = 1``: its unit normal ``coef / |coef|``
+    at ``1 / |coef|`` from the centre.)"""
+    m = np.asarray(coef, np.float64)
+    r = float(np.linalg.norm(m))
+    if not r > 0:
+        raise ValueError("plane_to_world: the plane must lie in front of the camera (coef != 0)")
+    n = np.asarray(R_wc, np.float64) @ (m / r)
+    return n, float(n @ np.asarray(t_wc, np.float64) + 1.0 / r)
+
+
+def plane_in_view(n: np.ndarray, o: float, R_wc: np.ndarray, t_wc: np.ndarray) -> np.ndarray | None:
+    """The world plane ``n · W = o`` (:func:`plane_to_world`) in a camera at
+    ``R_wc``, ``t_wc``: its ``coef`` (1/m) for :func:`plane_depth`; None
+    when the camera centre lies on the plane (no depth anywhere)."""
+    d = o - float(np.asarray(n) @ np.asarray(t_wc, np.float64))  # the signed distance from the centre, m
+    if abs(d) < 1e-9:
+        return None
+    return (np.asarray(R_wc, np.float64).T @ np.asarray(n, np.float64)) / d

@@ -67,7 +67,14 @@ Steps (IJCV 2018 Sec. 3-4; the kernels are in :mod:`._dsi`):
    plane's ``1 / Z = a x + b y + c`` over normalised coordinates, 1/m; NaN
    when free). EMVS's depth of a real plane is seldom close enough for
    ``auto`` (none of its maps of the EVO bench's plane passes: ``docs/evo.md``);
-   ``plane`` is a prior for a scene known to be planar.
+   ``plane`` is a prior for a scene known to be planar. ``"world_plane"``
+   is the same prior with one plane for the whole run: the first
+   ``plane_maps`` maps get their own planes as with ``plane`` (made from the
+   poses at hand then, e.g. a bootstrap's), and from the next map on every
+   map's pixels take the depth of their mean, fixed in the world, seen from
+   the map's reference pose; so a tracker's later poses no longer reshape
+   the surface (in a loop the maps from its turned poses bent each plane
+   with them: ``docs/evo.md``).
 
 Output: a :class:`~tectum.MapPacket` per map, stamped at its last event
 (µs), with ``depth`` (m, float32 (H, W), NaN where unknown), ``confidence``
@@ -121,7 +128,7 @@ from tectum import EventPacket, Kind, MapPacket, Operator, Packet, PointPacket, 
 from tectum.camera import QUAT_TOL, Camera, camera_from, interpolate_poses, quat_to_rot, rot_to_quat
 
 from ._dsi import BLOCK, argmax_depth, focus_argmax, masked_median, ray_traces, vote
-from ._plane_fit import explains, fit_plane, plane_depth
+from ._plane_fit import explains, fit_plane, plane_depth, plane_in_view, plane_to_world
 
 __all__ = ["Emvs", "depth_planes", "depth_map"]
 
@@ -257,14 +264,17 @@ class Emvs(Operator):
         (not mapped, the map in progress ends), µs.
     surface:
         ``free`` (each pixel its own depth), ``plane`` (a map's pixels get
-        the depth of the plane fitted to them) or ``auto`` (the plane where
-        it explains the map); see the module, step 5.
+        the depth of the plane fitted to them), ``auto`` (the plane where
+        it explains the map) or ``world_plane`` (one plane in the world,
+        from the first ``plane_maps`` maps); see the module, step 5.
     plane_tol:
         ``auto``: a pixel is on the plane within this many DSI planes (of
         inverse depth).
     plane_inliers:
         ``auto``: the share of a map's pixels on the plane for the plane to
         explain it (0..1].
+    plane_maps:
+        ``world_plane``: the maps whose own planes make the world's (>= 1).
     """
 
     name = "map.emvs"
@@ -281,8 +291,8 @@ class Emvs(Operator):
                  segment_us: int = 10_000, keyframe_baseline: float = 0.15, min_baseline: float = 0.02,
                  overlap: int = 1, interim: int = 1, refine: bool = True, threshold_sigma: float = 2.0,
                  threshold_c: float = 0.05, median_size: int = 5, points: bool = True, gap_us: int = 20_000,
-                 surface: Literal["free", "plane", "auto"] = "free", plane_tol: float = 2.0,
-                 plane_inliers: float = 0.8, focus: int = 0) -> None:
+                 surface: Literal["free", "plane", "auto", "world_plane"] = "free", plane_tol: float = 2.0,
+                 plane_inliers: float = 0.8, focus: int = 0, plane_maps: int = 3) -> None:
         self.camera: Camera = camera_from(calib)
         self.depths = depth_planes(planes, min_depth, max_depth, spacing)
         self.rho = np.ascontiguousarray(1.0 / self.depths)
@@ -310,8 +320,10 @@ class Emvs(Operator):
         if gap_us < 1:
             raise ValueError(f"map.emvs: gap_us must be >= 1 µs, got {gap_us}")
         self.gap_us = int(gap_us)
-        if surface not in ("free", "plane", "auto"):
-            raise ValueError(f"map.emvs: surface must be 'free', 'plane' or 'auto', got {surface!r}")
+        if surface not in ("free", "plane", "auto", "world_plane"):
+            raise ValueError(f"map.emvs: surface must be 'free', 'plane', 'auto' or 'world_plane', got {surface!r}")
+        if plane_maps < 1:
+            raise ValueError(f"map.emvs: plane_maps must be >= 1 map, got {plane_maps}")
         if not plane_tol > 0 or not 0 < plane_inliers <= 1:
             raise ValueError(f"map.emvs: need plane_tol > 0 (DSI planes) and 0 < plane_inliers <= 1, got "
                              f"{plane_tol}, {plane_inliers}")
@@ -319,6 +331,9 @@ class Emvs(Operator):
         # the tolerance in inverse depth (1/m): plane_tol times the DSI's median plane spacing
         self.plane_tol = float(plane_tol) * float(np.median(np.abs(np.diff(self.rho))))
         self.plane_inliers = float(plane_inliers)
+        self.plane_maps = int(plane_maps)
+        #: world_plane: the world planes (unit normal, offset m) of the first maps
+        self.world_planes: list[tuple[np.ndarray, float]] = []
         self.K = np.array([[self.camera.fx, 0, self.camera.cx], [0, self.camera.fy, self.camera.cy], [0, 0, 1.0]])
         self.counts = {"maps": 0, "no_translation": 0, "skipped_before_poses": 0, "skipped_after_poses": 0,
                        "outside_view": 0, "lost_poses": 0, "skipped_lost_poses": 0, "superseded": 0,
@@ -620,7 +635,7 @@ class Emvs(Operator):
         depth, conf = depth_map(view.dsi, self.depths, **self.map_options)  # type: ignore[arg-type]
         extra: dict[str, np.ndarray] = {}
         if self.surface != "free":
-            depth, extra = self._surface(depth)
+            depth, extra = self._surface(depth, R_wr, t_wr)
         known = np.isfinite(depth)
         if known.any() and not interim:
             self.scene_depth = float(np.median(depth[known]))
@@ -635,16 +650,29 @@ class Emvs(Operator):
             out.append(self._cloud(depth, conf, R_wr, t_wr, t_map))
         return out
 
-    def _surface(self, depth: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    def _surface(self, depth: np.ndarray, R_wr: np.ndarray,
+                 t_wr: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """``depth`` with the plane's depth at its known pixels when
-        ``surface`` is ``plane``, or ``auto`` and the plane explains it; and
-        the map's columns ``planar`` and ``plane``."""
-        fit = fit_plane(depth, self.K)
-        planar = fit is not None and (self.surface == "plane" or explains(fit, self.plane_tol, self.plane_inliers))
-        coef = np.full(3, np.nan)
-        if planar:
-            assert fit is not None
-            coef = fit.coef
+        ``surface`` is ``plane``, ``auto`` and the plane explains it, or
+        ``world_plane`` (the world's plane once ``plane_maps`` maps made it,
+        seen from the reference pose ``R_wr``, ``t_wr``); and the map's
+        columns ``planar`` and ``plane``."""
+        coef: np.ndarray | None = None
+        if self.surface == "world_plane" and len(self.world_planes) >= self.plane_maps:
+            n = np.mean([p[0] for p in self.world_planes], axis=0)
+            coef = plane_in_view(n / np.linalg.norm(n), float(np.mean([p[1] for p in self.world_planes])),
+                                 R_wr, t_wr)
+        else:
+            fit = fit_plane(depth, self.K)
+            if fit is not None and (self.surface in ("plane", "world_plane")
+                                    or explains(fit, self.plane_tol, self.plane_inliers)):
+                coef = fit.coef
+                if self.surface == "world_plane":
+                    self.world_planes.append(plane_to_world(coef, R_wr, t_wr))
+        planar = coef is not None
+        if coef is None:
+            coef = np.full(3, np.nan)
+        else:
             flat = plane_depth(coef, self.K, depth.shape).astype(np.float32)
             depth = np.where(np.isfinite(depth), flat, np.float32(np.nan))
             self.counts["planar_maps"] += 1

@@ -28,7 +28,7 @@ __all__ = ["Evo"]
 #: parameters handed to ``tracker.edge_align`` and to ``map.emvs``
 _TRACKER = ("bootstrap_us", "plane_depth", "window_events", "step_events")
 _MAPPER = ("planes", "min_depth", "max_depth", "keyframe_baseline", "min_baseline", "overlap", "interim",
-           "segment_us", "surface", "focus")
+           "segment_us", "surface", "focus", "plane_maps")
 
 
 class Evo(Macro):
@@ -80,8 +80,11 @@ class Evo(Macro):
         Mapper: longest time a segment of events sharing one pose spans, µs.
     surface:
         Mapper: ``free`` (each pixel its own depth), ``plane`` (each map's
-        pixels at the depth of the plane fitted to them) or ``auto`` (the
-        plane where it explains the map).
+        pixels at the depth of the plane fitted to them), ``auto`` (the
+        plane where it explains the map) or ``world_plane`` (one plane in
+        the world, made by the first ``plane_maps`` maps).
+    plane_maps:
+        Mapper, ``world_plane``: the maps whose planes make the world's.
     focus:
         Mapper: 0 (a pixel's depth at its most-voted plane) or the radius, px,
         of the window whose sharpest plane is its depth (depth from focus).
@@ -98,7 +101,7 @@ class Evo(Macro):
                  planes: int | None = None, min_depth: float | None = None, max_depth: float | None = None,
                  keyframe_baseline: float | None = None, min_baseline: float | None = None,
                  overlap: int | None = None, interim: int | None = None, segment_us: int | None = None,
-                 surface: str | None = None, focus: int | None = None) -> None:
+                 surface: str | None = None, focus: int | None = None, plane_maps: int | None = None) -> None:
         if delay_us < 1:
             raise ValueError(f"tracker.evo: delay_us must be >= 1 µs, got {delay_us}")
         self.calib, self.delay_us = calib, int(delay_us)

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 import tectum
-from tectum.plugins.map._plane_fit import explains, fit_plane, plane_depth
+from tectum.camera import quat_to_rot
+from tectum.plugins.map._plane_fit import explains, fit_plane, plane_depth, plane_in_view, plane_to_world
 from tectum.plugins.map.emvs import Emvs, translating_points
 from tectum.testing import feed_ports
 
@@ -119,6 +120,57 @@ def test_on_a_plane_surface_plane_gives_the_planes_depth_and_free_is_unchanged()
     loose = _maps(s, surface="auto", plane_inliers=0.3)
     assert int(loose[0].planar[0]) == 1
     np.testing.assert_array_equal(loose[0].depth, plane[0].depth)
+
+
+def _rot(axis, angle):
+    """A rotation matrix about ``axis`` by ``angle`` (rad)."""
+    a = np.asarray(axis, float) / np.linalg.norm(axis)
+    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+
+
+def test_a_world_plane_seen_from_any_pose_puts_every_pixel_on_it():
+    n = np.array([0.1, -0.2, 1.0]) / np.linalg.norm([0.1, -0.2, 1.0])
+    o = 2.5  # the plane n . W = 2.5 m
+    for R, t in ((np.eye(3), np.zeros(3)), (_rot([0.3, 1, 0.2], 0.4), np.array([0.5, -0.3, 0.4]))):
+        coef = plane_in_view(n, o, R, t)
+        assert coef is not None
+        depth = plane_depth(coef, K, (H, W))
+        v, u = np.nonzero(np.isfinite(depth))
+        X = np.stack([(u - K[0, 2]) / F, (v - K[1, 2]) / F, np.ones(len(u))], axis=1) * depth[v, u][:, None]
+        np.testing.assert_allclose((X @ R.T + t) @ n, o, rtol=1e-9)  # the pixels' points lie on the world plane
+        n2, o2 = plane_to_world(coef, R, t)  # and back
+        np.testing.assert_allclose(n2, n, atol=1e-12)
+        assert o2 == pytest.approx(o, rel=1e-12)
+    assert plane_in_view(n, o, np.eye(3), n * o) is None  # the centre on the plane: no depth
+    with pytest.raises(ValueError, match="in front"):
+        plane_to_world(np.zeros(3), np.eye(3), np.zeros(3))
+    with pytest.raises(ValueError, match="plane_maps"):
+        Emvs(**OPTS, surface="world_plane", plane_maps=0)
+
+
+def test_world_plane_keeps_the_first_maps_plane_in_the_world():
+    """``world_plane``: the first ``plane_maps`` maps are ``plane``'s; every
+    later map takes the world plane they made (here the first map's) at its
+    own reference pose, not a plane of its own."""
+    s = {k: [v] for k, v in _plane_scene().items()}
+    plane, world = _maps(s, surface="plane"), _maps(s, surface="world_plane", plane_maps=1)
+    assert len(plane) == len(world) >= 2
+    np.testing.assert_array_equal(world[0].depth, plane[0].depth)
+    assert [int(m.planar[0]) for m in world] == [1] * len(world)
+
+    def pose(m):
+        return quat_to_rot(m.pose[0, 3:]), m.pose[0, :3]
+
+    n, o = plane_to_world(plane[0].plane[0], *pose(plane[0]))
+    for p, w in zip(plane[1:], world[1:]):
+        want = plane_in_view(n, o, *pose(w))
+        np.testing.assert_allclose(w.plane[0], want, rtol=1e-9)
+        assert np.abs(p.plane[0] - want).max() > 1e-4  # its own fit differs: the plane was not fitted again
+        known = np.isfinite(w.depth[0])
+        np.testing.assert_array_equal(known, np.isfinite(p.depth[0]))
+        np.testing.assert_allclose(w.depth[0][known], plane_depth(want, K, (H, W))[known], rtol=1e-6)
+        assert np.median(np.abs(w.depth[0][known] - 2.0) / 2.0) < 0.05
 
 
 def test_auto_keeps_free_depth_where_no_plane_explains_the_map():
