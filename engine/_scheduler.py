@@ -868,16 +868,18 @@ async def _source_task(node: Any, batch: BatchPolicy, graph: Graph, out: _Outbox
     except Exception as e:
         raise NodeError(sid, e) from e
     finally:
-        if apackets is not None and hasattr(apackets, "aclose"):
-            # an async source's generator, left at a packet when the run stopped (cancelled, an
-            # error downstream): closed here, its own clean-up (a network source's flush) done
-            # before the source closes, not left to the garbage collector after the run
-            await apackets.aclose()
-        if source is not None:
-            source.close()
-            counts = getattr(source, "counts", None)
-            if isinstance(counts, dict):
-                st.counters.update({k: v for k, v in counts.items() if isinstance(v, int)})
+        try:
+            if apackets is not None and hasattr(apackets, "aclose"):
+                # an async source's generator, left at a packet when the run stopped (cancelled, an
+                # error downstream): closed here, its own clean-up (a network source's flush) done
+                # before the source closes, not left to the garbage collector after the run
+                await apackets.aclose()
+        finally:
+            if source is not None:
+                source.close()
+                counts = getattr(source, "counts", None)
+                if isinstance(counts, dict):
+                    st.counters.update({k: v for k, v in counts.items() if isinstance(v, int)})
 
 
 def _join_run(held: list[EventPacket], end: int, owners: Any, checked: bool, t_end: int, own: Any) -> EventPacket:
