@@ -123,7 +123,7 @@ def _evo_traj(t: np.ndarray, p: np.ndarray, q: np.ndarray):  # type: ignore[no-u
 
 
 def test_ate_and_rpe_equal_evo() -> None:
-    pytest.importorskip("evo", reason="evo (the trajectory evaluation package) is not installed: "
+    pytest.importorskip("evo.core", reason="evo (the trajectory evaluation package) is not installed: "
                         "pip install tectum[evo]")
     from evo.core import metrics
     from evo.core.units import Unit
