@@ -627,10 +627,14 @@ class Emvs(Operator):
         R_wr, t_wr, t_ref, t_map = view.R_wr, view.t_wr, view.t_ref, view.last_t
         if view.baseline < self.min_baseline * self.scene_depth:
             self.counts["no_translation"] += 1
-            log.warning("map.emvs: the camera moved %.3g m from the reference view at %d µs, less than "
-                        "min_baseline x scene depth = %.3g m: too little translation for depth (pure rotation "
-                        "or standing still), no map",
-                        view.baseline, t_ref, self.min_baseline * self.scene_depth)
+            # said once a run (a tracker lost for a while ends a view every few ms: one line each
+            # flooded the terminal); the rest are counted (the node's stats, `no_translation`)
+            (log.warning if self.counts["no_translation"] == 1 else log.debug)(
+                "map.emvs: the camera moved %.3g m from the reference view at %d µs, less than min_baseline x "
+                "scene depth = %.3g m: too little translation for depth (pure rotation or standing still), no "
+                "map%s", view.baseline, t_ref, self.min_baseline * self.scene_depth,
+                " (further views without depth are counted: no_translation)"
+                if self.counts["no_translation"] == 1 else "")
             return []
         depth, conf = depth_map(view.dsi, self.depths, **self.map_options)  # type: ignore[arg-type]
         extra: dict[str, np.ndarray] = {}

@@ -272,6 +272,22 @@ def test_pure_rotation_gives_no_depth_and_says_so(caplog):
     assert "too little translation for depth (pure rotation" in caplog.text
 
 
+def test_views_without_depth_are_said_once_then_counted(caplog):
+    """A camera that stands still view after view (a tracker lost for a
+    while): one warning for the run, every such view counted."""
+    s = _rotating_points(duration_us=200_000, sensor=SENSOR, f=F, omega=(0.3, 3.0, 0.5))
+    t = np.arange(0, 200_001, 1_000, dtype=np.int64)
+    q = rot_to_quat(so3_exp(np.outer(t * 1e-6, (0.3, 3.0, 0.5))))
+    poses = PosePacket(t, position=np.zeros((len(t), 3)), orientation=q, t_start=0, t_end=200_001)
+    with caplog.at_level("WARNING", logger="tectum.map.emvs"):
+        op = Emvs(**OPTS, gap_us=2_000)
+        lost = PosePacket(t, position=poses.position, orientation=q, lost=(t // 10_000) % 2 == 1,
+                          t_start=0, t_end=200_001)  # 10 ms good, 10 ms lost, ...
+        feed_ports(op, {"events": [s["events"]], "poses": [lost]})
+    assert op.counts["no_translation"] > 3
+    assert caplog.text.count("too little translation") == 1
+
+
 def test_any_packet_split_gives_the_same_maps():
     s = _scene(depth=(1.5, 2.5), velocity=(1.5, 0.2, 0.1))  # a few reference views
     whole = feed_ports(Emvs(**OPTS, keyframe_baseline=0.08), {k: [v] for k, v in s.items()})
