@@ -183,12 +183,14 @@ def test_auto_keeps_free_depth_where_no_plane_explains_the_map():
         assert int(a.planar[0]) == 0 and np.isnan(a.plane[0]).all()
 
 
-def test_any_packet_split_gives_the_same_planar_maps():
+@pytest.mark.parametrize("surface", ["plane", "world_plane"])
+def test_any_packet_split_gives_the_same_planar_maps(surface):
     s = _plane_scene()
-    whole = feed_ports(Emvs(**OPTS, keyframe_baseline=0.08, surface="plane"), {k: [v] for k, v in s.items()})
+    opts = {**OPTS, "keyframe_baseline": 0.08, "surface": surface, "plane_maps": 1}
+    whole = feed_ports(Emvs(**opts), {k: [v] for k, v in s.items()})
     ev, ps = s["events"], s["poses"]
     pieces = {"events": list(ev.batches(997)), "poses": [ps.slice_time(a, a + 7_000) for a in range(0, 200_001, 7_000)]}
-    split = feed_ports(Emvs(**OPTS, keyframe_baseline=0.08, surface="plane"), pieces)
+    split = feed_ports(Emvs(**opts), pieces)
     tectum.testing.assert_streams_equal(whole, split, "split")
     assert sum(q.kind == "maps" for q in whole) >= 2
 
