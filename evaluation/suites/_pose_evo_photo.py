@@ -15,7 +15,8 @@ pixel's inverse depth the median of the known ones within ``median_px``),
 at the pose of the frame's time interpolated from the poses at hand (the
 truth for the tracker alone, the tracker's own good rows in the loop).
 The frame is the last one whose exposure ended before the map was made
-(``frame="late"``) or the one nearest the map's reference view
+(``frame="late"``; as ``map.photometric`` makes them, with its pure
+functions) or the one nearest the map's reference view
 (``"ref"``); ``conf`` keeps only that share of the EMVS map's pixels with
 the highest confidence.
 
@@ -43,23 +44,22 @@ from __future__ import annotations
 import argparse
 import json
 import time
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
 from tectum import EventPacket, FramePacket, MapPacket, Packet, PosePacket, concat
-from tectum.camera import interpolate_poses, quat_to_rot
+from tectum.camera import interpolate_poses
 from tectum.evaluation.suites._pose_evo import MAPPERS, PLANE, scores
 from tectum.plugins.map.emvs import Emvs
+from tectum.plugins.map.photometric import frame_before, log_image, median_depth, reproject
 from tectum.plugins.tracker.pose_6dof import Pose6Dof
 from tectum.sources.simulate import Simulator, make_simulator
 from tectum.testing import feed_ports
 
-__all__ = ["Run", "simulate_davis", "photo_map", "alone", "loop"]
+__all__ = ["Run", "simulate_davis", "photo_map", "alone", "loop", "reproject", "median_depth"]
 
 BOOT_US = 300_000
 TRACKED_US = 2_000_000
@@ -106,41 +106,6 @@ def _pose7(t_us: int, poses: PosePacket) -> np.ndarray:
     return np.concatenate([p[0], q[0]])
 
 
-def reproject(depth: np.ndarray, K: np.ndarray, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """Depth (m, NaN unknown) seen from pose ``src`` (tx ty tz qx qy qz qw)
-    as depth seen from ``dst``: each known pixel to the nearest pixel, the
-    nearest surface kept."""
-    h, w = depth.shape
-    v, u = np.nonzero(np.isfinite(depth))
-    d = depth[v, u]
-    Xc = np.stack([(u - K[0, 2]) / K[0, 0] * d, (v - K[1, 2]) / K[1, 1] * d, d], axis=1)
-    Rs, Rd = np.asarray(quat_to_rot(src[3:])), np.asarray(quat_to_rot(dst[3:]))
-    Xd = (Xc @ Rs.T + src[:3] - dst[:3]) @ Rd
-    z = Xd[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uu = np.rint(K[0, 0] * Xd[:, 0] / z + K[0, 2])
-        vv = np.rint(K[1, 1] * Xd[:, 1] / z + K[1, 2])
-    ok = (z > 0) & (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
-    out = np.full((h, w), np.inf)
-    np.minimum.at(out, (vv[ok].astype(np.intp), uu[ok].astype(np.intp)), z[ok])
-    out[~np.isfinite(out)] = np.nan
-    return out
-
-
-def median_depth(depth: np.ndarray, r: int) -> np.ndarray:
-    """Each known pixel's depth from the median inverse depth of the known
-    pixels within ``r`` px (a square window); 0: unchanged."""
-    if r <= 0:
-        return depth
-    h, w = depth.shape
-    inv = np.pad(1.0 / depth, r, constant_values=np.nan)
-    win = sliding_window_view(inv, (2 * r + 1, 2 * r + 1)).reshape(h, w, -1)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        m = np.nanmedian(win, axis=2)
-    return np.where(np.isfinite(depth), 1.0 / m, np.nan)
-
-
 def photo_map(maps: MapPacket, i: int, run: Run, poses: PosePacket, frame: str = "late", conf: float = 0.0,
               median_px: int = 4, depth: str = "emvs") -> MapPacket | None:
     """The photometric map of EMVS map ``i`` (see the module); None when the
@@ -148,7 +113,7 @@ def photo_map(maps: MapPacket, i: int, run: Run, poses: PosePacket, frame: str =
     t_map = int(maps.t[i])
     ft = run.frames.t
     if frame == "late":  # the last frame whose exposure ended before the map was made
-        j = int(np.searchsorted(run.frames.data["exposure_end"], t_map, side="right")) - 1
+        j = frame_before(run.frames.data["exposure_end"], t_map)
     else:
         j = int(np.argmin(np.abs(ft - int(maps.data["t_ref"][i]))))
     if j < 0 or not poses.t[0] <= ft[j] <= poses.t[-1]:
@@ -173,7 +138,7 @@ def photo_map(maps: MapPacket, i: int, run: Run, poses: PosePacket, frame: str =
         dep = median_depth(dep, median_px)
     if np.isfinite(dep).sum() < 200:
         return None
-    img = np.log(run.frames.data["images"][j].astype(np.float64) / 255.0 + run.eps)
+    img = log_image(run.frames.data["images"][j], 255.0, run.eps)
     return MapPacket(np.array([t_map], np.int64), image=img[None], depth=dep[None], K=run.K[None], pose=p7[None],
                      t_start=t_map, t_end=t_map + 1)
 

@@ -1,6 +1,6 @@
 """The photometric-loop measurement (docs/evo.md, "The photometric loop"):
-an EMVS depth map moved into an APS frame's view, the median of inverse
-depth, and the photometric map made of the last frame before the map."""
+the photometric map made of the last frame before the map (the geometry,
+:mod:`tectum.plugins.map.photometric`'s, is tested with it)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from tectum import FramePacket, MapPacket, PosePacket
-from tectum.evaluation.suites._pose_evo_photo import Run, median_depth, photo_map, reproject
+from tectum.evaluation.suites._pose_evo_photo import Run, photo_map
 
 K = np.array([[50.0, 0.0, 19.5], [0.0, 50.0, 14.5], [0.0, 0.0, 1.0]])
 W, H = 40, 30
@@ -18,41 +18,6 @@ STILL = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
 
 def _plane(depth_m: float = 2.0) -> np.ndarray:
     return np.full((H, W), depth_m)
-
-
-def test_reproject_moves_a_plane_sideways_and_turns_it() -> None:
-    # the camera 0.2 m to the right: a point of the plane 2 m away moves 50 * 0.2 / 2 = 5 px to the left
-    d = np.full((H, W), np.nan)
-    d[15, 20] = 2.0
-    out = reproject(d, K, STILL, np.array([0.2, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]))
-    assert np.isfinite(out).sum() == 1 and out[15, 15] == 2.0
-    # the camera turned 0.1 rad about y (x towards z): the point's depth is 2 cos 0.1 and it moves left
-    a = 0.05
-    q = np.array([0.0, np.sin(a), 0.0, np.cos(a)])
-    out = reproject(d, K, STILL, np.concatenate([[0.0, 0.0, 0.0], q]))
-    v, u = np.nonzero(np.isfinite(out))
-    X = np.array([(20 - K[0, 2]) / K[0, 0] * 2.0, 0.0, 2.0])
-    c, s = np.cos(0.1), np.sin(0.1)
-    Xd = np.array([c * X[0] - s * X[2], X[1], s * X[0] + c * X[2]])  # R^T X, R about y by 0.1
-    assert (int(v[0]), int(u[0])) == (15, int(np.rint(K[0, 0] * Xd[0] / Xd[2] + K[0, 2])))
-    assert abs(out[v[0], u[0]] - Xd[2]) < 1e-9
-
-
-def test_reproject_keeps_the_nearest_surface() -> None:
-    d = np.full((H, W), np.nan)
-    d[15, 10], d[15, 15] = 2.0, 4.0
-    # from the camera 0.4 m to the left a point moves f t / z to the right: 10 px at 2 m, 5 px at 4 m: both at 20
-    out = reproject(d, K, STILL, np.array([-0.4, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]))
-    assert out[15, 20] == 2.0 and np.isfinite(out).sum() == 1
-
-
-def test_median_depth_replaces_an_outlier_by_its_neighbours() -> None:
-    d = _plane(2.0)
-    d[10, 10] = 4.0
-    d[0:3, :] = np.nan
-    out = median_depth(d, 2)
-    assert out[10, 10] == 2.0 and np.isnan(out[1, 5]) and np.allclose(out[5:, :], 2.0)
-    assert median_depth(d, 0) is d
 
 
 def _run() -> Run:
