@@ -9,14 +9,25 @@ unknown, ``K``, ``pose`` tx ty tz qx qy qz qw world-from-camera; see
 :mod:`._photomap`; ``tectum simulate SCENE out.npz --map map.npz`` makes one
 of a simulated scene), or the first map on the ``maps`` port (a
 :class:`~tectum.MapPacket` with image, depth, K and pose; a later map
-replaces it). The map's size and intrinsics must be the sensor's (and the
-calibration's, when ``calib=`` is given or found beside the recording: then
-the events are undistorted onto the map's pinhole ``K``); a mismatch is an
-error before the first pose.
+replaces it from the first batch whose last event is at or after the map's
+time, so the choice does not depend on how the ports are packed; the
+reference view the increments count from stays, now the tracker's own).
+The map's size and intrinsics must be the sensor's (and the calibration's,
+when ``calib=`` is given or found beside the recording: then the events are
+undistorted onto the map's pinhole ``K``); a mismatch is an error before the
+first pose.
 
 **Start.** At the map's pose, unless ``init=tx;ty;tz;qx;qy;qz;qw`` gives
 one, or the ``poses`` port does (the pose at the first event's time,
-interpolated; later poses on the port are not used). Events that come
+interpolated; later poses on the port are not used).
+
+**Bootstrap** (``bootstrap_us`` > 0: a loop with a mapper, ``tracker.evo``
+with ``tracker="pose_6dof"``). The ``poses`` port's rows from its first
+for ``bootstrap_us`` are the output as they are (not lost, zero velocity,
+``fit`` NaN), so a mapper can make the first maps from them; the events
+until then only set the pixels' states, and tracking starts at the first
+event at or after the bootstrap's end (and the first map), from the port's
+pose there (interpolated), against the latest map made by then. Events that come
 before the map (on the ``maps`` port) are not tracked, but they give each
 pixel's state at the start (its last event and interval: its residue
 there, which the increments count from) and say that the sensor was
@@ -85,7 +96,7 @@ from collections.abc import Mapping
 import numpy as np
 from scipy.fft import next_fast_len
 
-from tectum import EventPacket, Kind, MapPacket, Operator, Packet, Port, PosePacket
+from tectum import EventPacket, Kind, MapPacket, Operator, Packet, Port, PosePacket, concat
 from tectum.camera import (
     Camera,
     camera_from,
@@ -109,6 +120,10 @@ from ._generative import (
 from ._photomap import PhotoMap, check_map, load_map, map_from_packet
 
 __all__ = ["Pose6Dof"]
+
+#: with a bootstrap, the poses port's rows kept this long past its end, µs: the start pose is theirs at the first
+#: tracked event (interpolated)
+_BOOT_KEEP_US = 20_000
 
 
 def _quat(R: np.ndarray) -> np.ndarray:
@@ -274,12 +289,16 @@ class Pose6Dof(Operator):
         them (the silent pixels' bound stays ``contrast``). A simulated
         slide (240x180, C_on 0.2, C_off 0.14): 2.9 % of the path with one
         threshold (the camera lagging 1.1 mm), 1.7 % with it given.
+    bootstrap_us:
+        Output the ``poses`` port's rows for this long from its first, µs,
+        and track from its end (0: no bootstrap; see the module).
     """
 
     name = "tracker.pose_6dof"
     inputs = {
         "events": Port(Kind.EVENTS, doc="the events"),
-        "poses": Port(Kind.POSES, required=False, doc="the initial pose (at the first event; later ones unused)"),
+        "poses": Port(Kind.POSES, required=False,
+                      doc="the initial pose (at the first event; later ones unused), or the bootstrap's poses"),
         "maps": Port(Kind.MAPS, required=False, doc="the photometric map (image, depth, K, pose), instead of map="),
     }
     produces = (Kind.POSES,)
@@ -292,7 +311,7 @@ class Pose6Dof(Operator):
                  keyframe_px: float = 8.0, velocity_us: int = 10_000, timed_residue: bool = True,
                  unseen_bound: bool = True, map_view_px: float = 24.0, max_sd_deg: float = 0.2,
                  drift_deg_s: float = 20.0, unseen_running: float = 0.35, refractory_us: float = 0.0,
-                 contrast_off: float = 0.0) -> None:
+                 contrast_off: float = 0.0, bootstrap_us: int = 0) -> None:
         where = "tracker.pose_6dof"
         if not contrast > 0:
             raise ValueError(f"{where}: contrast must be > 0 (log intensity per event), got {contrast}")
@@ -371,6 +390,13 @@ class Pose6Dof(Operator):
         self.velocity_us = int(velocity_us)
         self._lost = False
         self._init_poses: PosePacket | None = None
+        if bootstrap_us < 0:
+            raise ValueError(f"{where}: bootstrap_us must be >= 0 µs, got {bootstrap_us}")
+        self.bootstrap_us = int(bootstrap_us)
+        self._boot_end: int | None = None  # µs: the first pose on the poses port + bootstrap_us
+        self._boot: list[PosePacket] = []  # the poses port's rows up to _BOOT_KEEP_US past its end: the start pose
+        self._queued: list[tuple[int, PhotoMap]] = []  # maps on the port not yet in use: (time µs, map)
+        self._first_map_us: int | None = None  # the time of the first map (map=: long before any event)
         # the reference view (R, t) the increments count from, and the events since, accumulated: unblurred
         # (bilinear) and blurred at each tracking level
         self._ref: tuple[np.ndarray, np.ndarray] | None = None
@@ -383,6 +409,7 @@ class Pose6Dof(Operator):
         self._fine = np.zeros((3, 0, 0))  # blur_and_gradients of the map at the finest level
         if map:
             self._set_map(load_map(map))
+            self._first_map_us = -(1 << 62)
 
     #: For the conformance check: a few small batches.
     conformance_params = {"batch_events": 200, "max_points": 400, "min_points": 20, "iterations": 3}
@@ -425,12 +452,16 @@ class Pose6Dof(Operator):
                           np.empty((1, 16)))
 
     # -- the map ----------------------------------------------------------------------
-    def _set_map(self, m: PhotoMap) -> None:
+    def _check_map(self, m: PhotoMap) -> None:
+        """A map's intrinsics and size against the calibration's and the sensor's."""
         if self.camera is not None:
             self._check_intrinsics(m, self.camera)
         if self._sensor is not None and m.size != self._sensor:
             raise ValueError(f"tracker.pose_6dof: the map is {m.size[0]}x{m.size[1]} px, the events "
                              f"{self._sensor[0]}x{self._sensor[1]} px")
+
+    def _set_map(self, m: PhotoMap) -> None:
+        self._check_map(m)
         blurred: dict[float, np.ndarray] = {}  # per σ: each blur once (the finest serves three uses)
         for s in self.sigmas:
             if s not in blurred:
@@ -461,6 +492,8 @@ class Pose6Dof(Operator):
         self._rho = None
         self._warp = None
         self.map = m
+        # a reference view already in use is the tracker's own, not this map's (it keeps the keyframe step)
+        self._ref_is_map = False
 
     # what only some runs need, made at its first use: the same numbers as made with the map
     def _coarse_level(self) -> _Level:
@@ -500,22 +533,74 @@ class Pose6Dof(Operator):
         maps = ports.get("maps")
         if maps is not None and len(maps):
             assert isinstance(maps, MapPacket)
-            self._set_map(map_from_packet(maps, len(maps) - 1))
+            for i in range(len(maps)):  # each in use from the first batch that ends at or after its time
+                m = map_from_packet(maps, i)
+                if self.map is None:  # the first: at once (no event before it is tracked)
+                    self._set_map(m)
+                else:
+                    self._check_map(m)
+                    self._queued.append((int(maps.t[i]), m))
+                if self._first_map_us is None:
+                    self._first_map_us = int(maps.t[i])
+        boot: list[Packet] = []
         poses = ports.get("poses")
-        if poses is not None and len(poses) and self._pose is None:
+        if poses is not None and len(poses):
             assert isinstance(poses, PosePacket)
-            self._init_poses = poses if self._init_poses is None else self._init_poses
+            if self.bootstrap_us:
+                boot = self._bootstrap(poses)
+            elif self._pose is None:
+                self._init_poses = poses if self._init_poses is None else self._init_poses
         ev = ports.get("events")
         if ev is None:
-            return []
+            return boot
         assert isinstance(ev, EventPacket)
         self._mark = max(self._mark, ev.t_end)
         if len(ev):
             self._add_events(ev)
-        return self._advance(final=False)
+        return boot + self._advance(final=False)
+
+    def _bootstrap(self, poses: PosePacket) -> list[Packet]:
+        """Keep the poses port's rows for the start pose; hand on those
+        before the bootstrap's end as output rows (not lost, fit NaN)."""
+        if self._boot_end is None:
+            self._boot_end = int(poses.t[0]) + self.bootstrap_us
+        keep = poses.t < self._boot_end + _BOOT_KEEP_US
+        if keep.any():
+            pos, q = np.asarray(poses.position[keep], np.float64), np.asarray(poses.orientation[keep], np.float64)
+            if not (np.isfinite(pos).all() and np.isfinite(q).all()):
+                raise ValueError("tracker.pose_6dof: a bootstrap pose on port 'poses' is not finite")
+            self._boot.append(PosePacket(poses.t[keep], position=pos, orientation=q, t_start=poses.t_start,
+                                         t_end=poses.t_end))
+        k = int(np.searchsorted(poses.t, self._boot_end, side="left"))
+        if not k:
+            return []
+        n, ts = k, poses.t[:k]
+        q = np.asarray(poses.orientation[:k], np.float64)
+        return [PosePacket(ts, position=np.asarray(poses.position[:k], np.float64),
+                           orientation=q / np.linalg.norm(q, axis=1, keepdims=True), linear_velocity=np.zeros((n, 3)),
+                           angular_velocity=np.zeros((n, 3)), lost=np.zeros(n, bool), fit=np.full(n, np.nan),
+                           t_start=int(ts[0]), t_end=int(ts[-1]) + 1)]
+
+    def _track_from(self) -> int | None:
+        """The time from which events are tracked, µs: the first map's, and
+        with a bootstrap its end; None: not known yet."""
+        if self._first_map_us is None or (self.bootstrap_us and self._boot_end is None):
+            return None
+        return max(self._first_map_us, self._boot_end) if self._boot_end is not None else self._first_map_us
+
+    def _use_maps(self, t_us: int) -> None:
+        """Take the latest queued map made at or before ``t_us`` µs (a batch's
+        last event: the maps up to it have all come, the ports being joined
+        by time)."""
+        k = 0
+        while k < len(self._queued) and self._queued[k][0] <= t_us:
+            k += 1
+        if k:
+            self._set_map(self._queued[k - 1][1])
+            del self._queued[:k]
 
     def finish(self) -> list[Packet]:
-        if self.map is None and self.counts["skipped_before_map"]:
+        if self.map is None and not self._queued and self.counts["skipped_before_map"]:
             raise ValueError(f"tracker.pose_6dof: no map came for the {self.counts['skipped_before_map']} events: give "
                              "map=FILE.npz (image, depth, K, pose) or connect a maps port")
         return self._advance(final=True)
@@ -525,12 +610,17 @@ class Pose6Dof(Operator):
             self._start(ev.sensor)
         elif ev.sensor != self._sensor:
             raise ValueError(f"tracker.pose_6dof: the sensor changed from {self._sensor} to {ev.sensor}")
-        if self.map is None:  # not tracked, but they tell each pixel's state, and that the sensor is running
-            self.counts["skipped_before_map"] += len(ev)
-            event_weights(ev.x, ev.y, ev.t, ev.p, self.contrast, self._last, self._tlast, self._dtp, np.empty(len(ev)),
-                          1.0, self.refractory_us, self._off)
+        t_from = self._track_from()
+        k = len(ev) if t_from is None else int(np.searchsorted(ev.t, t_from, side="left"))
+        if k:  # before the map (or the bootstrap's end): not tracked, but they tell each pixel's state, and that the
+            # sensor is running
+            self.counts["skipped_before_map"] += k
+            event_weights(ev.x[:k], ev.y[:k], ev.t[:k], ev.p[:k], self.contrast, self._last, self._tlast, self._dtp,
+                          np.empty(k), 1.0, self.refractory_us, self._off)
             self._running = True
-            return
+            if k == len(ev):
+                return
+            ev = ev.slice_time(t_from)
         assert self._lut is not None and self._sensor is not None
         at = ev.y.astype(np.intp) * self._sensor[0] + ev.x  # flat indices: a tenth of the cost of lut[y, x]
         self._t = np.concatenate([self._t, ev.t])
@@ -575,6 +665,7 @@ class Pose6Dof(Operator):
             if b >= n and a + self.batch_events > n and not final and self._mark < t[a] + self.batch_us:
                 break  # open: more events may join it
             b = min(b, n)
+            self._use_maps(int(t[b - 1]))
             rows.append(self._batch(a, b))
             a = b
         if a:
@@ -591,6 +682,12 @@ class Pose6Dof(Operator):
     def _initial(self, t0: int) -> tuple[np.ndarray, np.ndarray]:
         if self.init is not None:
             return self.init[0].copy(), self.init[1].copy()
+        if self._boot:
+            b = concat(self._boot)
+            assert isinstance(b, PosePacket)
+            tq = min(max(t0, int(b.t[0])), int(b.t[-1]))
+            p, q, _ = interpolate_poses(np.array([tq], np.int64), b.t, b.position, b.orientation)
+            return np.asarray(quat_to_rot(q[0])), p[0]
         if self._init_poses is not None:
             ps = self._init_poses
             tq = min(max(t0, int(ps.t[0])), int(ps.t[-1]))

@@ -355,6 +355,7 @@ def test_the_relocalising_level_and_gradient_correlation_are_made_at_first_use()
     _, _, m = _run(1.0, 30.0)
     op = Pose6Dof()
     op.process_ports({"maps": _maps(m)})
+    op._use_maps(1 << 40)  # a later map comes into use at the next batch that ends after its time
     assert op._coarse is None and op._rho is None and op.map is not None
     lv = op._coarse_level()
     out = np.empty((3, *op.map.image.shape))
@@ -365,6 +366,7 @@ def test_the_relocalising_level_and_gradient_correlation_are_made_at_first_use()
     assert np.array_equal(rho, gradient_correlation(op.map.image, op.map.depth, op.sigmas[-1], 16))
     assert op._coarse_level() is lv and op._gradient_rho() is rho
     op.process_ports({"maps": _maps(m)})
+    op._use_maps(1 << 40)  # a later map comes into use at the next batch that ends after its time
     assert op._coarse is None and op._rho is None
 
 
