@@ -224,6 +224,11 @@ class Photometric(Operator):
     def finish(self) -> list[Packet]:
         return self._emit(final=True)
 
+    def output_mark(self, watermark: int) -> int:
+        """On a loop: a map goes out at its own time, which a waiting map's
+        lies before the input's watermark."""
+        return min(self._wait[0][0], watermark) if self._wait else watermark
+
     # -- output ------------------------------------------------------------------------
     def _emit(self, final: bool) -> list[Packet]:
         out: list[Packet] = []

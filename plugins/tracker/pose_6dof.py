@@ -559,6 +559,11 @@ class Pose6Dof(Operator):
             self._add_events(ev)
         return boot + self._advance(final=False)
 
+    def output_mark(self, watermark: int) -> int:
+        """On a loop: a row is stamped with its batch's last event, so none
+        comes before the first event still waiting for its batch."""
+        return min(int(self._t[0]), watermark) if self._t.size else watermark
+
     def _bootstrap(self, poses: PosePacket) -> list[Packet]:
         """Keep the poses port's rows for the start pose; hand on those
         before the bootstrap's end as output rows (not lost, fit NaN)."""

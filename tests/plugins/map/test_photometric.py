@@ -132,6 +132,7 @@ def test_a_map_waits_for_its_frame_and_the_poses_after_it() -> None:
     assert op.process_ports({"maps": _maps(60_000).slice_time(0, 61_000), "frames": fr.slice_time(0, 40_000),
                              "poses": ps.slice_time(0, 40_000)}) == []  # the 50 ms frame may still come
     assert op.process_ports({"frames": fr.slice_time(40_000, 61_000), "poses": ps.slice_time(40_000, 50_000)}) == []
+    assert op.output_mark(61_000) == 60_000  # on a loop: the waiting map goes out at its own time
     out = op.process_ports({"poses": ps.slice_time(50_000, 51_000)})  # a pose at the frame's time: out
     assert len(out) == 1 and np.allclose(out[0].data["pose"][0][:3], [0.05, 0, 0])
 
