@@ -189,17 +189,21 @@ PHOTO_MAPPER: dict[str, Any] = {**MAPPERS["plane"], "focus": 6, "surface": "worl
 
 def _photometric_plane(duration_us: int) -> dict[str, Any]:
     """The plane's loop with ``tracker.pose_6dof`` against photometric maps
-    (the simulated DAVIS's APS frames with :data:`PHOTO_MAPPER`'s depth),
-    the measurement code of :mod:`._pose_evo_photo` (not yet a
-    ``tracker.evo`` option): a planar-scene prior, so a row of its own."""
+    (the simulated DAVIS's APS frames with :data:`PHOTO_MAPPER`'s depth):
+    ``tracker.evo:tracker=pose_6dof`` under ``tectum.run``
+    (:func:`._pose_evo_photo.pipeline`; the same poses as its operators
+    driven by hand, :func:`._pose_evo_photo.wired`): a planar-scene prior,
+    so a row of its own."""
     from tectum.evaluation.suites import _pose_evo_photo as P
 
     run = P.simulate_davis(duration_us)
-    est, tr, made, cpu = P.loop(run, 0, PHOTO_MAPPER)
+    est, maps, cpu = P.pipeline(run, 0, PHOTO_MAPPER)
+    made = sum(len(m) for m in maps)
     span = (run.events.t_end - run.events.t_start) * 1e-6
-    print(f"  plane, photometric: {tr.counts}")
-    return {"case": "plane, photometric tracker (APS) + map.emvs world_plane, focus 6", "events": len(run.events),
-            "mev_per_s": len(run.events) / span / 1e6, "maps": made, **scores(est, run.truth, BOOT_US),
+    print(f"  plane, photometric: {made} maps, {int(est.lost.sum())} of {len(est)} rows lost")
+    return {"case": "plane, tracker.evo tracker=pose_6dof (APS) + map.emvs world_plane, focus 6",
+            "events": len(run.events), "mev_per_s": len(run.events) / span / 1e6, "maps": made,
+            **scores(est, run.truth, BOOT_US),
             "cpu_mev_s": len(run.events) / cpu / 1e6, "realtime_x": span / cpu}
 
 

@@ -59,7 +59,7 @@ from tectum.plugins.tracker.pose_6dof import Pose6Dof
 from tectum.sources.simulate import Simulator, make_simulator
 from tectum.testing import feed_ports
 
-__all__ = ["Run", "simulate_davis", "photo_map", "alone", "loop", "reproject", "median_depth"]
+__all__ = ["Run", "simulate_davis", "photo_map", "alone", "loop", "wired", "pipeline", "reproject", "median_depth"]
 
 BOOT_US = 300_000
 TRACKED_US = 2_000_000
@@ -253,6 +253,86 @@ def loop(run: Run, start_us: int, mapper: dict[str, Any], tracker: dict[str, Any
     est = concat(out)
     assert isinstance(est, PosePacket)
     return est, tr, made, cpu
+
+
+def wired(run: Run, start_us: int, mapper: dict[str, Any], delay_us: int = 20_000,
+          slice_us: int = 5000) -> tuple[PosePacket, list[MapPacket], float]:
+    """The operators of ``tracker.evo:tracker=pose_6dof`` driven by hand in
+    slices, wired as the macro wires them: ``tracker.pose_6dof`` with
+    ``bootstrap_us`` on the true poses, ``map.emvs`` on its rows,
+    ``map.photometric`` on the mapper's maps, the frames and the tracker's
+    rows, its maps back to the tracker stamped ``delay_us`` late (as the
+    delayed edge delivers them): (the tracker's rows, the EMVS maps, CPU
+    seconds). The check of :func:`pipeline`: the same poses."""
+    from tectum.plugins.map.photometric import Photometric
+
+    tr = Pose6Dof(calib=run.calib, bootstrap_us=BOOT_US)
+    mp = Emvs(calib=run.calib, **mapper)
+    ph = Photometric()
+    tr.warmup()
+    mp.warmup()
+    t_end = min(start_us + BOOT_US + TRACKED_US, run.events.t_end)
+    out: list[PosePacket] = []
+    emaps: list[MapPacket] = []
+    back: list[MapPacket] = []
+    cpu = time.process_time()
+    for a in range(start_us, t_end, slice_us):
+        b = min(a + slice_us, t_end)
+        ev = run.events.slice_time(a, b)
+        ports: dict[str, Packet] = {"events": ev, "poses": run.truth.slice_time(a, b)}
+        ready = [m for m in back if m.t_start < b]
+        back = [m for m in back if m.t_start >= b]
+        if ready:
+            ports["maps"] = concat(ready)
+        rows = [q for q in tr.process_ports(ports) if isinstance(q, PosePacket)]
+        out += rows
+        mp_ports: dict[str, Packet] = {"events": ev}
+        if rows:
+            mp_ports["poses"] = concat(rows)
+        new = [q for q in mp.process_ports(mp_ports) if isinstance(q, MapPacket)]
+        emaps += new
+        ph_ports: dict[str, Packet] = {"frames": run.frames.slice_time(a, b),
+                                       "poses": concat(rows) if rows else PosePacket.empty(a, b)}
+        if new:
+            ph_ports["maps"] = concat(new)
+        for m in ph.process_ports(ph_ports):
+            assert isinstance(m, MapPacket)
+            t = m.t + delay_us
+            back.append(MapPacket(t, **m.data, t_start=int(t[0]), t_end=int(t[-1]) + 1))
+    last = [q for q in tr.finish() if isinstance(q, PosePacket)]  # the last batch, as at the end of a pipeline
+    out += last
+    end = list(mp.process_ports({"poses": concat(last)})) if last else []
+    emaps += [q for q in end + list(mp.finish()) if isinstance(q, MapPacket)]
+    cpu = time.process_time() - cpu
+    est = concat([_plain(q) for q in out])
+    assert isinstance(est, PosePacket)
+    return est, emaps, cpu
+
+
+def pipeline(run: Run, start_us: int, mapper: dict[str, Any], delay_us: int = 20_000
+             ) -> tuple[PosePacket, list[MapPacket], float]:
+    """``tracker.evo:tracker=pose_6dof`` under ``tectum.run`` on the run from
+    ``start_us`` (events, the true poses as bootstrap, the APS frames): (the
+    tracker's rows, the EMVS maps, CPU seconds of the whole process)."""
+    import tectum
+    from tectum.testing import ListSink, ListSource
+
+    t_end = min(start_us + BOOT_US + TRACKED_US, run.events.t_end)
+    p = tectum.Pipeline()
+    cam = p.source(ListSource([run.events.slice_time(start_us, t_end)]), id="cam")
+    gt = p.source(ListSource([run.truth.slice_time(start_us, t_end)]), id="gt")
+    fr = p.source(ListSource([run.frames.slice_time(start_us, t_end)]), id="fr")
+    p.op("tracker.evo", events=cam, poses=gt, frames=fr, id="evo", tracker="pose_6dof", calib=run.calib,
+         delay_us=delay_us, bootstrap_us=BOOT_US, **mapper)
+    sink = ListSink()
+    p.sink(sink, "evo")
+    cpu = time.process_time()
+    tectum.run(p)
+    cpu = time.process_time() - cpu
+    est = concat([_plain(q) for q in sink.packets if isinstance(q, PosePacket)])
+    assert isinstance(est, PosePacket)
+    maps = [q for q in sink.packets if isinstance(q, MapPacket)]
+    return est, maps, cpu
 
 
 def main(argv: Sequence[str] | None = None) -> None:

@@ -61,3 +61,21 @@ def test_photo_map_needs_a_pose_at_the_frame() -> None:
     late = poses.slice_time(60_000, 100_001)
     assert photo_map(_emvs_map(70_000, 20_000), 0, run, late) is None  # the 50 ms frame is before the poses
     assert photo_map(_emvs_map(5_000, 0), 0, run, poses) is None  # no frame exposed yet
+
+
+def test_the_pipeline_gives_the_poses_of_its_operators_driven_by_hand() -> None:
+    """``tracker.evo:tracker=pose_6dof`` under ``tectum.run`` (the bench's
+    row) against the same operators fed 5 ms slices by hand, wired as the
+    macro wires them: the same rows, bit for bit (0.3 s of bootstrap, 0.1 s
+    tracked on the bench's plane)."""
+    from tectum.evaluation.suites._pose_evo import PHOTO_MAPPER
+    from tectum.evaluation.suites._pose_evo_photo import pipeline, simulate_davis, wired
+
+    run = simulate_davis(400_000)
+    est, maps, _ = pipeline(run, 0, PHOTO_MAPPER)
+    ref, emaps, _ = wired(run, 0, PHOTO_MAPPER)
+    assert (est.t > 300_000).sum() > 50 and not est.lost.any() and len(maps) >= 3
+    np.testing.assert_array_equal(est.t, ref.t)
+    np.testing.assert_array_equal(est.position, ref.position)
+    np.testing.assert_array_equal(est.orientation, ref.orientation)
+    assert sum(len(m) for m in maps) == sum(len(m) for m in emaps)
