@@ -608,6 +608,9 @@ class Pose6Dof(Operator):
         if self.map is None and not self._queued and self.counts["skipped_before_map"]:
             raise ValueError(f"tracker.pose_6dof: no map came for the {self.counts['skipped_before_map']} events: give "
                              "map=FILE.npz (image, depth, K, pose) or connect a maps port")
+        if self.bootstrap_us and self._boot_end is None and self.counts["skipped_before_map"]:
+            raise ValueError(f"tracker.pose_6dof: bootstrap_us={self.bootstrap_us} but no pose came on port 'poses' "
+                             f"for the {self.counts['skipped_before_map']} events: connect the bootstrap's poses")
         return self._advance(final=True)
 
     def _add_events(self, ev: EventPacket) -> None:

@@ -92,3 +92,8 @@ def test_a_later_map_is_not_taken_for_the_map_view() -> None:
     op.process_ports({"events": ev.slice_time(20_000, 40_000), "maps": _map(20_000)})
     assert op.map is not None and np.allclose(op.map.position, _map(20_000).data["pose"][0][:3])
     assert not op._ref_is_map
+
+
+def test_a_bootstrap_without_poses_is_an_error(slide: dict[str, Any]) -> None:
+    with pytest.raises(ValueError, match="no pose came on port 'poses'"):
+        feed_ports(_op(), {"events": [slide["events"]], "maps": [slide["maps"]]})
