@@ -9,6 +9,8 @@ import os
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from tectum import EventPacket, FormatError, concat
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -108,3 +110,28 @@ def conformance_case(name: str) -> tuple[type, Any, dict[str, Any]]:
     else:
         raise AssertionError(f"{name} consumes {cls.consumes}: give it a conformance_stream")
     return cls, stream, dict(getattr(cls, "conformance_params", {}))
+
+
+#: a camera sliding sideways at 0.3 m/s past two boxes before a wall (slider_depth-like, 120x90,
+#: 37° wide): the simulated scene of the pose_6dof start and bootstrap tests
+SLIDE: dict[str, Any] = {
+    "name": "slide", "focal_px": 167.5, "sim": {"supersample": 2},
+    "planes": [{"center": [0, 0, 2.3], "texel_m": 0.02,
+                "texture": {"kind": "noise", "size": 256, "contrast": 0.5, "blur": 2.0, "seed": 1}}],
+    "boxes": [{"center": [-0.15, 0.05, 0.8], "size": [0.2, 0.25, 0.2], "orientation": [0, 0.3, 0], "texel_m": 0.006,
+               "texture": {"kind": "noise", "size": 256, "contrast": 0.5, "blur": 2.0, "seed": 2}},
+              {"center": [0.25, -0.05, 1.3], "size": [0.3, 0.35, 0.3], "orientation": [0, -0.3, 0], "texel_m": 0.01,
+               "texture": {"kind": "noise", "size": 256, "contrast": 0.5, "blur": 2.0, "seed": 3}}],
+    "motion": {"position": [0, 0, 0], "velocity": [0.3, 0, 0]}}
+
+
+#: a small pinhole camera (40x30 px, f 50 px) at the origin looking along z (pose tx ty tz qx qy qz qw),
+#: and a plane before it: the photometric map tests' (map.photometric and its measurement module)
+SMALL_K = np.array([[50.0, 0.0, 19.5], [0.0, 50.0, 14.5], [0.0, 0.0, 1.0]])
+SMALL_W, SMALL_H = 40, 30
+STILL = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+
+
+def small_plane(depth_m: float = 2.0) -> np.ndarray:
+    """A fronto-parallel plane ``depth_m`` (m) away, as a depth map of the small camera."""
+    return np.full((SMALL_H, SMALL_W), depth_m)

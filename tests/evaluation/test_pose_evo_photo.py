@@ -11,13 +11,10 @@ import numpy as np
 from tectum import FramePacket, MapPacket, PosePacket
 from tectum.evaluation.suites._pose_evo_photo import Run, photo_map
 
-K = np.array([[50.0, 0.0, 19.5], [0.0, 50.0, 14.5], [0.0, 0.0, 1.0]])
-W, H = 40, 30
-STILL = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
-
-
-def _plane(depth_m: float = 2.0) -> np.ndarray:
-    return np.full((H, W), depth_m)
+from helpers import SMALL_H as H
+from helpers import SMALL_K as K
+from helpers import SMALL_W as W
+from helpers import small_plane as _plane
 
 
 def _run() -> Run:

@@ -11,13 +11,11 @@ from tectum import FramePacket, MapPacket, PosePacket
 from tectum.plugins.map.photometric import Photometric, frame_before, log_image, median_depth, reproject
 from tectum.testing import assert_batch_invariant, feed_ports
 
-K = np.array([[50.0, 0.0, 19.5], [0.0, 50.0, 14.5], [0.0, 0.0, 1.0]])
-W, H = 40, 30
-STILL = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
-
-
-def _plane(depth_m: float = 2.0) -> np.ndarray:
-    return np.full((H, W), depth_m)
+from helpers import SMALL_H as H
+from helpers import SMALL_K as K
+from helpers import SMALL_W as W
+from helpers import STILL
+from helpers import small_plane as _plane
 
 
 def test_reproject_moves_a_plane_sideways_and_turns_it() -> None:

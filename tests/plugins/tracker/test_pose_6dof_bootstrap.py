@@ -15,16 +15,8 @@ from tectum import MapPacket, PosePacket, concat
 from tectum.plugins.tracker.pose_6dof import Pose6Dof
 from tectum.testing import assert_batch_invariant, feed_ports
 
-#: a camera sliding sideways at 0.3 m/s past a box before a wall (120x90; test_pose_6dof_start's)
-SLIDE: dict[str, Any] = {
-    "name": "slide", "focal_px": 167.5, "sim": {"supersample": 2},
-    "planes": [{"center": [0, 0, 2.3], "texel_m": 0.02,
-                "texture": {"kind": "noise", "size": 256, "contrast": 0.5, "blur": 2.0, "seed": 1}}],
-    "boxes": [{"center": [-0.15, 0.05, 0.8], "size": [0.2, 0.25, 0.2], "orientation": [0, 0.3, 0], "texel_m": 0.006,
-               "texture": {"kind": "noise", "size": 256, "contrast": 0.5, "blur": 2.0, "seed": 2}},
-              {"center": [0.25, -0.05, 1.3], "size": [0.3, 0.35, 0.3], "orientation": [0, -0.3, 0], "texel_m": 0.01,
-               "texture": {"kind": "noise", "size": 256, "contrast": 0.5, "blur": 2.0, "seed": 3}}],
-    "motion": {"position": [0, 0, 0], "velocity": [0.3, 0, 0]}}
+from helpers import SLIDE
+
 SENSOR = "120x90"
 BOOT_US = 60_000
 

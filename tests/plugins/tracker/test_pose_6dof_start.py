@@ -12,16 +12,8 @@ import pytest
 
 from tectum import MapPacket
 
-#: a camera sliding sideways at 0.3 m/s past a box before a wall (slider_depth-like, 120x90, 37° wide)
-SLIDE: dict[str, Any] = {
-    "name": "slide", "focal_px": 167.5, "sim": {"supersample": 2},
-    "planes": [{"center": [0, 0, 2.3], "texel_m": 0.02,
-                "texture": {"kind": "noise", "size": 256, "contrast": 0.5, "blur": 2.0, "seed": 1}}],
-    "boxes": [{"center": [-0.15, 0.05, 0.8], "size": [0.2, 0.25, 0.2], "orientation": [0, 0.3, 0], "texel_m": 0.006,
-               "texture": {"kind": "noise", "size": 256, "contrast": 0.5, "blur": 2.0, "seed": 2}},
-              {"center": [0.25, -0.05, 1.3], "size": [0.3, 0.35, 0.3], "orientation": [0, -0.3, 0], "texel_m": 0.01,
-               "texture": {"kind": "noise", "size": 256, "contrast": 0.5, "blur": 2.0, "seed": 3}}],
-    "motion": {"position": [0, 0, 0], "velocity": [0.3, 0, 0]}}
+from helpers import SLIDE
+
 T_MAP = 40_000  # µs: the map's time, 40 ms into the run
 
 
