@@ -118,7 +118,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -207,6 +207,9 @@ class _View:
     last_t: int = 0
     run: int = 0
     shown: int = 0  # interim maps made so far
+    #: traces (4, n) float32 and first planes of events not voted yet (see Emvs._vote), in event order
+    pending: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    n_pending: int = 0
 
 
 class Emvs(Operator):
@@ -353,7 +356,6 @@ class Emvs(Operator):
         self._events_seen = 0
         # the reference views in progress and their DSIs, oldest first
         self._views: list[_View] = []
-        self._trace = np.empty(4 * BLOCK, np.float32)  # the traces of a block of events (see _vote)
         self._mark = 0        # µs, the events' watermark
         self._first_pose: int | None = None  # µs
 
@@ -609,16 +611,29 @@ class Emvs(Operator):
         seg = np.repeat(np.arange(len(segs), dtype=np.int64), [e - s for s, e in segs])
         R_re, C = np.ascontiguousarray(R_re), np.ascontiguousarray(C)
         cam = self.camera
-        # blocks of BLOCK events: their traces stay in cache from ray_traces to vote (cells still get
-        # their votes in event order)
-        for i in range(0, b - a, BLOCK):
-            j = min(b - a, i + BLOCK)
-            trace = self._trace[:4 * (j - i)].reshape(4, j - i)
-            ok = ray_traces(self._x[a + i:a + j], self._y[a + i:a + j], seg[i:j], self._rays, R_re, C, cam.fx,
-                            cam.fy, cam.cx, cam.cy, trace)
-            self.counts["outside_view"] += (j - i) - int(ok)
-            vote(trace, first[seg[i:j]], self.rho, view.dsi)
+        trace = np.empty((4, b - a), np.float32)
+        ok = ray_traces(self._x[a:b], self._y[a:b], seg, self._rays, R_re, C, cam.fx, cam.fy, cam.cx, cam.cy, trace)
+        self.counts["outside_view"] += (b - a) - int(ok)
+        # the votes wait until a block's worth of events is in (or the map is made): a pass over the
+        # DSI brings each of its planes (100 x 173 kB at 240x180, more than the caches keep between
+        # calls) back from memory, which cost 2-3 ms a call on 5 ms slices of 4,600 events (7.6 ns a
+        # vote on the boxes' loop, against 2.8 in one big call); cells still get their votes in event
+        # order, so the sums are the same
+        view.pending.append((trace, first[seg]))
+        view.n_pending += b - a
+        if view.n_pending >= BLOCK:
+            self._flush(view)
         view.last_t, view.voted = int(self._t[b - 1]), True
+
+    def _flush(self, view: _View) -> None:
+        """The votes ``view`` holds back go into its DSI (in blocks of
+        :data:`~._dsi.BLOCK` events: the vote kernel's)."""
+        if not view.pending:
+            return
+        trace = view.pending[0][0] if len(view.pending) == 1 else np.concatenate([p[0] for p in view.pending], axis=1)
+        first = view.pending[0][1] if len(view.pending) == 1 else np.concatenate([p[1] for p in view.pending])
+        view.pending, view.n_pending = [], 0
+        vote(trace, first, self.rho, view.dsi)
 
     def _finalize(self, view: _View, interim: bool = False) -> list[Packet]:
         """``view``'s DSI as a map (and cloud), or nothing when the camera
@@ -636,6 +651,7 @@ class Emvs(Operator):
                 " (further views without depth are counted: no_translation)"
                 if self.counts["no_translation"] == 1 else "")
             return []
+        self._flush(view)
         depth, conf = depth_map(view.dsi, self.depths, **self.map_options)  # type: ignore[arg-type]
         extra: dict[str, np.ndarray] = {}
         if self.surface != "free":
