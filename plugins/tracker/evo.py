@@ -143,7 +143,9 @@ class Evo(Macro):
         # only what was given goes to the parts: the rest keeps each operator's own default
         given = {k: v for k, v in locals().items()
                  if k not in ("self", "calib", "delay_us", "tracker") and v is not None}
-        own = _TRACKER if tracker == "edge_align" else _POSE_6DOF + _PHOTO
+        # the tracker's own parameters, and map.photometric's
+        parts, photo = (_TRACKER, ()) if tracker == "edge_align" else (_POSE_6DOF, _PHOTO)
+        own = parts + photo
         wrong = sorted(k for k in given if k not in own + _MAPPER)
         if wrong:
             raise ValueError(f"tracker.evo: {', '.join(wrong)} not for tracker={tracker} (its tracker's: "
@@ -151,9 +153,8 @@ class Evo(Macro):
         if tracker == "pose_6dof" and not given.get("bootstrap_us"):
             raise ValueError("tracker.evo: tracker=pose_6dof needs bootstrap_us > 0 µs of the source's poses (port "
                              "poses): the first maps are made from them")
-        self.tracker: dict[str, Any] = {k: given[k] for k in (_TRACKER if tracker == "edge_align" else _POSE_6DOF)
-                                        if k in given}
-        self.photo: dict[str, Any] = {k: given[k] for k in _PHOTO if k in given}
+        self.tracker: dict[str, Any] = {k: given[k] for k in parts if k in given}
+        self.photo: dict[str, Any] = {k: given[k] for k in photo if k in given}
         self.mapper: dict[str, Any] = {k: given[k] for k in _MAPPER if k in given}
 
     def expand(self, x: Expansion) -> None:

@@ -579,11 +579,11 @@ class Pose6Dof(Operator):
         k = int(np.searchsorted(poses.t, self._boot_end, side="left"))
         if not k:
             return []
-        n, ts = k, poses.t[:k]
+        ts = poses.t[:k]
         q = np.asarray(poses.orientation[:k], np.float64)
         return [PosePacket(ts, position=np.asarray(poses.position[:k], np.float64),
-                           orientation=q / np.linalg.norm(q, axis=1, keepdims=True), linear_velocity=np.zeros((n, 3)),
-                           angular_velocity=np.zeros((n, 3)), lost=np.zeros(n, bool), fit=np.full(n, np.nan),
+                           orientation=q / np.linalg.norm(q, axis=1, keepdims=True), linear_velocity=np.zeros((k, 3)),
+                           angular_velocity=np.zeros((k, 3)), lost=np.zeros(k, bool), fit=np.full(k, np.nan),
                            t_start=int(ts[0]), t_end=int(ts[-1]) + 1)]
 
     def _track_from(self) -> int | None:
@@ -690,14 +690,9 @@ class Pose6Dof(Operator):
     def _initial(self, t0: int) -> tuple[np.ndarray, np.ndarray]:
         if self.init is not None:
             return self.init[0].copy(), self.init[1].copy()
-        if self._boot:
-            b = concat(self._boot)
-            assert isinstance(b, PosePacket)
-            tq = min(max(t0, int(b.t[0])), int(b.t[-1]))
-            p, q, _ = interpolate_poses(np.array([tq], np.int64), b.t, b.position, b.orientation)
-            return np.asarray(quat_to_rot(q[0])), p[0]
-        if self._init_poses is not None:
-            ps = self._init_poses
+        ps = concat(self._boot) if self._boot else self._init_poses  # the port's pose at t0 (interpolated)
+        if ps is not None:
+            assert isinstance(ps, PosePacket)
             tq = min(max(t0, int(ps.t[0])), int(ps.t[-1]))
             p, q, _ = interpolate_poses(np.array([tq], np.int64), ps.t, ps.position, ps.orientation)
             return np.asarray(quat_to_rot(q[0])), p[0]
