@@ -10,7 +10,7 @@ import numpy as np
 
 from . import _lens
 
-__all__ = ["Camera", "Model"]
+__all__ = ["Camera", "Model", "depth_points"]
 
 Model = Literal["radtan", "equidistant"]
 _COUNTS: dict[str, tuple[int, ...]] = {"radtan": (0, 4, 5, 8, 12, 14), "equidistant": (0, 4)}
@@ -208,6 +208,17 @@ class Camera:
         out = self.undistort_points(np.column_stack([gx.ravel(), gy.ravel()]), self.P, self.R)
         return out[:, 0].reshape(h, w), out[:, 1].reshape(h, w)
 
+
+def depth_points(depth: np.ndarray, K: np.ndarray, R_wc: np.ndarray,
+                 t_wc: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The known pixels of a depth map (H, W, m along the optical axis;
+    NaN, or not above 0, unknown) of a pinhole camera with intrinsics ``K``
+    (3x3, px) at world-from-camera ``R_wc``, ``t_wc`` (m) as world points:
+    ``(points (N, 3) m, rows, columns)``, the pixels in row-major order."""
+    v, u = np.nonzero(np.isfinite(depth) & (depth > 0))
+    Z = depth[v, u].astype(np.float64)
+    pc = np.stack([(u - K[0, 2]) / K[0, 0] * Z, (v - K[1, 2]) / K[1, 1] * Z, Z], axis=1)
+    return np.ascontiguousarray(pc @ np.asarray(R_wc, np.float64).T + np.asarray(t_wc, np.float64)), v, u
 
 def _finite(a: object, name: str) -> np.ndarray:
     arr = np.asarray(a, np.float64)

@@ -28,7 +28,8 @@ What is here
   ``undistort_maps`` ...) and :func:`read_calibration` /
   :func:`read_uzh_calib` for OpenCV YAML/JSON, stereo, ROS ``camera_info``
   and UZH ``calib.txt`` files; :func:`camera_from` for an operator's
-  ``calib=`` (a file, or inline ``fx;fy;cx;cy[;k1;k2;p1;p2[;k3]]``).
+  ``calib=`` (a file, or inline ``fx;fy;cx;cy[;k1;k2;p1;p2[;k3]]``);
+  :func:`depth_points`: a depth map's known pixels as world points.
 * SO(3)/SE(3): :func:`hat`, :func:`so3_exp`, :func:`so3_log`,
   :func:`quat_to_rot`, :func:`rot_to_quat`, :func:`quat_mul`,
   :func:`quat_conj`, :func:`quat_slerp`, :func:`interpolate_poses`,
@@ -45,7 +46,7 @@ This module imports no plugin, source or sink.
 from __future__ import annotations
 
 from ._calibration_files import Side, camera_from, read_calibration, read_uzh_calib
-from ._camera import Camera, Model
+from ._camera import Camera, Model, depth_points
 from ._lens import distort_kernel, pixel_to_normalized_kernel, project_kernel, undistort_kernel
 from ._rigid import (
     QUAT_TOL,
@@ -75,7 +76,7 @@ from ._rigid import (
 )
 
 __all__ = [
-    "Camera", "Model", "Side", "camera_from", "read_calibration", "read_uzh_calib",
+    "Camera", "Model", "Side", "depth_points", "camera_from", "read_calibration", "read_uzh_calib",
     "project_kernel", "distort_kernel", "undistort_kernel", "pixel_to_normalized_kernel",
     "hat", "so3_exp", "so3_log", "quat_to_rot", "rot_to_quat", "quat_mul", "quat_conj", "quat_slerp",
     "interpolate_poses", "se3_exp", "se3_log", "transform_points", "compose", "invert", "QUAT_TOL",

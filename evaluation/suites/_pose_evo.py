@@ -46,12 +46,12 @@ from typing import Any
 import numpy as np
 
 from tectum import EventPacket, MapPacket, Packet, PosePacket, concat
-from tectum.camera import interpolate_poses
+from tectum.camera import depth_points, interpolate_poses, quat_to_rot
 from tectum.evaluation.harness import shared_data, table, target
 from tectum.evaluation.metrics.trajectory import trajectory_scores
 from tectum.evaluation.suites._map_emvs import _simulate
 from tectum.plugins.map.emvs import Emvs
-from tectum.plugins.tracker.edge_align import EdgeAlign, map_points
+from tectum.plugins.tracker.edge_align import EdgeAlign
 
 #: a textured plane 2 m in front of a camera moving in 6 DoF (a slower, coarser ``plane_6dof``:
 #: about 0.5 Mev/s at 240x180, DAVIS240-class)
@@ -259,7 +259,7 @@ def picture(path: Path, est: PosePacket, truth: PosePacket, maps: list[MapPacket
     if not maps:
         return None
     m = maps[-1]
-    pts = map_points(m.depth[0], m.K[0], m.pose[0])
+    pts = depth_points(m.depth[0], m.K[0], quat_to_rot(m.pose[0][3:7]), m.pose[0][:3])[0]
     good = ~est.lost
     fig, axes = plt.subplots(1, 3, figsize=(14, 4.5))
     ax = axes[0]

@@ -59,7 +59,7 @@ from tectum.plugins.tracker.pose_6dof import Pose6Dof
 from tectum.sources.simulate import Simulator, make_simulator
 from tectum.testing import feed_ports
 
-__all__ = ["Run", "simulate_davis", "photo_map", "alone", "loop", "wired", "pipeline", "reproject", "median_depth"]
+__all__ = ["Run", "simulate_davis", "photo_map", "alone", "loop", "wired", "pipeline"]
 
 BOOT_US = 300_000
 TRACKED_US = 2_000_000

@@ -125,7 +125,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 from tectum import EventPacket, Kind, MapPacket, Operator, Packet, PointPacket, Port, PosePacket
-from tectum.camera import QUAT_TOL, Camera, camera_from, interpolate_poses, quat_to_rot, rot_to_quat
+from tectum.camera import QUAT_TOL, Camera, camera_from, depth_points, interpolate_poses, quat_to_rot, rot_to_quat
 
 from ._dsi import BLOCK, argmax_depth, focus_argmax, masked_median, ray_traces, vote
 from ._plane_fit import explains, fit_plane, plane_depth, plane_in_view, plane_to_world
@@ -700,12 +700,8 @@ class Emvs(Operator):
 
     def _cloud(self, depth: np.ndarray, conf: np.ndarray, R_wr: np.ndarray, t_wr: np.ndarray,
                t_map: int) -> PointPacket:
-        v, u = np.nonzero(np.isfinite(depth))
-        Z = depth[v, u].astype(np.float64)
-        pc = np.stack([(u - self.camera.cx) / self.camera.fx * Z, (v - self.camera.cy) / self.camera.fy * Z, Z],
-                      axis=1)
-        pw = pc @ R_wr.T + t_wr
-        return PointPacket(np.full(len(Z), t_map, np.int64), position=pw, intensity=conf[v, u],
+        pw, v, u = depth_points(depth, self.K, R_wr, t_wr)
+        return PointPacket(np.full(len(pw), t_map, np.int64), position=pw, intensity=conf[v, u],
                            t_start=t_map, t_end=t_map + 1)
 
     def _drop_knots(self, t_keep: int) -> None:

@@ -40,7 +40,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from tectum import FramePacket, Kind, MapPacket, Operator, Packet, Port, PosePacket
-from tectum.camera import interpolate_poses, quat_to_rot
+from tectum.camera import depth_points, interpolate_poses, quat_to_rot
 
 __all__ = ["Photometric", "reproject", "median_depth", "log_image", "frame_before"]
 
@@ -48,14 +48,11 @@ __all__ = ["Photometric", "reproject", "median_depth", "log_image", "frame_befor
 def reproject(depth: np.ndarray, K: np.ndarray, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     """Depth (m, NaN unknown) seen from pose ``src`` (tx ty tz qx qy qz qw,
     world-from-camera) as depth seen from ``dst`` with the same intrinsics
-    ``K`` (px): each known pixel to the nearest pixel, the nearest surface
-    kept; NaN where nothing lands."""
+    ``K`` (px): each known pixel (:func:`tectum.camera.depth_points`) to the
+    nearest pixel, the nearest surface kept; NaN where nothing lands."""
     h, w = depth.shape
-    v, u = np.nonzero(np.isfinite(depth))
-    d = depth[v, u]
-    Xc = np.stack([(u - K[0, 2]) / K[0, 0] * d, (v - K[1, 2]) / K[1, 1] * d, d], axis=1)
-    Rs, Rd = np.asarray(quat_to_rot(src[3:])), np.asarray(quat_to_rot(dst[3:]))
-    Xd = (Xc @ Rs.T + src[:3] - dst[:3]) @ Rd
+    Xw = depth_points(depth, K, quat_to_rot(src[3:]), src[:3])[0]
+    Xd = (Xw - dst[:3]) @ np.asarray(quat_to_rot(dst[3:]))
     z = Xd[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
         uu = np.rint(K[0, 0] * Xd[:, 0] / z + K[0, 2])

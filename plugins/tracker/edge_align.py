@@ -85,27 +85,26 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 from tectum import EventPacket, Kind, MapPacket, Operator, Packet, Port, PosePacket
-from tectum.camera import Camera, camera_from, interpolate_poses, quat_to_rot, rot_to_quat, se3_exp, se3_log, so3_log
+from tectum.camera import (
+    Camera,
+    camera_from,
+    depth_points,
+    interpolate_poses,
+    quat_to_rot,
+    rot_to_quat,
+    se3_exp,
+    se3_log,
+    so3_log,
+)
 
 from ._edge_align import align, consistent, gradients, normalise, vote_events
 
-__all__ = ["EdgeAlign", "map_points"]
+__all__ = ["EdgeAlign"]
 
 #: Fraction of pixels at the top of the event image that saturate at 1.
 TOP_FRACTION = 0.005
 #: Map points nearer than this to a camera are not used, m.
 MIN_DEPTH_M = 0.05
-
-
-def map_points(depth: np.ndarray, K: np.ndarray, pose: np.ndarray) -> np.ndarray:
-    """The known pixels of a depth map (H, W, m, NaN unknown) seen with
-    intrinsics ``K`` (3x3 px) from ``pose`` (tx ty tz qx qy qz qw,
-    world-from-camera) as world points (N, 3), m, in row-major order."""
-    v, u = np.nonzero(np.isfinite(depth) & (depth > 0))
-    Z = depth[v, u].astype(np.float64)
-    pc = np.stack([(u - K[0, 2]) / K[0, 0] * Z, (v - K[1, 2]) / K[1, 1] * Z, Z], axis=1)
-    R = np.asarray(quat_to_rot(np.asarray(pose[3:7], np.float64)))
-    return np.ascontiguousarray(pc @ R.T + np.asarray(pose[:3], np.float64))
 
 
 class EdgeAlign(Operator):
@@ -324,7 +323,7 @@ class EdgeAlign(Operator):
                 keep = np.zeros(d.shape, bool)
                 consistent(d, 3, self.neighbour_tol, self.min_neighbours, keep)
                 depth = np.where(keep, d, np.nan)
-            pts = map_points(depth, K, pose)
+            pts = depth_points(depth, K, quat_to_rot(np.asarray(pose[3:7], np.float64)), pose[:3])[0]
             if len(pts) > self.max_points:
                 pts = np.ascontiguousarray(pts[np.linspace(0, len(pts) - 1, self.max_points).astype(np.int64)])
             self._maps.append((t, pts))

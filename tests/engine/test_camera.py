@@ -430,3 +430,21 @@ def test_camera_from_takes_inline_intrinsics_or_a_file(tmp_path):
     for bad in ("207.85;nan", "200;201;120;x", str(tmp_path / "absent.yaml")):
         with pytest.raises(ValueError, match="neither a calibration file nor inline intrinsics"):
             camera_from(bad)
+
+
+def test_depth_points_are_the_known_pixels_back_projected_into_the_world() -> None:
+    """A depth map's known pixels (finite and above 0) as world points, in
+    row-major order, against :meth:`Camera.back_project` and the pose."""
+    from tectum.camera import Camera, depth_points, so3_exp
+
+    K = np.array([[120.0, 0.0, 31.5], [0.0, 110.0, 22.5], [0.0, 0.0, 1.0]])
+    depth = np.random.default_rng(2).uniform(0.5, 4.0, (45, 64))
+    depth[3, 5], depth[10, 7], depth[20, 30] = np.nan, 0.0, -1.0  # unknown, and no depth
+    R, t = so3_exp(np.array([0.1, -0.2, 0.3])), np.array([0.5, -1.0, 2.0])
+    pts, v, u = depth_points(depth, K, R, t)
+    known = np.isfinite(depth) & (depth > 0)
+    assert len(pts) == known.sum() == depth.size - 3
+    assert np.array_equal(np.ravel_multi_index((v, u), depth.shape), np.flatnonzero(known))
+    cam = Camera(K, np.zeros(0))
+    expect = cam.back_project(np.column_stack([u, v]).astype(np.float64), depth[v, u]) @ R.T + t
+    np.testing.assert_allclose(pts, expect, rtol=0, atol=1e-12)
