@@ -68,8 +68,9 @@ def test_expansion_wires_the_photometric_loop() -> None:
     ({"tracker": "pose_6dof", "bootstrap_us": 1000, "window_events": 100}, "window_events not for tracker=pose_6dof"),
     ({"median_px": 2}, "median_px not for tracker=edge_align"),
     ({"tracker": "orb"}, "edge_align or pose_6dof"),
+    ({"tracker": "pose_6dof", "bootstrap_us": 1000}, "needs intensity frames on port frames"),
 ])
-def test_parameters_for_the_other_tracker_are_refused(params: dict[str, Any], match: str) -> None:
+def test_what_the_chosen_tracker_cannot_run_with_is_refused(params: dict[str, Any], match: str) -> None:
     p = tectum.Pipeline()
     cam = p.source("pattern:", id="cam")
     with pytest.raises((ValueError, tectum.PipelineError), match=match):
