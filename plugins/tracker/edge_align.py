@@ -79,7 +79,7 @@ map's points (24 bytes each), four H x W float64 images.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 from scipy.ndimage import gaussian_filter
@@ -300,6 +300,13 @@ class EdgeAlign(Operator):
             self._add_events(ev)  # type: ignore[arg-type]
             rows += self._steps()
         return self._emit(rows, max(p.t_end for p in ports.values()))
+
+    def finish(self) -> Sequence[Packet]:
+        if self.bootstrap_us and self._boot_end is None and self.counts["bootstrap_steps"]:
+            raise ValueError(f"tracker.edge_align: bootstrap_us={self.bootstrap_us} but no pose came on port 'poses' "
+                             f"for the {self.counts['bootstrap_steps']} steps: connect the bootstrap's poses (a "
+                             "source with poses, e.g. simulate:SCENE?poses=true)")
+        return ()
 
     def _add_maps(self, maps: MapPacket) -> None:
         if "depth" not in maps.column_names or "K" not in maps.column_names or "pose" not in maps.column_names:

@@ -71,6 +71,21 @@ def test_cli_writes_poses_and_maps(tmp_path: Any) -> None:
         assert any(k.startswith("maps") for k in z.files), z.files
 
 
+def test_a_bootstrap_without_poses_is_a_one_line_error(tmp_path: Any, capsys: pytest.CaptureFixture[str]) -> None:
+    """The user's path without poses: a simulation written to a file holds
+    the events (its truth is beside it), so the bootstrap gets no pose. The
+    run ends with one line naming the missing poses and a non-zero exit, not
+    an empty trajectory and exit 0."""
+    ev = tmp_path / "plane.npz"
+    assert cli(["simulate", "plane_6dof", "--duration", "60ms", "--sensor", "120x90", "--out", str(ev), "-q"]) == 0
+    capsys.readouterr()
+    rc = cli(["run", str(ev), "--op", f"tracker.evo:bootstrap_us=20000,calib={_calib('120x90')}", "--sink",
+              str(tmp_path / "traj.tum"), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc != 0
+    assert "bootstrap_us=20000 but no pose came on port 'poses'" in err[-1] and "Traceback" not in "".join(err)
+
+
 #: a textured plane 2 m away, the camera moving in 6 DoF (slow and smooth)
 PLANE: dict[str, Any] = {
     "planes": [{"center": [0, 0, 2.0], "texture": {"kind": "noise", "size": 512, "contrast": 0.6},
