@@ -8,6 +8,9 @@ plain ``numpy.load``):
   ``[width, height]`` and ``interval`` = ``[t_start, t_end]`` in µs. Files
   from elsewhere without ``sensor`` get it from the ``sensor`` option or,
   failing that, from the largest coordinates;
+* the ground truth ``tectum simulate --out FILE`` writes beside the events
+  (``FILE.truth.npz``, no events): its ``pose_*``, ``aps_*`` and ``imu_*``
+  series are the poses, frames and IMU streams;
 * sample streams: for a registered kind ``KIND`` (``frames``, ``maps``,
   ``imu``, ``poses``, ...), ``KIND_t`` (int64 µs) marks the stream, each
   ``KIND_FIELD`` array (first axis over the samples) is a field and
@@ -40,6 +43,11 @@ __all__ = ["NpzSource", "read_npz"]
 _UNITS = {"s": 1_000_000, "ms": 1000, "us": 1, "ns": 0.001}
 _META = ("sensor", "interval")
 _SAMPLE_BYTES = 1 << 24  # bytes of one sample stream read at a time
+#: the ground truth ``tectum simulate --out FILE`` writes to ``FILE.truth.npz``
+#: (:class:`tectum.sources.simulate.truth.Truth`): its series that are
+#: streams, by their prefix there (the dense ``frame_*`` maps, ``feature_*``,
+#: ``camera``, ``seed`` ... are left to ``numpy.load``)
+_TRUTH_SERIES = {Kind.POSES: "pose_", Kind.FRAMES: "aps_", Kind.IMU: "imu_"}
 
 
 class _Column:
@@ -153,7 +161,8 @@ class NpzSource(Source):
                 names = {m[:-4] for m in zf.namelist() if m.endswith(".npy")}
         except (zipfile.BadZipFile, OSError):
             return cls.produces  # opening will say what is wrong
-        found = [k for k in cls.produces if k != Kind.EVENTS and f"{k}_t" in names]
+        found = [k for k in cls.produces if k != Kind.EVENTS and (f"{k}_t" in names or (
+            "t" not in names and f"{_TRUTH_SERIES.get(k)}t" in names))]
         return (Kind.EVENTS, *found) if "t" in names or not found else tuple(found)
 
     def _open(self) -> tuple[dict[str, _Column], tuple[int, int] | None, tuple[int, int] | None, int,
@@ -178,11 +187,15 @@ class NpzSource(Source):
         return cols, sensor, interval, n, streams
 
     def _streams(self, cols: dict[str, _Column]) -> list[_Stream]:
-        """Take the sample streams' arrays (``KIND_t`` and ``KIND_*``) out of ``cols``."""
+        """Take the sample streams' arrays (``KIND_t`` and ``KIND_*``) out of
+        ``cols``; in an archive without events also the simulator's ground
+        truth series (:data:`_TRUTH_SERIES`)."""
         out = []
         scale = _UNITS[self.time_unit]
         for kind in sorted(Kind, key=len, reverse=True):  # angular_velocity_t before a kind named angular
             pre = str(kind) + "_"
+            if pre + "t" not in cols and "t" not in cols and kind in _TRUTH_SERIES:
+                pre = _TRUTH_SERIES[kind]
             if kind in (Kind.EVENTS, Kind.RESULTS) or pre + "t" not in cols:
                 continue
             t = cols.pop(pre + "t")

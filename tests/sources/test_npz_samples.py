@@ -230,3 +230,44 @@ def test_the_streams_are_known_before_opening(tmp_path: Path) -> None:
     _write(samples, [rec["maps"]])
     assert NpzSource.kinds_for(str(both), {}) == (Kind.EVENTS, Kind.IMU)
     assert NpzSource.kinds_for(str(samples), {}) == (Kind.MAPS,)
+
+
+def test_the_simulators_ground_truth_file_opens_in_info_convert_and_run(tmp_path: Path,
+                                                                         capsys: pytest.CaptureFixture[str]) -> None:
+    """``tectum simulate --out run.npz`` writes ``run.npz.truth.npz`` beside
+    the events: it opens again as a recording of its poses, APS frames and
+    IMU (the arrays as written, exactly), in ``tectum info``, ``convert``
+    (the poses to TUM) and ``run``."""
+    scene = tmp_path / "scene.toml"
+    scene.write_text('sensor = [32, 24]\nbackground = { intensity = 0.5 }\npanorama = { texture = 0.5 }\n'
+                     'motion = { angular_velocity = [0.0, 0.3, 0.0] }\n'
+                     'davis = { imu_rate_hz = 1000, aps_rate_hz = 100, exposure_us = 2000 }\n')
+    ev = tmp_path / "run.npz"
+    assert main(["simulate", str(scene), "--duration", "50ms", "--out", str(ev), "-q"]) == 0
+    truth_path = tmp_path / "run.npz.truth.npz"
+    z = np.load(truth_path)
+    capsys.readouterr()
+    assert main(["info", str(truth_path)]) == 0
+    out = capsys.readouterr().out
+    assert f"poses {len(z['pose_t'])}" in out and "frames 5" in out and "imu 50" in out, out
+    assert NpzSource.kinds_for(str(truth_path), {}) == (Kind.FRAMES, Kind.IMU, Kind.POSES)
+    got = {k: tectum.concat([q for q in NpzSource(str(truth_path)).packets() if q.kind == k])
+           for k in (Kind.POSES, Kind.FRAMES, Kind.IMU)}
+    np.testing.assert_array_equal(got[Kind.POSES].t, z["pose_t"])
+    np.testing.assert_array_equal(got[Kind.POSES].position, z["pose_position"])
+    np.testing.assert_array_equal(got[Kind.POSES].orientation, z["pose_orientation"])
+    np.testing.assert_array_equal(got[Kind.FRAMES].images, z["aps_images"])
+    np.testing.assert_array_equal(got[Kind.FRAMES].exposure_start, z["aps_exposure_start"])
+    np.testing.assert_array_equal(got[Kind.IMU].gyro, z["imu_gyro"])
+    tum = tmp_path / "truth.tum"
+    assert main(["convert", str(truth_path), str(tum), "-q"]) == 0
+    rows = np.loadtxt(tum)
+    np.testing.assert_allclose(rows[:, 0], z["pose_t"] * 1e-6)
+    np.testing.assert_allclose(rows[:, 1:4], z["pose_position"], atol=1e-9)
+    back = tmp_path / "back.npz"
+    assert main(["run", str(truth_path), "--sink", str(back), "-q"]) == 0
+    with np.load(back) as b:
+        np.testing.assert_array_equal(b["poses_position"], z["pose_position"])
+        np.testing.assert_array_equal(b["frames_images"], z["aps_images"])
+    # the events beside it stay events only (the truth series are read from an archive without events)
+    assert NpzSource.kinds_for(str(ev), {}) == (Kind.EVENTS,)
