@@ -38,7 +38,7 @@ from tectum.plugins.map.emvs import Emvs
 from tectum.plugins.tracker.edge_align import EdgeAlign
 from tectum.testing import feed_ports
 
-__all__ = ["spread", "LOOP_STARTS_S", "ALONE_STARTS_S"]
+__all__ = ["spread", "mean_line", "LOOP_STARTS_S", "ALONE_STARTS_S"]
 
 #: the scenes by name: the bench's plane and the built-in boxes
 SCENES: dict[str, str | dict[str, Any]] = {"plane": PLANE, "boxes_3d": "boxes_3d"}
@@ -109,10 +109,22 @@ def main(argv: Sequence[str] | None = None) -> None:
     for r in rows:
         print(f"start {r['start_s']:.2f} s: position RMSE {r['pos_pct']:.1f} % of {r['path_m']:.2f} m, final "
               f"{r['drift_pct']:.1f} %, rotation median {r['rot_median_deg']:.2f} deg, lost {100 * r['lost']:.0f} %")
+    print(mean_line(rows))
+
+
+def mean_line(rows: Sequence[dict[str, Any]]) -> str:
+    """The means over the starts ``rows`` (rows of :func:`spread`), said over
+    the starts that tracked at all: a start lost from its first step has no
+    score (NaN), and the bench's mean over the starts is then NaN (missed)."""
     pos = np.array([r["pos_pct"] for r in rows])
     rot = np.array([r["rot_median_deg"] for r in rows])
-    print(f"mean: position RMSE {np.nanmean(pos):.1f} % of the path (median {np.nanmedian(pos):.1f} %), final "
-          f"{np.nanmean([r['drift_pct'] for r in rows]):.1f} %, rotation median {np.nanmean(rot):.2f} deg")
+    scored = int(np.sum(np.isfinite(pos)))
+    if not scored:
+        return f"mean: none of {len(rows)} starts tracked (every one lost from the start)"
+    over = "" if scored == len(rows) else (f" over {scored} of {len(rows)} starts ({len(rows) - scored} lost from "
+                                           "the start: the bench's mean is NaN, missed)")
+    return (f"mean: position RMSE {np.nanmean(pos):.1f} % of the path (median {np.nanmedian(pos):.1f} %), final "
+            f"{np.nanmean([r['drift_pct'] for r in rows]):.1f} %, rotation median {np.nanmean(rot):.2f} deg{over}")
 
 
 if __name__ == "__main__":

@@ -56,3 +56,19 @@ def test_the_boxes_run_with_their_own_settings(monkeypatch: pytest.MonkeyPatch) 
 def test_scene_is_checked() -> None:
     with pytest.raises(ValueError, match="scene is one of"):
         spread("loop", scene="cube")
+
+
+def test_the_mean_line_says_which_starts_it_leaves_out() -> None:
+    """A start lost from its first step has no score (NaN): the line's means
+    are over the others and it says so (the bench's mean is NaN, missed);
+    with every start scored it says nothing more."""
+    from tectum.evaluation.suites._pose_evo_spread import mean_line
+
+    def row(pos: float) -> dict[str, float]:
+        return {"pos_pct": pos, "drift_pct": pos, "rot_median_deg": pos / 2}
+
+    assert mean_line([row(4.0), row(8.0)]) == ("mean: position RMSE 6.0 % of the path (median 6.0 %), final 6.0 %, "
+                                               "rotation median 3.00 deg")
+    lost = mean_line([row(4.0), row(float("nan")), row(8.0)])
+    assert lost.startswith("mean: position RMSE 6.0 % of the path") and "over 2 of 3 starts (1 lost" in lost
+    assert "none of 2 starts tracked" in mean_line([row(float("nan"))] * 2)
