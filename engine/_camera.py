@@ -220,6 +220,7 @@ def depth_points(depth: np.ndarray, K: np.ndarray, R_wc: np.ndarray,
     pc = np.stack([(u - K[0, 2]) / K[0, 0] * Z, (v - K[1, 2]) / K[1, 1] * Z, Z], axis=1)
     return np.ascontiguousarray(pc @ np.asarray(R_wc, np.float64).T + np.asarray(t_wc, np.float64)), v, u
 
+
 def _finite(a: object, name: str) -> np.ndarray:
     arr = np.asarray(a, np.float64)
     if not np.isfinite(arr).all():

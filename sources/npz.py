@@ -31,7 +31,7 @@ their ends. Each stream is read a chunk of rows at a time.
 from __future__ import annotations
 
 import zipfile
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Container, Iterator, Mapping
 from typing import IO, Any
 
 import numpy as np
@@ -161,8 +161,7 @@ class NpzSource(Source):
                 names = {m[:-4] for m in zf.namelist() if m.endswith(".npy")}
         except (zipfile.BadZipFile, OSError):
             return cls.produces  # opening will say what is wrong
-        found = [k for k in cls.produces if k != Kind.EVENTS and (f"{k}_t" in names or (
-            "t" not in names and f"{_TRUTH_SERIES.get(k)}t" in names))]
+        found = [k for k in cls.produces if k != Kind.EVENTS and _prefix(k, names) + "t" in names]
         return (Kind.EVENTS, *found) if "t" in names or not found else tuple(found)
 
     def _open(self) -> tuple[dict[str, _Column], tuple[int, int] | None, tuple[int, int] | None, int,
@@ -193,9 +192,7 @@ class NpzSource(Source):
         out = []
         scale = _UNITS[self.time_unit]
         for kind in sorted(Kind, key=len, reverse=True):  # angular_velocity_t before a kind named angular
-            pre = str(kind) + "_"
-            if pre + "t" not in cols and "t" not in cols and kind in _TRUTH_SERIES:
-                pre = _TRUTH_SERIES[kind]
+            pre = _prefix(kind, cols)
             if kind in (Kind.EVENTS, Kind.RESULTS) or pre + "t" not in cols:
                 continue
             t = cols.pop(pre + "t")
@@ -322,6 +319,15 @@ class NpzSource(Source):
         if self._zf is not None:
             self._zf.close()
             self._zf = None
+
+
+def _prefix(kind: Kind, names: Container[str]) -> str:
+    """The prefix of ``kind``'s arrays among the archive's ``names``:
+    ``KIND_``, or in an archive without events and without ``KIND_t`` the
+    simulator's ground-truth prefix (:data:`_TRUTH_SERIES`)."""
+    own = f"{kind}_"
+    truth = _TRUTH_SERIES.get(kind)
+    return truth if truth is not None and own + "t" not in names and "t" not in names else own
 
 
 def _tiles(read: Callable[[int], dict[str, np.ndarray]], n: int, step: int,
