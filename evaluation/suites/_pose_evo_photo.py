@@ -52,11 +52,12 @@ import numpy as np
 
 from tectum import EventPacket, FramePacket, MapPacket, Packet, PosePacket, concat
 from tectum.camera import interpolate_poses
+from tectum.evaluation.suites._map_emvs import _simulate
 from tectum.evaluation.suites._pose_evo import MAPPERS, PLANE, scores
 from tectum.plugins.map.emvs import Emvs
 from tectum.plugins.map.photometric import frame_before, log_image, median_depth, reproject
 from tectum.plugins.tracker.pose_6dof import Pose6Dof
-from tectum.sources.simulate import Simulator, make_simulator
+from tectum.sources.simulate import Simulator
 from tectum.testing import feed_ports
 
 __all__ = ["Run", "simulate_davis", "photo_map", "alone", "loop", "wired", "pipeline"]
@@ -85,20 +86,14 @@ class Run:
 def simulate_davis(duration_us: int, aps_hz: float = 25.0, exposure_us: float = 5000.0,
                    scene: dict[str, Any] = PLANE) -> Run:
     """The bench's simulation (240x180, seed 1, 20 ms windows) with APS frames."""
-    sim = make_simulator({**scene, "davis": {"aps_rate_hz": aps_hz, "exposure_us": exposure_us}}, duration_us,
-                         sensor="240x180", seed=1)
-    evs: list[EventPacket] = []
-    poses: list[Packet] = []
-    frames: list[Packet] = []
-    for ev, side in sim.windows(20_000):
-        evs.append(ev.without_columns(*ev.columns))
-        poses += [q for q in side if isinstance(q, PosePacket)]
-        frames += [q for q in side if isinstance(q, FramePacket)]
-    ev_all, ps, fr = concat(evs), concat(poses), concat(frames)
-    assert isinstance(ev_all, EventPacket) and isinstance(ps, PosePacket) and isinstance(fr, FramePacket)
-    f, cx, cy = (float(v) for v in sim.truth["camera"])
+    ev, poses, sim = _simulate({**scene, "davis": {"aps_rate_hz": aps_hz, "exposure_us": exposure_us}}, duration_us)
+    tr = sim.truth  # the frames as the simulator gave them, over the events' span
+    frames = FramePacket(np.array(tr["aps_t"]), images=np.array(tr["aps_images"]),
+                         exposure_start=np.array(tr["aps_exposure_start"]),
+                         exposure_end=np.array(tr["aps_exposure_end"]), t_start=ev.t_start, t_end=ev.t_end)
+    f, cx, cy = (float(v) for v in tr["camera"])
     K = np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
-    return Run(ev_all, ps, fr, sim, K, float(sim.model.eps))
+    return Run(ev, poses, frames, sim, K, float(sim.model.eps))
 
 
 def _pose7(t_us: int, poses: PosePacket) -> np.ndarray:
