@@ -33,6 +33,7 @@ __all__ = [
     "quat_slerp", "interpolate_poses", "se3_exp", "se3_log", "transform_points", "compose", "invert",
     "so3_exp_kernel", "so3_log_kernel", "quat_to_rot_kernel", "rot_to_quat_kernel", "quat_mul_kernel",
     "quat_slerp_kernel", "se3_exp_kernel", "se3_log_kernel", "interpolate_poses_kernel",
+    "gyro_rotations", "gyro_turn", "rotation_matrix",
 ]
 
 #: below this angle (rad) the closed forms give way to their Taylor series
@@ -276,6 +277,68 @@ def interpolate_poses_kernel(tq, t, position, orientation, out_pos, out_ori, val
 # One loop per kernel: a loop taking the kernel as an argument is not cached by
 # numba (its dispatcher type differs in each process), so it would compile anew.
 @njit(cache=True, nogil=True)
+def _gyro_step(w, dt, out):  # type: ignore[no-untyped-def]
+    """``exp(hat(w) dt)`` into ``out``: ``w`` rad/s (3,), ``dt`` s."""
+    out[:] = 0.0
+    so3_exp_kernel(w * dt, out)
+
+
+@njit(cache=True, nogil=True)
+def gyro_rotations(t, knot_t, knot_w, t_ref):  # type: ignore[no-untyped-def]
+    """Rotation ``R_ref_from_t`` (N, 3, 3): camera at ``t_ref`` from camera at
+    each time ``t`` (int64 µs, sorted, all >= ``knot_t[0]``, none past
+    ``t_ref``), given gyro knots: ω ``knot_w[k]`` (rad/s, camera frame)
+    held over ``[knot_t[k], knot_t[k+1])`` (zero-order hold; the last
+    one onwards). Orientation follows ``dR/dt = R hat(ω)``."""
+    m = knot_t.shape[0]
+    step = np.empty((3, 3))
+    # orientation at each knot relative to knot 0, then at t_ref
+    Rk = np.empty((m, 3, 3))
+    Rk[0] = np.eye(3)
+    for k in range(1, m):
+        _gyro_step(knot_w[k - 1], (knot_t[k] - knot_t[k - 1]) * 1e-6, step)
+        Rk[k] = Rk[k - 1] @ step
+    k = m - 1
+    while k > 0 and knot_t[k] > t_ref:
+        k -= 1
+    _gyro_step(knot_w[k], (t_ref - knot_t[k]) * 1e-6, step)
+    R_ref_T = (Rk[k] @ step).T.copy()
+    out = np.empty((t.shape[0], 3, 3))
+    k = 0
+    for i in range(t.shape[0]):
+        while k + 1 < m and knot_t[k + 1] <= t[i]:
+            k += 1
+        _gyro_step(knot_w[k], (t[i] - knot_t[k]) * 1e-6, step)
+        out[i] = R_ref_T @ (Rk[k] @ step)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def gyro_turn(knot_t, knot_w, t0, t1):  # type: ignore[no-untyped-def]
+    """The turn ``R(t0)ᵀ R(t1)`` (3, 3) from ``t0`` to ``t1`` µs (``knot_t[0]
+    <= t0 <= t1``) of an orientation following ``dR/dt = R hat(ω)``, ω held
+    from each gyro knot (``knot_t`` int64 µs sorted, ``knot_w`` rad/s) to
+    the next: the product of the held steps inside the span, in time order
+    (knots before the one holding at ``t0`` are not read, so the result
+    does not depend on how many older knots are kept)."""
+    k = 0
+    while k + 1 < knot_t.shape[0] and knot_t[k + 1] <= t0:
+        k += 1
+    out = np.eye(3)
+    step = np.empty((3, 3))
+    t = t0
+    while t < t1:
+        end = t1
+        if k + 1 < knot_t.shape[0] and knot_t[k + 1] < t1:
+            end = knot_t[k + 1]
+        _gyro_step(knot_w[k], (end - t) * 1e-6, step)
+        out = out @ step
+        t = end
+        k += 1
+    return out
+
+
+@njit(cache=True, nogil=True)
 def _so3_exp_many(w, out):  # type: ignore[no-untyped-def]
     for i in range(w.shape[0]):
         so3_exp_kernel(w[i], out[i])
@@ -393,6 +456,25 @@ def so3_log(R: np.ndarray) -> np.ndarray:
     out = np.empty((len(r), 3))
     _so3_log_many(r, out)
     return _out(out, single)
+
+
+def rotation_matrix(values: object, name: str = "rotation") -> np.ndarray:
+    """A rotation (3, 3) given as nothing (the identity), 3 numbers (a
+    rotation vector, rad) or 9 (a matrix, row by row); ValueError naming
+    ``name`` otherwise (an operator's parameter, e.g. ``imu_rotation``)."""
+    v = np.asarray(values, np.float64).ravel()
+    if not v.size:
+        return np.eye(3)
+    if not np.isfinite(v).all():
+        raise ValueError(f"{name}: the numbers must be finite")
+    if v.size == 3:
+        return np.asarray(so3_exp(v))
+    if v.size == 9:
+        R = v.reshape(3, 3)
+        if not np.allclose(R @ R.T, np.eye(3), atol=ROT_TOL) or np.linalg.det(R) < 0:
+            raise ValueError(f"{name} as 9 numbers must be a rotation matrix (row by row)")
+        return R
+    raise ValueError(f"{name} takes 3 numbers (a rotation vector, rad) or 9 (a matrix), got {v.size}")
 
 
 def quat_to_rot(q: np.ndarray) -> np.ndarray:

@@ -34,7 +34,9 @@ What is here
   :func:`quat_to_rot`, :func:`rot_to_quat`, :func:`quat_mul`,
   :func:`quat_conj`, :func:`quat_slerp`, :func:`interpolate_poses`,
   :func:`se3_exp`, :func:`se3_log`, :func:`transform_points`,
-  :func:`compose`, :func:`invert`.
+  :func:`compose`, :func:`invert`; :func:`rotation_matrix` (a rotation
+  given as 3 or 9 numbers); :func:`gyro_rotations`, :func:`gyro_turn` (a
+  gyro's samples integrated).
 * Kernels for other numba code (one element, no checks): the camera's
   :func:`project_kernel`, :func:`distort_kernel`, :func:`undistort_kernel`,
   :func:`pixel_to_normalized_kernel` (taking ``Camera.params``), and
@@ -51,6 +53,8 @@ from ._lens import distort_kernel, pixel_to_normalized_kernel, project_kernel, u
 from ._rigid import (
     QUAT_TOL,
     compose,
+    gyro_rotations,
+    gyro_turn,
     hat,
     interpolate_poses,
     interpolate_poses_kernel,
@@ -64,6 +68,7 @@ from ._rigid import (
     quat_to_rot_kernel,
     rot_to_quat,
     rot_to_quat_kernel,
+    rotation_matrix,
     se3_exp,
     se3_exp_kernel,
     se3_log,
@@ -80,6 +85,7 @@ __all__ = [
     "project_kernel", "distort_kernel", "undistort_kernel", "pixel_to_normalized_kernel",
     "hat", "so3_exp", "so3_log", "quat_to_rot", "rot_to_quat", "quat_mul", "quat_conj", "quat_slerp",
     "interpolate_poses", "se3_exp", "se3_log", "transform_points", "compose", "invert", "QUAT_TOL",
+    "rotation_matrix", "gyro_rotations", "gyro_turn",
     "so3_exp_kernel", "so3_log_kernel", "quat_to_rot_kernel", "rot_to_quat_kernel", "quat_mul_kernel",
     "quat_slerp_kernel", "se3_exp_kernel", "se3_log_kernel", "interpolate_poses_kernel",
 ]

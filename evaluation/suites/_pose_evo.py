@@ -45,13 +45,14 @@ from typing import Any
 
 import numpy as np
 
-from tectum import EventPacket, MapPacket, Packet, PosePacket, concat
+from tectum import EventPacket, ImuPacket, MapPacket, Packet, PosePacket, concat
 from tectum.camera import depth_points, interpolate_poses, quat_to_rot
 from tectum.evaluation.harness import shared_data, table, target
 from tectum.evaluation.metrics.trajectory import trajectory_scores
 from tectum.evaluation.suites._map_emvs import _simulate
 from tectum.plugins.map.emvs import Emvs
 from tectum.plugins.tracker.edge_align import EdgeAlign
+from tectum.sources.simulate import load_scene
 
 #: a textured plane 2 m in front of a camera moving in 6 DoF (a slower, coarser ``plane_6dof``:
 #: about 0.5 Mev/s at 240x180, DAVIS240-class)
@@ -72,11 +73,25 @@ def simulate(scene: str | dict[str, Any], duration_us: int, **model: Any) -> tup
     return ev, poses, f"{f};{f};{cx};{cy}"
 
 
+def simulate_gyro(scene: str | dict[str, Any], duration_us: int, gyro: dict[str, Any], **model: Any
+                  ) -> tuple[EventPacket, PosePacket, str, ImuPacket]:
+    """:func:`simulate` plus the simulated DAVIS's IMU (``gyro``: the
+    scene's ``davis`` keys, e.g. ``imu_rate_hz``, ``gyro_noise``,
+    ``gyro_bias``; the IMU draws from its own random stream, so the events
+    and poses are those of :func:`simulate`)."""
+    ev, poses, sim = _simulate({**load_scene(scene), "davis": gyro}, duration_us, **model)
+    f, cx, cy = (float(v) for v in sim.truth["camera"])
+    tr = sim.truth
+    imu = ImuPacket(tr["imu_t"], accel=tr["imu_accel"], gyro=tr["imu_gyro"], t_start=ev.t_start, t_end=ev.t_end)
+    return ev, poses, f"{f};{f};{cx};{cy}", imu
+
+
 def evo_loop(events: EventPacket, truth: PosePacket, calib: str, bootstrap_us: int, slice_us: int = 5000,
-             tracker: dict[str, Any] | None = None, mapper: dict[str, Any] | None = None
-             ) -> tuple[PosePacket, list[MapPacket], EdgeAlign, Emvs, float]:
+             tracker: dict[str, Any] | None = None, mapper: dict[str, Any] | None = None,
+             imu: ImuPacket | None = None) -> tuple[PosePacket, list[MapPacket], EdgeAlign, Emvs, float]:
     """Run tracker and mapper in a loop (see the module): ``(the tracker's
-    poses, the maps, the tracker, the mapper, CPU seconds)``."""
+    poses, the maps, the tracker, the mapper, CPU seconds)``; ``imu``: the
+    tracker's gyro (used with its ``gyro_rad`` > 0)."""
     tr = EdgeAlign(calib=calib, bootstrap_us=bootstrap_us, **(tracker or {}))
     mp = Emvs(calib=calib, **(mapper or {}))
     tr.warmup()
@@ -90,6 +105,8 @@ def evo_loop(events: EventPacket, truth: PosePacket, calib: str, bootstrap_us: i
         b = min(a + slice_us, t_end)
         ev = events.slice_time(a, b)
         ports: dict[str, Packet] = {"events": ev, "poses": truth.slice_time(a, b)}
+        if imu is not None:
+            ports["imu"] = imu.slice_time(a, b)
         if pending:
             ports["maps"] = concat(pending)
             pending = []
@@ -149,6 +166,13 @@ MAPPERS: dict[str, dict[str, Any]] = {
     "boxes_3d": {"min_depth": 1.5, "max_depth": 10.0, "keyframe_baseline": 0.16},
 }
 BOOT_US = 300_000
+#: the simulated DAVIS's IMU of the gyro rows: 1 kHz, noise 0.003 rad/s a sample (an MPU-6150's 0.005 °/s/√Hz),
+#: a bias of about 1 °/s on each axis (the tracker measures it over the bootstrap)
+SIM_IMU: dict[str, Any] = {"imu_rate_hz": 1000, "gyro_noise": 0.003, "gyro_bias": [0.01, -0.02, 0.015]}
+#: the edge loop with the gyro on one world plane (events and IMU, a planar-scene prior): over six starts
+#: 4.3 % of the path at gyro_rad 1e-4, 4.4 % at 1e-5; on free-depth maps 9.6 % (docs/evo.md)
+GYRO_TRACKER: dict[str, Any] = {"gyro_rad": 1e-4}
+GYRO_MAPPER: dict[str, Any] = {"focus": 6, "surface": "world_plane"}
 COLS = ["case", "events", "mev_per_s", "maps", "drift_pct", "ate_m", "pos_pct", "rpe_t_m", "rpe_r_deg",
         "rot_median_deg", "lost", "cpu_mev_s", "realtime_x"]
 
@@ -360,8 +384,10 @@ def _mean_of(case: str, per_start: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def _over_starts() -> list[dict[str, Any]]:
-    """The plane's and the boxes' loops and the photometric plane loop
-    (``tracker.evo:tracker=pose_6dof`` under ``tectum.run``) from the
+    """The plane's and the boxes' loops, the photometric plane loop
+    (``tracker.evo:tracker=pose_6dof`` under ``tectum.run``) and the plane's
+    edge loop with the gyro on one world plane (:data:`GYRO_TRACKER`,
+    :data:`GYRO_MAPPER`, :data:`SIM_IMU`) from the
     starts of ``docs/evo.md`` (:data:`._pose_evo_spread.LOOP_STARTS_S`):
     0.3 s of true poses, then 2 s alone, each row the mean over its starts
     (:func:`_mean_of`)."""
@@ -378,4 +404,6 @@ def _over_starts() -> list[dict[str, Any]]:
         photo.append({"start_s": s * 1e-6, **scores(est, run.truth.slice_time(s, s + BOOT_US + P.TRACKED_US),
                                                     s + BOOT_US)})
     out.append(_mean_of(f"plane, tracker.evo tracker=pose_6dof + world_plane, mean of {len(starts)} starts", photo))
+    gyro = spread("loop", scene="plane", tracker=GYRO_TRACKER, mapper=GYRO_MAPPER, imu=SIM_IMU)
+    out.append(_mean_of(f"plane (loop) with the gyro + world_plane (events and IMU), mean of {len(gyro)} starts", gyro))
     return out

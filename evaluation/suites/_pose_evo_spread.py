@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from tectum import MapPacket, Packet, PosePacket, concat
-from tectum.evaluation.suites._pose_evo import MAPPERS, PLANE, TRACKERS, evo_loop, scores, simulate
+from tectum.evaluation.suites._pose_evo import MAPPERS, PLANE, TRACKERS, evo_loop, scores, simulate, simulate_gyro
 from tectum.plugins.map.emvs import Emvs
 from tectum.plugins.tracker.edge_align import EdgeAlign
 from tectum.testing import feed_ports
@@ -50,7 +50,8 @@ ALONE_STARTS_S = {"plane": (0.4, 0.9, 1.4, 1.9, 2.4, 2.9), "boxes_3d": (0.4, 0.9
 
 def spread(mode: str, starts_s: Sequence[float] | None = None, tracked_us: int | None = None,
            boot_us: int | None = None, tracker: dict[str, Any] | None = None, mapper: dict[str, Any] | None = None,
-           scene: str = "plane", duration_us: int | None = None) -> list[dict[str, Any]]:
+           scene: str = "plane", duration_us: int | None = None, imu: dict[str, Any] | None = None
+           ) -> list[dict[str, Any]]:
     """One row per start (``start_s``, ``pos_pct``, ``drift_pct``,
     ``rot_median_deg``, ``lost``, ``path_m``, ...) of ``mode`` ``"loop"`` or
     ``"alone"`` (see the module) on ``scene`` (a name of :data:`SCENES`) with
@@ -58,7 +59,9 @@ def spread(mode: str, starts_s: Sequence[float] | None = None, tracked_us: int |
     and ``mapper``. Defaults: the loop 0.3 s of bootstrap
     from each start then 2 s; alone 0.1 s of bootstrap ending at each start
     then 0.7 s. ``duration_us`` (µs) cuts the simulation short (every run
-    ends with it at the latest)."""
+    ends with it at the latest). ``imu``: the simulated DAVIS's IMU (its
+    ``davis`` keys, e.g. ``{"imu_rate_hz": 1000, "gyro_noise": 0.003}``)
+    for the tracker (which uses it with ``gyro_rad`` > 0)."""
     if mode not in ("loop", "alone"):
         raise ValueError(f"spread: mode is 'loop' or 'alone', got {mode!r}")
     if scene not in SCENES:
@@ -71,7 +74,12 @@ def spread(mode: str, starts_s: Sequence[float] | None = None, tracked_us: int |
     trk = {**TRACKERS[scene], **(tracker or {})}
     mpr = {**MAPPERS[scene], **(mapper or {})}
     end = max(starts) + tracked + (boot if loop else 0)
-    ev, truth, calib = simulate(SCENES[scene], min(end, duration_us) if duration_us else end)
+    dur = min(end, duration_us) if duration_us else end
+    gyro = None
+    if imu:
+        ev, truth, calib, gyro = simulate_gyro(SCENES[scene], dur, imu)
+    else:
+        ev, truth, calib = simulate(SCENES[scene], dur)
     maps: list[Packet] = []
     if not loop:
         mp = Emvs(calib=calib, **mpr)
@@ -83,11 +91,15 @@ def spread(mode: str, starts_s: Sequence[float] | None = None, tracked_us: int |
         if loop:
             a, b, t_from = s, s + boot + tracked, s + boot
             est, _, _, _, _ = evo_loop(ev.slice_time(a, b), truth.slice_time(a, b), calib, boot, tracker=trk,
-                                       mapper=mpr)
+                                       mapper=mpr, imu=gyro.slice_time(a, b) if gyro is not None else None)
         else:
             a, b, t_from = s - boot, s + tracked, s
             op = EdgeAlign(calib=calib, bootstrap_us=boot, **trk)
-            out = feed_ports(op, {"events": [ev.slice_time(a, b)], "poses": [truth.slice_time(a, b)], "maps": maps})
+            ports: dict[str, list[Packet]] = {"events": [ev.slice_time(a, b)], "poses": [truth.slice_time(a, b)],
+                                              "maps": maps}
+            if gyro is not None:
+                ports["imu"] = [gyro.slice_time(a, b)]
+            out = feed_ports(op, ports)
             poses = [q for q in out if isinstance(q, PosePacket)]
             est = concat(poses) if poses else PosePacket.empty(a, b)
         assert isinstance(est, PosePacket)
@@ -103,9 +115,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--tracker", default="{}", help="tracker.edge_align parameters (JSON) over the bench's")
     ap.add_argument("--mapper", default="{}", help="map.emvs parameters (JSON) over the bench's for the scene")
     ap.add_argument("--starts", type=float, nargs="*", help="start times, s")
+    ap.add_argument("--imu", default="{}", help="the simulated IMU for the tracker (JSON: the scene's davis keys, "
+                    "e.g. {\"imu_rate_hz\": 1000, \"gyro_noise\": 0.003}; the tracker uses it with gyro_rad > 0)")
     args = ap.parse_args(argv)
     rows = spread(args.mode, args.starts, tracker=json.loads(args.tracker), mapper=json.loads(args.mapper),
-                  scene=args.scene)
+                  scene=args.scene, imu=json.loads(args.imu))
     for r in rows:
         print(f"start {r['start_s']:.2f} s: position RMSE {r['pos_pct']:.1f} % of {r['path_m']:.2f} m, final "
               f"{r['drift_pct']:.1f} %, rotation median {r['rot_median_deg']:.2f} deg, lost {100 * r['lost']:.0f} %")

@@ -45,51 +45,9 @@ import numpy as np
 from numba import njit
 
 from tectum import EventPacket, FramePacket, Kind, Operator, Packet, Port, concat
-from tectum.camera import camera_from, quat_to_rot, so3_exp
+from tectum.camera import camera_from, gyro_rotations, quat_to_rot, rotation_matrix, so3_exp
 
-__all__ = ["MotionCompensated", "warp_vote", "gyro_rotations"]
-
-
-@njit(cache=True, nogil=True)
-def gyro_rotations(t, knot_t, knot_w, t_ref):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
-    """Rotation ``R_ref_from_t`` (N, 3, 3) for each time ``t`` (int64 µs,
-    sorted, all >= knot_t[0]) given gyro knots: ω ``knot_w[k]`` (rad/s,
-    camera frame) held over ``[knot_t[k], knot_t[k+1])``; ``t_ref`` >= every
-    ``t`` is the reference instant. Orientation follows dR/dt = R [ω]x."""
-    m = knot_t.shape[0]
-    # orientation at each knot relative to knot 0, then at t_ref
-    Rk = np.empty((m, 3, 3))
-    Rk[0] = np.eye(3)
-    for k in range(1, m):
-        Rk[k] = Rk[k - 1] @ _exp(knot_w[k - 1], (knot_t[k] - knot_t[k - 1]) * 1e-6)
-    k = m - 1
-    while k > 0 and knot_t[k] > t_ref:
-        k -= 1
-    R_ref = Rk[k] @ _exp(knot_w[k], (t_ref - knot_t[k]) * 1e-6)
-    R_ref_T = R_ref.T.copy()
-    out = np.empty((t.shape[0], 3, 3))
-    k = 0
-    for i in range(t.shape[0]):
-        while k + 1 < m and knot_t[k + 1] <= t[i]:
-            k += 1
-        out[i] = R_ref_T @ (Rk[k] @ _exp(knot_w[k], (t[i] - knot_t[k]) * 1e-6))
-    return out
-
-
-@njit(cache=True, nogil=True)
-def _exp(w, dt):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
-    """exp([w dt]x) (Rodrigues), w rad/s, dt s."""
-    ax, ay, az = w[0] * dt, w[1] * dt, w[2] * dt
-    th2 = ax * ax + ay * ay + az * az
-    R = np.eye(3)
-    if th2 < 1e-24:
-        R[0, 1], R[0, 2], R[1, 0], R[1, 2], R[2, 0], R[2, 1] = -az, ay, az, -ax, -ay, ax
-        return R
-    th = np.sqrt(th2)
-    a = np.sin(th) / th
-    b = (1.0 - np.cos(th)) / th2
-    K = np.array([[0.0, -az, ay], [az, 0.0, -ax], [-ay, ax, 0.0]])
-    return R + a * K + b * (K @ K)
+__all__ = ["MotionCompensated", "warp_vote"]
 
 
 @njit(cache=True, nogil=True)
@@ -126,20 +84,6 @@ def warp_vote(x, y, p, R, rays, fx, fy, cx, cy, signed, img):  # type: ignore[no
         if landed:
             inside += 1
     return inside
-
-
-def _imu_rotation(values: tuple[float, ...]) -> np.ndarray:
-    if not values:
-        return np.eye(3)
-    v = np.asarray(values, np.float64)
-    if v.size == 3:
-        return np.asarray(so3_exp(v))
-    if v.size == 9:
-        R = v.reshape(3, 3)
-        if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
-            raise ValueError("imu_rotation as 9 numbers must be a rotation matrix (row by row)")
-        return R
-    raise ValueError(f"imu_rotation takes 3 numbers (a rotation vector, rad) or 9 (a matrix), got {v.size}")
 
 
 class MotionCompensated(Operator):
@@ -179,7 +123,7 @@ class MotionCompensated(Operator):
             raise ValueError("window_us must be >= 1")
         self.camera = camera_from(calib)
         self.window_us, self.signed, self.partial = int(window_us), mode == "polarity", bool(partial)
-        self.R_ci = _imu_rotation(tuple(imu_rotation))
+        self.R_ci = rotation_matrix(tuple(imu_rotation), "imu_rotation")
         self.imu_offset = int(imu_time_offset_us)
         self.counts = {"no_motion_data": 0, "outside_image": 0}
         self._rays: np.ndarray | None = None

@@ -46,6 +46,24 @@ fronto-parallel plane at that depth in front of the first camera (the world
 frame is that camera's, the scale is set by ``plane_depth``): a planar
 scene's bootstrap.
 
+Gyro (port ``imu``, with ``gyro_rad`` > 0; off by default, as a gyro's
+axes must be stated): the rotation between steps comes from the
+gyro rather than the constant-velocity model, and the alignment holds the
+rotation near it with σ ``gyro_rad`` per step instead of ``prior_rad``:
+the pose's weak direction, a sideways slide traded for a turn (see
+``docs/evo.md``), is then pinned by a sensor that measures the turn. ω
+(rad/s) is rotated into the camera frame by ``imu_rotation`` (camera-from-
+IMU, a rotation vector in rad or a 3x3 matrix row by row; identity when
+empty), shifted by ``imu_time_offset_us`` (camera time = IMU time +
+offset), held between samples, less ``gyro_bias`` (rad/s, camera frame);
+with ``gyro_bias`` empty and a bootstrap, the bias is the mean gap between
+the gyro and the bootstrap poses' turn over the bootstrap (else zero). A
+step whose span the samples do not reach (none at or before its start, or
+the last more than :data:`GYRO_HOLD_US` before its end) falls back to the
+constant-velocity prediction. Non-finite samples are dropped (counted in
+``counts["imu_dropped"]``); a run that tracked without one sample is an
+error at its end.
+
 Lost: a step is lost when fewer than ``min_points`` map points are in
 view; when its aligned points land on edges (E ≥ 0.5) for less than
 ``min_overlap`` of them, or for less than ``overlap_drop`` times the
@@ -84,16 +102,19 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from tectum import EventPacket, Kind, MapPacket, Operator, Packet, Port, PosePacket
+from tectum import EventPacket, ImuPacket, Kind, MapPacket, Operator, Packet, Port, PosePacket
 from tectum.camera import (
     Camera,
     camera_from,
     depth_points,
+    gyro_turn,
     interpolate_poses,
     quat_to_rot,
     rot_to_quat,
+    rotation_matrix,
     se3_exp,
     se3_log,
+    so3_exp,
     so3_log,
 )
 
@@ -105,6 +126,10 @@ __all__ = ["EdgeAlign"]
 TOP_FRACTION = 0.005
 #: Map points nearer than this to a camera are not used, m.
 MIN_DEPTH_M = 0.05
+#: The last gyro sample is held this long past its time at most, µs.
+GYRO_HOLD_US = 20_000
+#: The bootstrap's gyro bias is measured over spans of this length, µs.
+BIAS_SPAN_US = 20_000
 
 
 class EdgeAlign(Operator):
@@ -171,6 +196,17 @@ class EdgeAlign(Operator):
         While lost on a map without good steps, ask ``relocalise_overlap``
         times the overlap of the map before (or at the bootstrap's end)
         rather than twice ``min_overlap`` (False: the latter, as before).
+    gyro_rad:
+        σ of the rotation about the gyro's (port ``imu``), per step, rad; 0:
+        the gyro is not used.
+    gyro_bias:
+        The gyro's bias, rad/s (3 numbers, camera frame); empty: measured over
+        the bootstrap (zero without one).
+    imu_rotation:
+        Camera-from-IMU rotation: 3 numbers (rotation vector, rad) or 9 (a
+        matrix, row by row); empty: the identity.
+    imu_time_offset_us:
+        Camera time minus IMU time, µs.
     """
 
     name = "tracker.edge_align"
@@ -179,6 +215,7 @@ class EdgeAlign(Operator):
         "maps": Port(Kind.MAPS, doc="semi-dense depth maps (map.emvs) to align to; the latest is used"),
         "poses": Port(Kind.POSES, required=False,
                       doc="bootstrap poses (world-from-camera), output as they are for bootstrap_us µs"),
+        "imu": Port(Kind.IMU, required=False, doc="gyro (rad/s): the rotation between steps (σ gyro_rad)"),
     }
     produces = (Kind.POSES,)
     heavy = True
@@ -190,7 +227,8 @@ class EdgeAlign(Operator):
                  max_rate: float = 20.0, min_neighbours: int = 8, neighbour_tol: float = 0.03,
                  prior_rad: float = 0.01, prior_m: float = 0.01, velocity_gain: float = 0.3,
                  binary: bool = False, coast_us: int = 50_000,
-                 known_overlap: bool = True) -> None:
+                 known_overlap: bool = True, gyro_rad: float = 0.0, gyro_bias: Sequence[float] = (),
+                 imu_rotation: Sequence[float] = (), imu_time_offset_us: int = 0) -> None:
         if bootstrap_us < 0 or not plane_depth >= 0:
             raise ValueError(f"tracker.edge_align: need bootstrap_us >= 0 and plane_depth >= 0 m, got {bootstrap_us}, "
                              f"{plane_depth}")
@@ -226,6 +264,21 @@ class EdgeAlign(Operator):
             raise ValueError(f"tracker.edge_align: need prior_rad > 0, prior_m > 0 and 0 <= velocity_gain <= 1, got "
                              f"{prior_rad}, {prior_m}, {velocity_gain}")
         self._prior = np.array([prior_rad ** -2] * 3 + [prior_m ** -2] * 3)
+        if not gyro_rad >= 0:
+            raise ValueError(f"tracker.edge_align: need gyro_rad >= 0 rad (0: no gyro), got {gyro_rad}")
+        self.gyro_rad = float(gyro_rad)
+        self._gyro_prior = np.array([gyro_rad ** -2 if gyro_rad else 0.0] * 3 + [prior_m ** -2] * 3)
+        bias = np.asarray(tuple(gyro_bias), np.float64)
+        if bias.size not in (0, 3) or not np.isfinite(bias).all():
+            raise ValueError(f"tracker.edge_align: gyro_bias takes 3 finite numbers (rad/s) or none, got "
+                             f"{list(gyro_bias)}")
+        self._bias_given = bias.size == 3
+        self._bias = bias if self._bias_given else np.zeros(3)
+        self.R_ci = rotation_matrix(tuple(imu_rotation), "tracker.edge_align: imu_rotation")
+        self.imu_offset = int(imu_time_offset_us)
+        # gyro samples (camera time µs, ω rad/s camera frame, bias not taken off)
+        self._gt = np.empty(0, np.int64)
+        self._gw = np.empty((0, 3))
         self.velocity_gain = float(velocity_gain)
         self.binary = bool(binary)
         if coast_us < 0:
@@ -235,7 +288,8 @@ class EdgeAlign(Operator):
         self._ref_pending = False
         self._known_overlap: float | None = None
         self.counts = {"steps": 0, "tracked": 0, "bootstrap_poses": 0, "bootstrap_steps": 0, "maps": 0,
-                       "lost_no_map": 0, "lost_few_points": 0, "lost_overlap": 0, "lost_jump": 0, "relocalised": 0}
+                       "lost_no_map": 0, "lost_few_points": 0, "lost_overlap": 0, "lost_jump": 0, "relocalised": 0,
+                       "gyro_steps": 0, "imu_dropped": 0}
         #: (cost, points in view, overlap, iterations) of the last alignment (for diagnostics)
         self.last_info = np.zeros(4)
         self._sensor: tuple[int, int] | None = None
@@ -275,13 +329,14 @@ class EdgeAlign(Operator):
 
     #: For the conformance check: a 48x36 sensor, small windows.
     conformance_params = {"calib": "40;40;23.5;17.5", "window_events": 200, "step_events": 100, "min_points": 6,
-                          "bootstrap_us": 5_000, "min_neighbours": 0}
+                          "bootstrap_us": 5_000, "min_neighbours": 0, "gyro_rad": 0.001}
 
     @staticmethod
     def conformance_stream() -> dict[str, Packet]:
-        """Events of points seen by a camera sliding sideways, its poses at
-        1 kHz and a map of the points at the start (for the conformance check)."""
-        return _points_scene(duration_us=40_000, sensor=(48, 36), f=40.0)
+        """Events of points seen by a camera sliding sideways and turning, its
+        poses and gyro at 1 kHz and a map of the points at the start (for the
+        conformance check)."""
+        return _points_scene(duration_us=40_000, sensor=(48, 36), f=40.0, omega=(0.1, 0.3, -0.2))
 
     # -- input ----------------------------------------------------------------------------
     def process_ports(self, ports: Mapping[str, Packet]) -> list[Packet]:
@@ -295,6 +350,9 @@ class EdgeAlign(Operator):
         poses = ports.get("poses")
         if poses is not None and len(poses):
             rows += self._add_poses(poses)  # type: ignore[arg-type]
+        imu = ports.get("imu")
+        if imu is not None and len(imu) and self.gyro_rad:
+            self._add_imu(imu)  # type: ignore[arg-type]
         ev = ports.get("events")
         if ev is not None and len(ev):
             self._add_events(ev)  # type: ignore[arg-type]
@@ -306,6 +364,10 @@ class EdgeAlign(Operator):
             raise ValueError(f"tracker.edge_align: bootstrap_us={self.bootstrap_us} but no pose came on port 'poses' "
                              f"for the {self.counts['bootstrap_steps']} steps: connect the bootstrap's poses (a "
                              "source with poses, e.g. simulate:SCENE?poses=true)")
+        if self.gyro_rad and self.counts["tracked"] and not self.counts["gyro_steps"] and not self._gt.size:
+            raise ValueError(f"tracker.edge_align: gyro_rad={self.gyro_rad} but no gyro sample came on port 'imu' "
+                             f"for the {self.counts['tracked']} tracked steps: connect an IMU (a source with one, "
+                             "e.g. a DAVIS recording), or leave gyro_rad at 0")
         return ()
 
     def _add_maps(self, maps: MapPacket) -> None:
@@ -359,6 +421,49 @@ class EdgeAlign(Operator):
         self.counts["bootstrap_poses"] += k
         zero = np.zeros(6)
         return [(int(poses.t[i]), pos[i], q[i], zero, False) for i in range(k)]
+
+    def _add_imu(self, imu: ImuPacket) -> None:
+        """Keep the gyro's samples (camera frame and time) from the last at or
+        before the state's time on (before tracking: the bootstrap's span)."""
+        w = np.asarray(imu.gyro, np.float64) @ self.R_ci.T
+        ok = np.isfinite(w).all(axis=1)
+        self.counts["imu_dropped"] += int(len(ok) - ok.sum())
+        self._gt = np.concatenate([self._gt, imu.t[ok] + self.imu_offset])
+        self._gw = np.concatenate([self._gw, w[ok]])
+        if self._R is not None:
+            keep_from = self._t_mid
+        else:  # not tracking yet: the bootstrap's span (its bias), else the last gyro hold
+            first = int(self._bt[0]) if self._bt.size else int(self._gt[-1]) - self.bootstrap_us
+            keep_from = min(first, int(self._gt[-1]) - GYRO_HOLD_US)
+        k = max(int(np.searchsorted(self._gt, keep_from, side="right")) - 1, 0)
+        if k:
+            self._gt, self._gw = self._gt[k:], self._gw[k:]
+
+    def _gyro(self, t0: int, t1: int) -> np.ndarray | None:
+        """Camera at ``t1`` from camera at ``t0`` (µs, ``t0 <= t1``) by the
+        gyro less its bias; None when the samples do not reach over the span."""
+        gt = self._gt
+        if not gt.size or gt[0] > t0 or gt[-1] < t1 - GYRO_HOLD_US:
+            return None
+        return np.asarray(gyro_turn(gt, self._gw - self._bias, t0, t1)).T
+
+    def _bootstrap_bias(self) -> None:
+        """The gyro's bias: over :data:`BIAS_SPAN_US` spans of the bootstrap
+        the gyro and the bootstrap poses both give the turn; the bias is the
+        mean gap per second (first order: ``exp(-ω_gyro T) exp(ω T) ≈
+        exp(-b T)``). Left as it is when the gyro does not cover them."""
+        a = max(int(self._bt[0]), int(self._gt[0]) if self._gt.size else int(self._bt[-1]))
+        edges = np.arange(a, int(self._bt[-1]) + 1, BIAS_SPAN_US)
+        gaps = []
+        raw, self._bias = self._bias, np.zeros(3)
+        for t0, t1 in zip(edges[:-1], edges[1:]):
+            G = self._gyro(int(t0), int(t1))
+            if G is None:
+                continue
+            R0, _ = self._bootstrap_pose(int(t0))
+            R1, _ = self._bootstrap_pose(int(t1))
+            gaps.append(-np.asarray(so3_log(G @ (R1 @ R0.T).T)) / ((t1 - t0) * 1e-6))
+        self._bias = np.mean(gaps, axis=0) if gaps else raw
 
     def _add_events(self, ev: EventPacket) -> None:
         if self._sensor is None:
@@ -432,9 +537,8 @@ class EdgeAlign(Operator):
         if self._points is None:
             self.counts["lost_no_map"] += 1
             return self._lost_row(t_last)
-        dt = (t_mid - self._t_mid) * 1e-6
         self._coast(t_mid)
-        R, tr = self._predict(dt)  # lost: relocalise from the coasting prediction, one level coarser
+        R, tr, gyro = self._predict(t_mid)  # lost: relocalise from the coasting prediction, one level coarser
         levels = self.levels + 1 if self._lost else self.levels
         info = np.zeros(4)
         if self._ref_pending:  # the map's overlap where the bootstrap says the camera is
@@ -445,7 +549,8 @@ class EdgeAlign(Operator):
             if info[1] >= self.min_points:
                 self._known_overlap = float(info[2])
         Rp, tp = R.copy(), tr.copy()
-        prior = self._prior
+        prior = self._gyro_prior if gyro else self._prior
+        self.counts["gyro_steps"] += gyro
         for lvl in range(levels - 1, -1, -1):
             self._image(a, b, self.sigma_px * 2.0 ** lvl)
             align(self._points, R, tr, Rp, tp, self.cam, self._img, self._gx, self._gy, self.huber, 1.0, MIN_DEPTH_M,
@@ -487,6 +592,8 @@ class EdgeAlign(Operator):
             t0 = max(int(self._bt[0]), int(self._bt[-1]) - 10_000)
             self._set_state(R1, t1, int(self._bt[-1]))
             self._ref_pending = self.known_overlap
+            if not self._bias_given and self._gt.size:
+                self._bootstrap_bias()
             if t0 < int(self._bt[-1]):
                 R0, p0 = self._bootstrap_pose(t0)
                 self._xi = _twist(R0, p0, R1, t1, (int(self._bt[-1]) - t0) * 1e-6)
@@ -520,14 +627,22 @@ class EdgeAlign(Operator):
         R_wc = np.asarray(quat_to_rot(q[0]))
         return R_wc.T, -(R_wc.T @ p[0])
 
-    def _predict(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """Camera-from-world ``dt`` s after the last good step, at constant velocity."""
+    def _predict(self, t: int) -> tuple[np.ndarray, np.ndarray, bool]:
+        """Camera-from-world at ``t`` µs (not before the last good step's
+        time): the position at constant velocity, the rotation by the gyro
+        where it reaches (then True), else at constant velocity."""
         assert self._R is not None
-        if not self._has_velocity:
-            return self._R.copy(), self._tr.copy()
-        # world-from-camera moves by exp(ξ dt) on the right, so camera-from-world by exp(-ξ dt) on the left
-        dR, dtr = se3_exp(-self._xi * dt)
-        return dR @ self._R, dR @ self._tr + dtr
+        R, tr = self._R.copy(), self._tr.copy()
+        if self._has_velocity:
+            # world-from-camera moves by exp(ξ dt) on the right, so camera-from-world by exp(-ξ dt) on the left
+            dR, dtr = se3_exp(-self._xi * ((t - self._t_mid) * 1e-6))
+            R, tr = dR @ R, dR @ tr + dtr
+        G = self._gyro(self._t_mid, t)
+        if G is None:
+            return R, tr, False
+        centre = -(R.T @ tr)
+        R = G @ self._R
+        return R, -(R @ centre), True
 
     def _set_state(self, R: np.ndarray, tr: np.ndarray, t_mid: int) -> None:
         if self._R is not None and not self._lost and t_mid > self._t_mid:
@@ -538,7 +653,7 @@ class EdgeAlign(Operator):
         self._lost = False
 
     def _row(self, t_last: int) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, bool]:
-        R, tr = self._predict((t_last - self._t_mid) * 1e-6)
+        R, tr, _ = self._predict(t_last)
         R_wc = R.T
         return (t_last, -(R_wc @ tr), np.asarray(rot_to_quat(R_wc)), self._xi.copy(), False)
 
@@ -555,7 +670,7 @@ class EdgeAlign(Operator):
         if lose:
             self._lost = True
         self._coast(t_last)
-        R, tr = self._predict((t_last - self._t_mid) * 1e-6)
+        R, tr, _ = self._predict(t_last)
         R_wc = R.T
         xi = self._xi.copy() if self._has_velocity else np.zeros(6)
         return (t_last, -(R_wc @ tr), np.asarray(rot_to_quat(R_wc)), xi, True)
@@ -587,24 +702,30 @@ def _twist(R0: np.ndarray, t0: np.ndarray, R1: np.ndarray, t1: np.ndarray, dt: f
 
 
 def _points_scene(duration_us: int, sensor: tuple[int, int], f: float, speed: float = 0.5, n_points: int = 60,
-                  period_us: int = 100, seed: int = 0, depth: tuple[float, float] = (1.0, 3.0)) -> dict[str, Packet]:
+                  period_us: int = 100, seed: int = 0, depth: tuple[float, float] = (1.0, 3.0),
+                  omega: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> dict[str, Packet]:
     """Events of ``n_points`` world points ``depth`` m away (one event per visible
     point every ``period_us`` at its rounded projection) seen by a pinhole
-    camera (focal ``f`` px, centred) sliding along x at ``speed`` m/s; its
-    poses at 1 kHz and a map of the points from the first pose. For the
-    conformance check and tests."""
+    camera (focal ``f`` px, centred) sliding along x at ``speed`` m/s and
+    turning at ``omega`` rad/s (camera frame: world-from-camera ``exp(ω t)``);
+    its poses and gyro (``imu``, exact) at 1 kHz and a map of the points from
+    the first pose. For the conformance check and tests."""
     rng = np.random.default_rng(seed)
     w, h = sensor
     cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
     Z = rng.uniform(depth[0], depth[1], n_points)
     X = (rng.uniform(0.05, 0.95, n_points) * w - cx) / f * Z
     Y = (rng.uniform(0.05, 0.95, n_points) * h - cy) / f * Z
+    P = np.stack([X, Y, Z], axis=1)
+    om = np.asarray(omega, np.float64)
     ts = np.arange(0, duration_us, period_us, dtype=np.int64)
     t_all, x_all, y_all = [], [], []
     for t in ts:
-        u = np.round(f * (X - speed * t * 1e-6) / Z + cx)
-        v = np.round(f * Y / Z + cy)
-        ok = (u >= 0) & (v >= 0) & (u <= w - 1) & (v <= h - 1)
+        R_wc = so3_exp(om * t * 1e-6)
+        pc = (P - np.array([speed * t * 1e-6, 0.0, 0.0])) @ R_wc  # R_wcᵀ (P - c), row by row
+        u = np.round(f * pc[:, 0] / pc[:, 2] + cx)
+        v = np.round(f * pc[:, 1] / pc[:, 2] + cy)
+        ok = (u >= 0) & (v >= 0) & (u <= w - 1) & (v <= h - 1) & (pc[:, 2] > 0)
         t_all.append(np.full(int(ok.sum()), t))
         x_all.append(u[ok])
         y_all.append(v[ok])
@@ -614,8 +735,10 @@ def _points_scene(duration_us: int, sensor: tuple[int, int], f: float, speed: fl
     tp = np.arange(0, duration_us + 1, 1000, dtype=np.int64)
     pos = np.zeros((len(tp), 3))
     pos[:, 0] = speed * tp * 1e-6
-    poses = PosePacket(tp, position=pos, orientation=np.tile([0, 0, 0, 1.0], (len(tp), 1)), t_start=0,
-                       t_end=duration_us + 1)
+    poses = PosePacket(tp, position=pos, orientation=np.asarray(rot_to_quat(so3_exp(np.outer(tp * 1e-6, om)))),
+                       t_start=0, t_end=duration_us + 1)
+    imu = ImuPacket(tp, accel=np.zeros((len(tp), 3)), gyro=np.tile(om, (len(tp), 1)), t_start=0,
+                    t_end=duration_us + 1)
     dmap = np.full((h, w), np.nan, np.float32)
     u0 = np.round(f * X / Z + cx).astype(np.int64)
     v0 = np.round(f * Y / Z + cy).astype(np.int64)
@@ -623,4 +746,4 @@ def _points_scene(duration_us: int, sensor: tuple[int, int], f: float, speed: fl
     K = np.array([[f, 0, cx], [0, f, cy], [0, 0, 1.0]])
     maps = MapPacket(np.array([0], np.int64), depth=dmap[None], K=K[None],
                      pose=np.array([[0, 0, 0, 0, 0, 0, 1.0]]), t_start=0, t_end=duration_us + 1)
-    return {"events": ev, "maps": maps, "poses": poses}
+    return {"events": ev, "maps": maps, "poses": poses, "imu": imu}

@@ -7,7 +7,9 @@ One name for two nodes and their two-way wiring (see ``tectum run
 * ``<id>.tracker``: ``tracker.edge_align`` aligns event images to the
   latest semi-dense map; its ``maps`` port reads the mapper's maps
   ``delay_us`` late (the loop's delayed edge), its ``poses`` port the
-  source's poses when there are any (the bootstrap, ``bootstrap_us``);
+  source's poses when there are any (the bootstrap, ``bootstrap_us``),
+  its ``imu`` port the source's IMU (its gyro turns the camera between
+  steps with ``gyro_rad`` > 0);
 * ``<id>.mapper``: ``map.emvs`` builds those maps from the events and the
   tracker's poses (rows the tracker flags lost are not used; lost for 20 ms
   or more, they end the map in progress, which goes to the tracker at once,
@@ -40,7 +42,8 @@ from tectum.errors import PipelineError
 __all__ = ["Evo"]
 
 #: parameters handed to ``tracker.edge_align``, ``tracker.pose_6dof``, ``map.photometric`` and ``map.emvs``
-_TRACKER = ("bootstrap_us", "plane_depth", "window_events", "step_events")
+_TRACKER = ("bootstrap_us", "plane_depth", "window_events", "step_events", "gyro_rad", "gyro_bias", "imu_rotation",
+            "imu_time_offset_us")
 _POSE_6DOF = ("bootstrap_us", "batch_events", "contrast")
 _PHOTO = ("gain", "median_px")
 _MAPPER = ("planes", "min_depth", "max_depth", "keyframe_baseline", "min_baseline", "overlap", "interim",
@@ -79,6 +82,16 @@ class Evo(Macro):
         Tracker: events per event image.
     step_events:
         Tracker: events between poses.
+    gyro_rad:
+        Tracker ``edge_align``: σ of the rotation about the gyro's (port
+        ``imu``) per step, rad; 0 (the default): no gyro.
+    gyro_bias:
+        Tracker ``edge_align``: the gyro's bias, rad/s (camera frame); empty:
+        measured over the bootstrap.
+    imu_rotation:
+        Tracker ``edge_align``: camera-from-IMU rotation (3 numbers, rad, or 9).
+    imu_time_offset_us:
+        Tracker ``edge_align``: camera time minus IMU time, µs.
     batch_events:
         Tracker ``pose_6dof``: events per pose.
     contrast:
@@ -125,6 +138,7 @@ class Evo(Macro):
         "events": Port(Kind.EVENTS, doc="the events (both nodes)"),
         "poses": Port(Kind.POSES, required=False, doc="bootstrap poses for the tracker (e.g. ground truth)"),
         "frames": Port(Kind.FRAMES, required=False, doc="intensity frames (tracker=pose_6dof's maps' images)"),
+        "imu": Port(Kind.IMU, required=False, doc="the gyro for tracker=edge_align with gyro_rad > 0"),
     }
 
     def __init__(self, calib: str = "", delay_us: int = 20_000, bootstrap_us: int | None = None,
@@ -134,7 +148,9 @@ class Evo(Macro):
                  overlap: int | None = None, interim: int | None = None, segment_us: int | None = None,
                  surface: str | None = None, focus: int | None = None, plane_maps: int | None = None,
                  tracker: str = "edge_align", batch_events: int | None = None, contrast: float | None = None,
-                 gain: float | None = None, median_px: int | None = None) -> None:
+                 gain: float | None = None, median_px: int | None = None, gyro_rad: float | None = None,
+                 gyro_bias: tuple[float, ...] | None = None, imu_rotation: tuple[float, ...] | None = None,
+                 imu_time_offset_us: int | None = None) -> None:
         if delay_us < 1:
             raise ValueError(f"tracker.evo: delay_us must be >= 1 µs, got {delay_us}")
         if tracker not in ("edge_align", "pose_6dof"):
@@ -160,7 +176,7 @@ class Evo(Macro):
     def expand(self, x: Expansion) -> None:
         calib: dict[str, Any] = {"calib": self.calib} if self.calib else {}
         if self.kind == "edge_align":
-            x.op("tracker", "tracker.edge_align", events=x.port("events"), poses=x.port("poses"),
+            x.op("tracker", "tracker.edge_align", events=x.port("events"), poses=x.port("poses"), imu=x.port("imu"),
                  maps=x.delayed("mapper", self.delay_us), **calib, **self.tracker)
         else:
             frames = x.port("frames")

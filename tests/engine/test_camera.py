@@ -448,3 +448,26 @@ def test_depth_points_are_the_known_pixels_back_projected_into_the_world() -> No
     cam = Camera(K, np.zeros(0))
     expect = cam.back_project(np.column_stack([u, v]).astype(np.float64), depth[v, u]) @ R.T + t
     np.testing.assert_allclose(pts, expect, rtol=0, atol=1e-12)
+
+
+# -- the gyro ----------------------------------------------------------------------------------------------------
+def test_gyro_turn_is_the_held_rates_product_and_ignores_older_samples():
+    """A constant rate gives exp(ω T); a varying one the product of the held
+    steps in time order, bit for bit the same whatever older samples are
+    kept, and the same turn as :func:`gyro_rotations` gives."""
+    from tectum.camera import gyro_rotations, gyro_turn, rotation_matrix
+
+    w = np.array([0.3, -0.5, 0.2])
+    kt = np.arange(0, 10_001, 1000, dtype=np.int64)
+    np.testing.assert_allclose(gyro_turn(kt, np.tile(w, (len(kt), 1)), 1500, 8200), so3_exp(w * 6.7e-3), atol=1e-12)
+    rng = np.random.default_rng(0)
+    kw = rng.normal(0, 1.0, (len(kt), 3))
+    want = so3_exp(kw[1] * 0.5e-3) @ so3_exp(kw[2] * 1e-3) @ so3_exp(kw[3] * 0.2e-3)
+    np.testing.assert_allclose(gyro_turn(kt, kw, 1500, 3200), want, atol=1e-12)
+    np.testing.assert_array_equal(gyro_turn(kt[1:], kw[1:], 1500, 3200), gyro_turn(kt, kw, 1500, 3200))
+    R = gyro_rotations(np.array([1500], np.int64), kt, kw, 3200)[0]  # camera at 3200 from camera at 1500
+    np.testing.assert_allclose(R.T, gyro_turn(kt, kw, 1500, 3200), atol=1e-12)
+    np.testing.assert_array_equal(gyro_turn(kt, kw, 4000, 4000), np.eye(3))
+    np.testing.assert_allclose(rotation_matrix((0.0, np.pi, 0.0)), np.diag([-1.0, 1.0, -1.0]), atol=1e-12)
+    with pytest.raises(ValueError, match="imu_rotation as 9 numbers must be a rotation"):
+        rotation_matrix(np.ones(9), "imu_rotation")

@@ -1,7 +1,8 @@
 """tracker.edge_align: the analytic gradient against finite differences,
 tracking after a bootstrap on a scene of known points, the bootstrap rows
 are the given poses, a wrong map or none gives lost rows (never confident
-garbage), relocalisation once the right map comes, and bad input."""
+garbage), relocalisation once the right map comes, bad input, and the
+gyro: the turn between steps, its bias, its axes, its bad samples."""
 
 from __future__ import annotations
 
@@ -11,8 +12,8 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
-from tectum import MapPacket, Packet, PosePacket, concat
-from tectum.camera import se3_exp
+from tectum import ImuPacket, MapPacket, Packet, PosePacket, concat
+from tectum.camera import quat_to_rot, se3_exp, so3_exp, so3_log
 from tectum.plugins.tracker import EdgeAlign
 from tectum.plugins.tracker._edge_align import _system, gradients
 from tectum.plugins.tracker.edge_align import _points_scene
@@ -32,7 +33,7 @@ def _scene(seed: int = 0) -> dict[str, Packet]:
 
 
 def _track(streams: dict[str, Packet | list[Packet]], **kw: object) -> tuple[PosePacket, EdgeAlign]:
-    op = EdgeAlign(calib=CALIB, bootstrap_us=BOOT, **{**KW, **kw})  # type: ignore[arg-type]
+    op = EdgeAlign(calib=CALIB, **{"bootstrap_us": BOOT, **KW, **kw})  # type: ignore[arg-type]
     out = feed_ports(op, {k: v if isinstance(v, list) else [v] for k, v in streams.items()})
     est = concat([q for q in out if isinstance(q, PosePacket)])
     assert isinstance(est, PosePacket)
@@ -258,3 +259,102 @@ def test_relocalises_on_a_map_whose_points_seldom_land_on_edges():
             continue
         assert op.counts["relocalised"] >= 1 and not est.lost[tail].any(), op.counts
         assert _errors(est)[tail].max() <= 0.015  # the points off the edges pull a little (1.2 cm at most)
+
+
+# -- the gyro (port imu) ---------------------------------------------------------------------------------------
+OMEGA = (0.2, 0.6, -0.3)  # rad/s, camera frame
+
+
+@lru_cache(maxsize=1)
+def _turning() -> dict[str, Packet]:
+    return _points_scene(duration_us=200_000, sensor=SENSOR, f=F, speed=SPEED, n_points=150, omega=OMEGA)
+
+
+def _with_gyro(gyro: np.ndarray) -> dict[str, Packet]:
+    s = dict(_turning())
+    imu = s["imu"]
+    assert isinstance(imu, ImuPacket)
+    s["imu"] = ImuPacket(imu.t, accel=imu.accel, gyro=gyro, t_start=imu.t_start, t_end=imu.t_end)
+    return s
+
+
+def _turn_errors(est: PosePacket, omega: tuple[float, float, float] = OMEGA) -> np.ndarray:
+    """Rotation errors (rad) of the rows against world-from-camera exp(ω t)."""
+    R = quat_to_rot(est.orientation)
+    true = so3_exp(np.outer(est.t * 1e-6, omega))
+    return np.linalg.norm(so3_log(np.einsum("nji,njk->nik", true, R)), axis=1)
+
+
+def test_the_gyro_sets_the_turn_between_steps():
+    """With a tight ``gyro_rad`` the tracked rotation is the gyro's, even a
+    wrong gyro's: the rows turn at the gyro's rate, not the camera's. With
+    the true gyro the rows are as good as without it or better."""
+    s = _turning()
+    imu = s["imu"]
+    assert isinstance(imu, ImuPacket)
+    boot_end = BOOT
+    est, op = _track(dict(s), gyro_rad=1e-7)
+    after = est.t >= boot_end
+    assert op.counts["gyro_steps"] == op.counts["tracked"] > 100
+    assert _turn_errors(est)[after].max() < 2e-3
+    wrong = (OMEGA[0], OMEGA[1] + 0.3, OMEGA[2])
+    est_w, op_w = _track(_with_gyro(np.tile(wrong, (len(imu), 1))), gyro_rad=1e-7, gyro_bias=(0.0, 0.0, 0.0))
+    good = ~est_w.lost & (est_w.t >= boot_end + 20_000)
+    assert good.sum() > 50
+    # relative to the bootstrap's last pose the rows turn by the wrong gyro
+    t_last = int(est_w.t[~est_w.lost & (est_w.t < boot_end)][-1]) if (est_w.t < boot_end).any() else boot_end
+    R0 = so3_exp(np.asarray(OMEGA) * t_last * 1e-6)
+    R = quat_to_rot(est_w.orientation[good])
+    dt = (est_w.t[good] - t_last) * 1e-6
+    want = np.einsum("ij,njk->nik", R0, so3_exp(np.outer(dt, wrong)))
+    err = np.linalg.norm(so3_log(np.einsum("nji,njk->nik", want, R)), axis=1)
+    assert err.max() < 2e-3, err.max()
+    assert _turn_errors(est_w)[good].max() > 0.02  # and so away from the camera's own turn
+
+
+def test_the_gyro_bias_is_measured_over_the_bootstrap():
+    s = _turning()
+    imu = s["imu"]
+    assert isinstance(imu, ImuPacket)
+    bias = np.array([0.02, -0.03, 0.01])
+    est, op = _track(_with_gyro(imu.gyro + bias), gyro_rad=1e-7, bootstrap_us=60_000)
+    np.testing.assert_allclose(op._bias, bias, atol=2e-3)
+    assert _turn_errors(est)[est.t >= 60_000].max() < 3e-3
+    # a bias given is kept as it is
+    _, op2 = _track(_with_gyro(imu.gyro + bias), gyro_rad=1e-7, bootstrap_us=60_000, gyro_bias=(0.0, 0.0, 0.0))
+    np.testing.assert_array_equal(op2._bias, np.zeros(3))
+
+
+def test_gyro_samples_that_are_not_finite_are_dropped_and_counted():
+    s = _turning()
+    imu = s["imu"]
+    assert isinstance(imu, ImuPacket)
+    gyro = imu.gyro.copy()
+    gyro[50:53, 1] = np.nan
+    est, op = _track(_with_gyro(gyro), gyro_rad=1e-7)
+    assert op.counts["imu_dropped"] == 3
+    assert np.isfinite(est.orientation).all() and _turn_errors(est)[est.t >= BOOT].max() < 2e-3
+
+
+def test_a_gyro_asked_for_without_samples_is_an_error():
+    s = {k: v for k, v in _turning().items() if k != "imu"}
+    with pytest.raises(ValueError, match="gyro_rad=0.001 but no gyro sample came on port 'imu'"):
+        _track(s, gyro_rad=1e-3)
+    with pytest.raises(ValueError, match="gyro_rad >= 0"):
+        EdgeAlign(calib=CALIB, gyro_rad=-1.0)
+    with pytest.raises(ValueError, match="gyro_bias takes 3"):
+        EdgeAlign(calib=CALIB, gyro_bias=(0.1, 0.2))
+    with pytest.raises(ValueError, match="imu_rotation takes 3 numbers"):
+        EdgeAlign(calib=CALIB, imu_rotation=(0.1, 0.2))
+
+
+def test_the_imu_rotation_turns_the_gyro_into_the_camera_frame():
+    """A gyro mounted with its axes as diag(-1, 1, -1) of the camera's
+    (DAVIS240's), given ``imu_rotation`` (a half turn about y), tracks as
+    the camera's own gyro."""
+    s = _turning()
+    imu = s["imu"]
+    assert isinstance(imu, ImuPacket)
+    est, _ = _track(_with_gyro(imu.gyro * np.array([-1.0, 1.0, -1.0])), gyro_rad=1e-7,
+                    imu_rotation=(0.0, np.pi, 0.0))
+    assert _turn_errors(est)[est.t >= BOOT].max() < 2e-3

@@ -38,6 +38,23 @@ def test_expansion_wires_the_loop_and_the_bootstrap() -> None:
     assert plan.loops == (("evo.tracker", "evo.mapper"),)
 
 
+def test_the_gyro_goes_to_the_tracker() -> None:
+    """A source's IMU feeds the tracker's ``imu`` port, with the gyro's
+    parameters, and nothing of it the mapper."""
+    p = tectum.Pipeline()
+    cam = p.source("pattern:", id="cam")
+    imu = p.source(ListSource([tectum.ImuPacket.empty(0, 10)], produces=[Kind.IMU]), id="imu")
+    p.op("tracker.evo", events=cam, imu=imu, id="evo", calib="40;40;20;15", gyro_rad=1e-5,
+         gyro_bias=(0.0, 0.01, 0.0), imu_rotation=(0.0, 3.14159, 0.0), imu_time_offset_us=-300)
+    plan = p.validate()
+    tr, mp = plan.nodes["evo.tracker"], plan.nodes["evo.mapper"]
+    assert tr.ports["imu"] == "imu" and "imu" not in mp.ports
+    assert {k: tr.params[k] for k in ("gyro_rad", "gyro_bias", "imu_rotation", "imu_time_offset_us")} == {
+        "gyro_rad": 1e-5, "gyro_bias": (0.0, 0.01, 0.0), "imu_rotation": (0.0, 3.14159, 0.0),
+        "imu_time_offset_us": -300}
+    assert not set(mp.params) & {"gyro_rad", "gyro_bias", "imu_rotation", "imu_time_offset_us"}
+
+
 def test_parameters_not_given_keep_each_operators_default() -> None:
     """The macro passes on only what it was given: the tracker's window and
     step are ``tracker.edge_align``'s own defaults, not numbers of the macro."""
