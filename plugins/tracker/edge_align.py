@@ -364,10 +364,12 @@ class EdgeAlign(Operator):
             raise ValueError(f"tracker.edge_align: bootstrap_us={self.bootstrap_us} but no pose came on port 'poses' "
                              f"for the {self.counts['bootstrap_steps']} steps: connect the bootstrap's poses (a "
                              "source with poses, e.g. simulate:SCENE?poses=true)")
-        if self.gyro_rad and self.counts["tracked"] and not self.counts["gyro_steps"] and not self._gt.size:
+        steps = self.counts["steps"] - self.counts["bootstrap_steps"]  # the steps that would have used it
+        if self.gyro_rad and steps and not self.counts["gyro_steps"] and not self._gt.size:
             raise ValueError(f"tracker.edge_align: gyro_rad={self.gyro_rad} but no gyro sample came on port 'imu' "
-                             f"for the {self.counts['tracked']} tracked steps: connect an IMU (a source with one, "
-                             "e.g. a DAVIS recording), or leave gyro_rad at 0")
+                             f"for the {steps} steps after the bootstrap: connect an IMU (a source with one, e.g. "
+                             "a DAVIS recording, or simulate:SCENE?davis=true of a scene whose davis section has "
+                             "imu_rate_hz), or leave gyro_rad at 0")
         return ()
 
     def _add_maps(self, maps: MapPacket) -> None:

@@ -103,6 +103,18 @@ def test_a_bootstrap_without_poses_is_a_one_line_error(tmp_path: Any, capsys: py
     assert "bootstrap_us=20000 but no pose came on port 'poses'" in err[-1] and "Traceback" not in "".join(err)
 
 
+def test_a_gyro_without_an_imu_is_a_one_line_error(tmp_path: Any, capsys: pytest.CaptureFixture[str]) -> None:
+    """``gyro_rad`` asked for on a source without an IMU: one line naming
+    the missing gyro and a non-zero exit, not a run that quietly went
+    without it."""
+    rc = cli(["run", "simulate:plane_6dof?poses=true&duration_us=60000&sensor=120x90", "--op",
+              f"tracker.evo:bootstrap_us=20000,gyro_rad=0.0001,calib={_calib('120x90')}", "--sink",
+              str(tmp_path / "traj.tum"), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc != 0
+    assert "gyro_rad=0.0001 but no gyro sample came on port 'imu'" in err[-1] and "Traceback" not in "".join(err)
+
+
 #: a textured plane 2 m away, the camera moving in 6 DoF (slow and smooth)
 PLANE: dict[str, Any] = {
     "planes": [{"center": [0, 0, 2.0], "texture": {"kind": "noise", "size": 512, "contrast": 0.6},
