@@ -279,7 +279,6 @@ def interpolate_poses_kernel(tq, t, position, orientation, out_pos, out_ori, val
 @njit(cache=True, nogil=True)
 def _gyro_step(w, dt, out):  # type: ignore[no-untyped-def]
     """``exp(hat(w) dt)`` into ``out``: ``w`` rad/s (3,), ``dt`` s."""
-    out[:] = 0.0
     so3_exp_kernel(w * dt, out)
 
 

@@ -61,8 +61,8 @@ the gyro and the bootstrap poses' turn over the bootstrap (else zero). A
 step whose span the samples do not reach (none at or before its start, or
 the last more than :data:`GYRO_HOLD_US` before its end) falls back to the
 constant-velocity prediction. Non-finite samples are dropped (counted in
-``counts["imu_dropped"]``); a run that tracked without one sample is an
-error at its end.
+``counts["imu_dropped"]``); a run with steps after the bootstrap and not
+one sample is an error at its end.
 
 Lost: a step is lost when fewer than ``min_points`` map points are in
 view; when its aligned points land on edges (E ≥ 0.5) for less than
