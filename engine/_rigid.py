@@ -273,9 +273,7 @@ def interpolate_poses_kernel(tq, t, position, orientation, out_pos, out_ori, val
         quat_slerp_kernel(orientation[j], orientation[j + 1], s, out_ori[i])
 
 
-# -- loops over stacks ------------------------------------------------------------
-# One loop per kernel: a loop taking the kernel as an argument is not cached by
-# numba (its dispatcher type differs in each process), so it would compile anew.
+# -- a gyro's samples integrated -------------------------------------------------
 @njit(cache=True, nogil=True)
 def _gyro_step(w, dt, out):  # type: ignore[no-untyped-def]
     """``exp(hat(w) dt)`` into ``out``: ``w`` rad/s (3,), ``dt`` s."""
@@ -337,6 +335,9 @@ def gyro_turn(knot_t, knot_w, t0, t1):  # type: ignore[no-untyped-def]
     return out
 
 
+# -- loops over stacks ------------------------------------------------------------
+# One loop per kernel: a loop taking the kernel as an argument is not cached by
+# numba (its dispatcher type differs in each process), so it would compile anew.
 @njit(cache=True, nogil=True)
 def _so3_exp_many(w, out):  # type: ignore[no-untyped-def]
     for i in range(w.shape[0]):

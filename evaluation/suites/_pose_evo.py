@@ -52,7 +52,7 @@ from tectum.evaluation.metrics.trajectory import trajectory_scores
 from tectum.evaluation.suites._map_emvs import _simulate
 from tectum.plugins.map.emvs import Emvs
 from tectum.plugins.tracker.edge_align import EdgeAlign
-from tectum.sources.simulate import load_scene
+from tectum.sources.simulate import Simulator, load_scene
 
 #: a textured plane 2 m in front of a camera moving in 6 DoF (a slower, coarser ``plane_6dof``:
 #: about 0.5 Mev/s at 240x180, DAVIS240-class)
@@ -69,8 +69,13 @@ def simulate(scene: str | dict[str, Any], duration_us: int, **model: Any) -> tup
     """Events, true poses (1 kHz) and inline intrinsics of a simulated run at
     240x180, seed 1 (the EMVS bench's simulation)."""
     ev, poses, sim = _simulate(scene, duration_us, **model)
+    return ev, poses, _calib(sim)
+
+
+def _calib(sim: Simulator) -> str:
+    """The simulated camera's intrinsics inline (``fx;fy;cx;cy``, px)."""
     f, cx, cy = (float(v) for v in sim.truth["camera"])
-    return ev, poses, f"{f};{f};{cx};{cy}"
+    return f"{f};{f};{cx};{cy}"
 
 
 def simulate_gyro(scene: str | dict[str, Any], duration_us: int, gyro: dict[str, Any], **model: Any
@@ -80,10 +85,9 @@ def simulate_gyro(scene: str | dict[str, Any], duration_us: int, gyro: dict[str,
     ``gyro_bias``; the IMU draws from its own random stream, so the events
     and poses are those of :func:`simulate`)."""
     ev, poses, sim = _simulate({**load_scene(scene), "davis": gyro}, duration_us, **model)
-    f, cx, cy = (float(v) for v in sim.truth["camera"])
     tr = sim.truth
     imu = ImuPacket(tr["imu_t"], accel=tr["imu_accel"], gyro=tr["imu_gyro"], t_start=ev.t_start, t_end=ev.t_end)
-    return ev, poses, f"{f};{f};{cx};{cy}", imu
+    return ev, poses, _calib(sim), imu
 
 
 def evo_loop(events: EventPacket, truth: PosePacket, calib: str, bootstrap_us: int, slice_us: int = 5000,

@@ -456,15 +456,16 @@ class EdgeAlign(Operator):
         exp(-b T)``). Left as it is when the gyro does not cover them."""
         a = max(int(self._bt[0]), int(self._gt[0]) if self._gt.size else int(self._bt[-1]))
         edges = np.arange(a, int(self._bt[-1]) + 1, BIAS_SPAN_US)
+        R_wc = np.asarray(quat_to_rot(interpolate_poses(edges, self._bt, self._bp, self._bq)[1])).reshape(-1, 3, 3)
         gaps = []
         raw, self._bias = self._bias, np.zeros(3)
-        for t0, t1 in zip(edges[:-1], edges[1:]):
-            G = self._gyro(int(t0), int(t1))
+        for i in range(len(edges) - 1):
+            t0, t1 = int(edges[i]), int(edges[i + 1])
+            G = self._gyro(t0, t1)
             if G is None:
                 continue
-            R0, _ = self._bootstrap_pose(int(t0))
-            R1, _ = self._bootstrap_pose(int(t1))
-            gaps.append(-np.asarray(so3_log(G @ (R1 @ R0.T).T)) / ((t1 - t0) * 1e-6))
+            turn = R_wc[i + 1].T @ R_wc[i]  # camera at t1 from camera at t0, by the poses
+            gaps.append(-np.asarray(so3_log(G @ turn.T)) / ((t1 - t0) * 1e-6))
         self._bias = np.mean(gaps, axis=0) if gaps else raw
 
     def _add_events(self, ev: EventPacket) -> None:
