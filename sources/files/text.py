@@ -38,6 +38,8 @@ from ._text_swar import REACH, fast_lines
 __all__ = ["TextSource", "parse_lines"]
 
 _UNIT_DIGITS = {"s": 6, "ms": 3, "us": 0, "ns": -3}
+#: the events file of a sequence folder of the RPG event-camera dataset (a folder given as the path opens it)
+EVENTS_FILE = "events.txt"
 _HOLD = 1 << 21  # events held in memory while inferring the sensor size
 _HOLD_BYTES = 1 << 26  # text held (for error offsets) while inferring the sensor size
 _RUNS = 4096  # runs of bad lines one parse_lines call records
@@ -469,6 +471,10 @@ class TextSource(FileSource):
     companions:
         Read ``imu.txt``, ``groundtruth.txt`` and ``images.txt`` beside an
         ``events.txt`` as IMU, pose and frame streams.
+
+    The path may be a sequence folder of the RPG event-camera dataset
+    layout (``events.txt`` and its companions in it): it opens that folder's
+    ``events.txt``.
     """
 
     name = "text"
@@ -478,7 +484,7 @@ class TextSource(FileSource):
 
     def __init__(self, path: str, columns: str | None = None, time_unit: str | None = None,
                  companions: bool = True, **kw: Any) -> None:
-        super().__init__(path, **kw)
+        super().__init__(_events_file(os.fspath(path)), **kw)
         if columns is not None and sorted(columns) != sorted("txyp"):
             raise ValueError(f"columns must be a permutation of 'txyp', got {columns!r}")
         if time_unit is not None and time_unit not in _UNIT_DIGITS:
@@ -494,11 +500,22 @@ class TextSource(FileSource):
         return looks_like_events_text(head)
 
     @classmethod
+    def sniff_dir(cls, path: str) -> bool:
+        """A sequence folder of the RPG event-camera dataset layout: its
+        ``events.txt`` (the companions beside it), when that file's head
+        reads as events text."""
+        try:
+            with open(os.path.join(path, EVENTS_FILE), "rb", buffering=0) as f:
+                return looks_like_events_text(f.read(4096))
+        except OSError:
+            return False
+
+    @classmethod
     def kinds_for(cls, arg: str, params: Mapping[str, Any]) -> tuple[Kind, ...]:
         """Events, and the companion streams whose files lie beside ``arg``."""
         if not params.get("companions", True):
             return (Kind.EVENTS,)
-        folder = os.path.dirname(os.path.abspath(arg.split("?", 1)[0]))
+        folder = os.path.dirname(os.path.abspath(_events_file(arg.split("?", 1)[0])))
         beside = {Kind.IMU: "imu.txt", Kind.POSES: "groundtruth.txt", Kind.FRAMES: "images.txt"}
         return (Kind.EVENTS, *(k for k, n in beside.items() if os.path.isfile(os.path.join(folder, n))))
 
@@ -699,6 +716,12 @@ class TextSource(FileSource):
                 continue
             end = imgs[k + 1][0] if k + 1 < len(imgs) else t + 1
             yield FramePacket(np.array([t], np.int64), images=img[None], t_start=t, t_end=max(end, t + 1))
+
+
+def _events_file(path: str) -> str:
+    """``path``, or the :data:`EVENTS_FILE` inside it when it is a folder
+    (a sequence of the RPG event-camera dataset)."""
+    return os.path.join(path, EVENTS_FILE) if os.path.isdir(path) else path
 
 
 def _to_us(s: bytes) -> int:

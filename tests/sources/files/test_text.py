@@ -4,6 +4,8 @@ the sensor size inferred from one pass or two gives the same events."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -76,3 +78,39 @@ def test_sensor_from_one_pass_or_two(tmp_path: Path, monkeypatch) -> None:
     twice, _ = _read(f, chunk_bytes=4096)
     assert held.sensor == twice.sensor == (40, 30)
     assert all(np.array_equal(getattr(held, c), getattr(twice, c)) for c in "txyp") and len(held) == 2999
+
+
+def _tectum(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "tectum", *args], capture_output=True, text=True)
+
+
+def test_a_sequence_folder_opens_as_its_events_txt(tmp_path: Path) -> None:
+    """A folder of the RPG event-camera dataset layout (``events.txt`` with
+    ``groundtruth.txt`` beside it) is a recording: ``info``, ``convert`` and
+    ``run`` take the folder as they take its ``events.txt``, companions
+    included; a folder without an events file stays a one-line error."""
+    seq = tmp_path / "slider"
+    seq.mkdir()
+    _file(seq, LINES)
+    (seq / "groundtruth.txt").write_text("0.000001 1 2 3 0 0 0 1\n0.000003 2 2 3 0 0 0 1\n")
+    info = _tectum("info", str(seq))
+    assert info.returncode == 0, info.stderr
+    assert "events: 4" in info.stdout and "poses 2" in info.stdout and str(seq / "events.txt") in info.stdout
+    for arg, out in ((seq, tmp_path / "a.h5"), (seq / "events.txt", tmp_path / "b.h5")):
+        r = _tectum("convert", str(arg), str(out))
+        assert r.returncode == 0, r.stderr
+    r = _tectum("run", str(tmp_path / "a.h5"), "--sink", str(tmp_path / "a.npz"))
+    assert r.returncode == 0, r.stderr
+    h5 = [_tectum("info", str(tmp_path / n)).stdout.split("file:")[1].split("\n", 1)[1] for n in ("a.h5", "b.h5")]
+    assert h5[0] == h5[1] and "poses 2" in h5[0]
+    assert np.load(tmp_path / "a.npz")["t"].tolist() == [1, 2, 3, 4]
+    r = _tectum("run", str(seq), "--op", "filter.refractory:period_us=1", "--sink", str(tmp_path / "c.npz"))
+    assert r.returncode == 0, r.stderr
+    assert np.load(tmp_path / "c.npz")["t"].tolist() == [1, 2, 3, 4]
+    r = _tectum("run", str(seq), "--sink", str(tmp_path / "p.tum"))  # wired by the folder's kinds: poses
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "p.tum").read_text().splitlines()[1:] == ["0.000001 1.0 2.0 3.0 0.0 0.0 0.0 1.0",
+                                                                 "0.000003 2.0 2.0 3.0 0.0 0.0 0.0 1.0"]
+    (seq / "events.txt").rename(seq / "other.txt")
+    r = _tectum("info", str(seq))
+    assert r.returncode != 0 and r.stderr.count("\n") == 1 and "a folder that no source recognises" in r.stderr
