@@ -27,6 +27,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     from tectum import accepts
     from tectum._stats import amounts
+    from tectum.sources.files._common import FROM_EXTENT
 
     from ._args import open_source, split_query
     from ._progress import Progress, wanted
@@ -65,6 +66,10 @@ def main(args: argparse.Namespace) -> int:
         refused[kind] = refused.get(kind, 0) + n
     for line in unwritten_lines(out, type(sink), refused):
         print(line, file=sys.stderr)
+    size = getattr(sink, "sensor", None)
+    if getattr(src, "sensor_from", None) == FROM_EXTENT and size and getattr(sink, "stores_sensor", False):
+        print(f"{out}: sensor {size[0]}x{size[1]} written, from {FROM_EXTENT}: the input does not say "
+              f"(--sensor WIDTHxHEIGHT gives the camera's)", file=sys.stderr)
     skipped = getattr(src, "skipped_events", 0)
     extra = f", skipped {skipped}" if skipped else ""
     print(f"{amounts(written) or '0 events'} -> {out}{extra}")

@@ -28,7 +28,8 @@ def main(args: argparse.Namespace) -> int:
         return 0
     s = info.get("sensor")
     lines = [("file", info["path"]), ("format", info["format"]),
-             ("sensor", f"{s[0]}x{s[1]}" if s else "unknown"), ("events", f"{info['events']:,}"),
+             ("sensor", f"{s[0]}x{s[1]}{_sensor_from(info.get('sensor_from'))}" if s else "unknown"),
+             ("events", f"{info['events']:,}"),
              ("duration", f"{info['duration_us'] / 1e6:.6f} s"),
              ("first / last", f"{info['t_first_us']} / {info['t_last_us']} µs"),
              ("rate", f"{info['rate_mev_s']:.4f} Mev/s" if info["events"] else "no events"),
@@ -45,3 +46,14 @@ def main(args: argparse.Namespace) -> int:
     for k, v in lines:
         print(f"{k:>13}: {v}")
     return 0
+
+
+def _sensor_from(how: str | None) -> str:
+    """Where a sensor size the file does not say came from, for its line."""
+    from tectum.sources.files._common import FROM_EXTENT, FROM_OPTION
+
+    if not how:
+        return ""
+    if how == FROM_OPTION:
+        return f" (from {how})"
+    return f" (from {how}: the file does not say" + ("; --sensor gives the camera's)" if how == FROM_EXTENT else ")")

@@ -22,6 +22,8 @@ class FileSink(Sink):
     title: ClassVar[str] = ""
     holds: ClassVar[str] = ""
     consumes: ClassVar[tuple[Kind, ...]] = (Kind.EVENTS,)
+    #: Whether the file records the sensor size (a header's width and height)
+    stores_sensor: ClassVar[bool] = False
 
     def __init__(self, path: str) -> None:
         self.path = os.fspath(path)

@@ -71,6 +71,7 @@ class Aedat4Sink(FileSink):
     format = "aedat4"
     title = "AEDAT 4.0"
     extensions = (".aedat4",)
+    stores_sensor = True
     consumes = (Kind.EVENTS, Kind.FRAMES, Kind.IMU)
 
     def __init__(self, path: str, compression: str = "lz4", packet_events: int = 1 << 16, threads: int = 0,

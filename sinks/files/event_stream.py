@@ -34,6 +34,7 @@ class EventStreamSink(FileSink):
     format = "event_stream"
     title = "Event Stream 2.0"
     extensions = (".es",)
+    stores_sensor = True
     #: First-event times (µs) from which the file counts from the first packet's start.
     LIMIT = 1 << 28
 

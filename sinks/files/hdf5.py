@@ -58,6 +58,7 @@ class Hdf5Sink(Sink):
     title = "HDF5"
     holds = "every stream but results (Python objects)"
     extensions = (".h5", ".hdf5")
+    stores_sensor = True
     consumes: ClassVar[tuple[Kind, ...]] = (Kind.ANY,)
 
     def __init__(self, path: str, compression: str = "gzip", chunk_events: int = 1 << 16) -> None:

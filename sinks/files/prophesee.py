@@ -120,6 +120,8 @@ def encode_evt3(t, x, y, p, state, out):  # type: ignore[no-untyped-def]  # prag
 class _RawSink(FileSink):
     """Common part of the RAW writers: header with geometry and ``t0``."""
 
+    stores_sensor = True
+
     evt_line = ""
     fmt_line = ""
     limit = 1 << 32
@@ -200,6 +202,7 @@ class DatSink(FileSink):
     format = "dat"
     title = "DAT"
     extensions = (".dat",)
+    stores_sensor = True
 
     def _begin(self, packet: EventPacket) -> None:
         assert self.f is not None and self.sensor is not None

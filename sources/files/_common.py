@@ -34,9 +34,13 @@ from . import _kernels as K
 
 __all__ = ["FileSource", "EventAssembler", "SampleTiler", "ColumnPool", "parse_size", "byte_buffer",
            "read_full", "read_array", "read_prefixed_header", "sensor_from_header", "thread_count", "workers",
-           "DEFAULT_CHUNK_BYTES"]
+           "DEFAULT_CHUNK_BYTES", "FROM_OPTION", "FROM_EXTENT"]
 
 DEFAULT_CHUNK_BYTES = 1 << 22
+#: :attr:`FileSource.sensor_from` of a size given by the ``sensor`` option
+FROM_OPTION = "the sensor option"
+#: :attr:`FileSource.sensor_from` of a size read off the coordinates
+FROM_EXTENT = "the extent of the coordinates"
 
 #: Prophesee sensors whose RAW headers give no geometry, by ``system_ID``
 #: (Metavision SDK system ids) or plugin name fragment.
@@ -677,6 +681,10 @@ class FileSource(Source):
         self.skipped_events = 0
         #: Byte ranges ``(first, last)`` holding what was dropped.
         self.skipped_ranges: list[tuple[int, int]] = []
+        #: Where the sensor size came from when the file does not say it (a
+        #: phrase: :data:`FROM_OPTION`, :data:`FROM_EXTENT`, ...); None while
+        #: the file says it, or before the file is read.
+        self.sensor_from: str | None = None
         self._files: list[Any] = []
 
     # -- helpers for subclasses ------------------------------------------------
@@ -703,10 +711,21 @@ class FileSource(Source):
         raise FormatError(message, path=self.path, offset=offset)
 
     def _sensor(self, found: tuple[int, int] | None) -> tuple[int, int] | None:
+        """The sensor size the file says (``found``; checked against the
+        option), else the option's, else None (the caller finds it another
+        way and says how: :meth:`_sensor_guessed`)."""
         if self.sensor_opt and found and self.sensor_opt != found:
             self._fail(f"the file says sensor {found[0]}x{found[1]}, the option says "
                        f"{self.sensor_opt[0]}x{self.sensor_opt[1]}")
+        self.sensor_from = None if found or not self.sensor_opt else FROM_OPTION
         return found or self.sensor_opt
+
+    def _sensor_guessed(self, size: tuple[int, int], how: str = "") -> tuple[int, int]:
+        """``size`` (px), a sensor size the file does not say, found ``how``
+        (default :data:`FROM_EXTENT`: the largest coordinates + 1, a lower
+        bound of the camera's), recorded in :attr:`sensor_from`."""
+        self.sensor_from = how or FROM_EXTENT
+        return size
 
     # -- public ------------------------------------------------------------------
     def packets(self) -> Iterator[Packet]:
@@ -746,7 +765,7 @@ class FileSource(Source):
                 "t_first_us": first, "t_last_us": last, "duration_us": dur,
                 "rate_mev_s": (n / dur) if dur > 0 else 0.0,
                 "streams": {k: v for k, v in counts.items()}, "t0_offset_us": self.t0_offset,
-                "skipped_events": self.skipped_events}
+                "skipped_events": self.skipped_events, "sensor_from": self.sensor_from}
 
     @property
     def counts(self) -> dict[str, int]:

@@ -147,7 +147,7 @@ class Hdf5Source(FileSource):
             if ok.any():
                 w = max(w, int(np.max(xs[ok])) + 1)
                 hh = max(hh, int(np.max(ys[ok])) + 1)
-        return w, hh
+        return self._sensor_guessed((w, hh))
 
     def _dsec(self, h: Any) -> Iterator[Packet]:
         ev = h["events"]
@@ -203,7 +203,7 @@ class Hdf5Source(FileSource):
                 ok = _mvsec_rows(a) & (True if keep is None else keep)
                 if ok.any():
                     w, hh = max(w, int(a[ok, 0].max()) + 1), max(hh, int(a[ok, 1].max()) + 1)
-            sensor = (w, hh)
+            sensor = self._sensor_guessed((w, hh))
         asm = EventAssembler(self, sensor)
         for i in range(0, n, step):
             (a,), keep = self._reader.read([ds], i, min(n, i + step))

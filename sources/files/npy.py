@@ -71,7 +71,7 @@ class NpySource(FileSource):
             for a in self._read(f, start, n, step, dtype):
                 if a.size:
                     w, h = max(w, int(a[names["x"]].max()) + 1), max(h, int(a[names["y"]].max()) + 1)
-            sensor = (w, h)
+            sensor = self._sensor_guessed((w, h))
         asm = EventAssembler(self, sensor)
         for i, a in enumerate(self._read(f, start, n, step, dtype)):
             at = start + i * step * dtype.itemsize

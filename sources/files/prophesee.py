@@ -266,7 +266,7 @@ class RawSource(FileSource):
             if t.shape[0]:
                 w, h = max(w, int(x.max()) + 1), max(h, int(y.max()) + 1)
         f.seek(start)
-        return w, h
+        return self._sensor_guessed((w, h))
 
     def _events(self, f: Any, start: int, sensor: tuple[int, int]) -> Iterator[Packet]:
         """One packet per ``chunk_bytes`` of words (or sooner, when a
@@ -549,7 +549,7 @@ class DatSource(FileSource):
             _, x, y, _ = self._decode(records, state)
             if x.shape[0]:
                 w, h = max(w, int(x.max()) + 1), max(h, int(y.max()) + 1)
-        return w, h
+        return self._sensor_guessed((w, h))
 
     def _events(self, f: Any, pos: int, end: int, sensor: tuple[int, int]) -> Iterator[Packet]:
         """One packet per ``chunk_bytes`` of records, read :data:`_DAT_READ`

@@ -41,6 +41,8 @@ _UNIT_DIGITS = {"s": 6, "ms": 3, "us": 0, "ns": -3}
 #: the events file of a sequence folder of the RPG event-camera dataset (a folder given as the path opens it)
 EVENTS_FILE = "events.txt"
 _HOLD = 1 << 21  # events held in memory while inferring the sensor size
+#: :attr:`FileSource.sensor_from` of a size taken from the sequence's images
+FROM_IMAGES = "the first image of images.txt"
 _HOLD_BYTES = 1 << 26  # text held (for error offsets) while inferring the sensor size
 _RUNS = 4096  # runs of bad lines one parse_lines call records
 _DTYPES = (np.int64, np.uint16, np.uint16, np.int8)  # t, x, y, p
@@ -618,7 +620,7 @@ class TextSource(FileSource):
 
             img = cv2.imread(imgs[0][1], cv2.IMREAD_UNCHANGED)
             if img is not None:
-                return int(img.shape[1]), int(img.shape[0])
+                return self._sensor_guessed((int(img.shape[1]), int(img.shape[0])), FROM_IMAGES)
         return None
 
     def _beside(self, name: str) -> str | None:
@@ -669,7 +671,7 @@ class TextSource(FileSource):
                     self.skipped_events, self.skipped_ranges = 0, []  # counted by the pass that keeps the events
                     break
             self.close()
-            sensor = (int(state[1]) + 1, int(state[2]) + 1)
+            sensor = self._sensor_guessed((int(state[1]) + 1, int(state[2]) + 1))
             state[:] = 0
             if len(held) == 1:  # a file of one chunk: committed from the reservation it was parsed into, no copy
                 asm.sensor = sensor

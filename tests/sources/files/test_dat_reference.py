@@ -27,6 +27,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from tectum import EventPacket, FormatError
+from tectum.sources.files._common import FROM_EXTENT
 from tectum.sources.files.prophesee import DatSource
 
 WRAP = 1 << 32
@@ -111,7 +112,9 @@ def test_geometry_truncation_and_end_time(tmp_path: Path) -> None:
         read(path)
     assert e.value.offset == len(head) + 2 + len(body)
     assert read(path, skip_bad=True) == events
-    assert [q.sensor for q in DatSource(str(path), skip_bad=True).packets() if isinstance(q, EventPacket)][0] == (8, 10)
+    src = DatSource(str(path), skip_bad=True)
+    assert [q.sensor for q in src.packets() if isinstance(q, EventPacket)][0] == (8, 10)
+    assert src.sensor_from == FROM_EXTENT
     assert read(path, skip_bad=True, t_end_us=25) == events[:2]
     path.write_bytes(b"% evt 3.0\n" + bytes([12, 8]) + body)
     with pytest.raises(FormatError, match="RAW"):

@@ -27,6 +27,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from prophesee_raw import check_stream, read_raw, write_raw
 
+from tectum import EventPacket
+from tectum.sources.files._common import FROM_EXTENT, FROM_OPTION
 from tectum.sources.files.prophesee import Evt2Source
 
 HIGH_BITS = 28
@@ -120,6 +122,19 @@ def test_evt2_equals_the_reference(tmp_path: Path, case: tuple, chunk: int, data
     at = data.draw(st.integers(0, len(case[1])))
     bad = (data.draw(st.sampled_from(RESERVED)) << 28) | data.draw(st.integers(0, (1 << 28) - 1))
     check_stream(Evt2Source, tmp_path / "r.raw", header(case[0]), "I", case, reference, chunk, at, bad)
+
+
+def test_without_geometry_the_sensor_is_the_extent_of_the_coordinates(tmp_path: Path) -> None:
+    """No ``% geometry`` line: the size is the largest coordinates + 1, and
+    the source says where it came from (``tectum info`` prints it)."""
+    path = tmp_path / "g.raw"
+    write_raw(path, "% evt 2.0\n% end\n", [0x8 << 28, 1 << 28 | 5 << 22 | 11 << 11 | 6, 5 << 22 | 2 << 11 | 8], "I")
+    src = Evt2Source(str(path))
+    assert {q.sensor for q in src.packets() if isinstance(q, EventPacket)} == {(12, 9)}
+    assert src.sensor_from == FROM_EXTENT
+    src = Evt2Source(str(path), sensor="640x480")
+    assert {q.sensor for q in src.packets() if isinstance(q, EventPacket)} == {(640, 480)}
+    assert src.sensor_from == FROM_OPTION
 
 
 def test_time_high_wrap_fixed_case(tmp_path: Path) -> None:

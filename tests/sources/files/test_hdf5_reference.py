@@ -22,6 +22,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tectum import EventPacket
+from tectum.sources.files._common import FROM_EXTENT
 from tectum.sources.files.hdf5 import Hdf5Source
 
 h5py = pytest.importorskip("h5py")
@@ -111,6 +112,7 @@ def test_hdf5_equals_h5py(tmp_path_factory: pytest.TempPathFactory, d: dict[str,
     assert got == want
     extent = (max(e[1] for e in everything) + 1, max(e[2] for e in everything) + 1)
     assert {q.sensor for q in pkts} <= {sensor or extent}
+    assert src.sensor_from == (None if sensor else FROM_EXTENT)
 
 
 def test_an_events_dataset_at_the_root(tmp_path: Path) -> None:

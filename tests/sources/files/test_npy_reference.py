@@ -21,6 +21,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tectum import EventPacket, FormatError, concat
+from tectum.sources.files._common import FROM_EXTENT, FROM_OPTION
 from tectum.sources.files.npy import NpySource
 
 
@@ -58,7 +59,11 @@ def save(path: Path, a: np.ndarray, version: tuple[int, int]) -> Path:
 
 
 def events(path: Path, **kw: object) -> tuple[list[tuple[int, int, int, int]], set]:
-    pkts = [q for q in NpySource(str(path), **kw).packets() if isinstance(q, EventPacket)]
+    """The events, and the sensor sizes of their packets (checked to come
+    from the ``sensor`` option if given, else from the coordinates)."""
+    src = NpySource(str(path), **kw)
+    pkts = [q for q in src.packets() if isinstance(q, EventPacket)]
+    assert src.sensor_from == (FROM_OPTION if kw.get("sensor") else FROM_EXTENT)
     return [e for q in pkts for e in zip(q.t.tolist(), q.x.tolist(), q.y.tolist(), q.p.tolist())], {
         q.sensor for q in pkts}
 
