@@ -720,11 +720,11 @@ class FileSource(Source):
         self.sensor_from = None if found or not self.sensor_opt else FROM_OPTION
         return found or self.sensor_opt
 
-    def _sensor_guessed(self, size: tuple[int, int], how: str = "") -> tuple[int, int]:
+    def _sensor_guessed(self, size: tuple[int, int], how: str = FROM_EXTENT) -> tuple[int, int]:
         """``size`` (px), a sensor size the file does not say, found ``how``
         (default :data:`FROM_EXTENT`: the largest coordinates + 1, a lower
         bound of the camera's), recorded in :attr:`sensor_from`."""
-        self.sensor_from = how or FROM_EXTENT
+        self.sensor_from = how
         return size
 
     # -- public ------------------------------------------------------------------

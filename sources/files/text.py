@@ -40,9 +40,9 @@ __all__ = ["TextSource", "parse_lines"]
 _UNIT_DIGITS = {"s": 6, "ms": 3, "us": 0, "ns": -3}
 #: the events file of a sequence folder of the RPG event-camera dataset (a folder given as the path opens it)
 EVENTS_FILE = "events.txt"
-_HOLD = 1 << 21  # events held in memory while inferring the sensor size
 #: :attr:`FileSource.sensor_from` of a size taken from the sequence's images
 FROM_IMAGES = "the first image of images.txt"
+_HOLD = 1 << 21  # events held in memory while inferring the sensor size
 _HOLD_BYTES = 1 << 26  # text held (for error offsets) while inferring the sensor size
 _RUNS = 4096  # runs of bad lines one parse_lines call records
 _DTYPES = (np.int64, np.uint16, np.uint16, np.int8)  # t, x, y, p
